@@ -1,0 +1,106 @@
+//! Least-squares alignment of point sets (Umeyama 1991), as evo and the TUM tools use it.
+
+use crate::{Mat3, Se3, Vec3};
+
+/// A similarity transform `x -> s R x + t`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sim3 {
+    pub scale: f64,
+    pub rigid: Se3,
+}
+
+impl Sim3 {
+    /// The identity.
+    pub fn identity() -> Self {
+        Self {
+            scale: 1.0,
+            rigid: Se3::identity(),
+        }
+    }
+
+    /// Apply to a point.
+    pub fn transform_point(&self, p: &Vec3) -> Vec3 {
+        self.scale * (self.rigid.rotation * p) + self.rigid.translation.vector
+    }
+
+    /// Apply to a camera pose: rotation composed, position transformed.
+    pub fn transform_pose(&self, pose: &Se3) -> Se3 {
+        let t = self.transform_point(&pose.translation.vector);
+        Se3::from_parts(t.into(), self.rigid.rotation * pose.rotation)
+    }
+}
+
+/// The similarity (or rigid, when `with_scale` is false) transform minimising
+/// `Σ |dst_i - (s R src_i + t)|²`. `None` with fewer than 2 points (3 for a unique rotation is
+/// not required: the SVD picks one) or degenerate input (all source points equal).
+pub fn umeyama(src: &[Vec3], dst: &[Vec3], with_scale: bool) -> Option<Sim3> {
+    let n = src.len();
+    if n < 2 || dst.len() != n {
+        return None;
+    }
+    let nf = n as f64;
+    let mu_s = src.iter().sum::<Vec3>() / nf;
+    let mu_d = dst.iter().sum::<Vec3>() / nf;
+    let mut cov = Mat3::zeros();
+    let mut var_s = 0.0;
+    for (s, d) in src.iter().zip(dst) {
+        let ds = s - mu_s;
+        cov += (d - mu_d) * ds.transpose();
+        var_s += ds.norm_squared();
+    }
+    cov /= nf;
+    var_s /= nf;
+    if !(var_s > 1e-300) || !cov.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let svd = cov.svd(true, true);
+    let u = svd.u?;
+    let vt = svd.v_t?;
+    let mut sgn = Mat3::identity();
+    if u.determinant() * vt.determinant() < 0.0 {
+        sgn[(2, 2)] = -1.0;
+    }
+    let r = u * sgn * vt;
+    let scale = if with_scale {
+        (svd.singular_values.component_mul(&sgn.diagonal())).sum() / var_s
+    } else {
+        1.0
+    };
+    let t = mu_d - scale * r * mu_s;
+    let rot = nalgebra::UnitQuaternion::from_rotation_matrix(
+        &nalgebra::Rotation3::from_matrix_unchecked(r),
+    );
+    Some(Sim3 {
+        scale,
+        rigid: Se3::from_parts(t.into(), rot),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recovers_a_known_similarity() {
+        let truth = Sim3 {
+            scale: 1.7,
+            rigid: Se3::new(Vec3::new(1.0, -2.0, 3.0), Vec3::new(0.3, -0.2, 0.9)),
+        };
+        let src: Vec<Vec3> = (0..20)
+            .map(|i| {
+                let f = i as f64;
+                Vec3::new(f.sin(), (0.7 * f).cos(), 0.1 * f)
+            })
+            .collect();
+        let dst: Vec<Vec3> = src.iter().map(|p| truth.transform_point(p)).collect();
+        let est = umeyama(&src, &dst, true).unwrap();
+        assert!((est.scale - 1.7).abs() < 1e-9);
+        for (s, d) in src.iter().zip(&dst) {
+            assert!((est.transform_point(s) - d).norm() < 1e-9);
+        }
+        let rigid = umeyama(&src, &dst, false).unwrap();
+        assert_eq!(rigid.scale, 1.0);
+        assert!(umeyama(&src[..1], &dst[..1], true).is_none());
+        assert!(umeyama(&[Vec3::zeros(); 3], &dst[..3], true).is_none());
+    }
+}

@@ -1,0 +1,323 @@
+//! Plain image buffers shared by every stillpoint crate, and the PNG/JPEG IO they need.
+//!
+//! An image is a row-major `Vec` of pixels with its size; nothing more. Crates that call into
+//! other libraries (kornia, tract) convert at their border.
+//!
+//! ```
+//! use stillpoint_image::{Gray8, ImageBuf};
+//! let mut img = Gray8::new(4, 3, 0);
+//! img.set(1, 2, 200);
+//! assert_eq!(img.get(1, 2), 200);
+//! assert_eq!(img.data.len(), 12);
+//! ```
+
+use std::path::{Path, PathBuf};
+
+/// Errors from building or reading images.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageError {
+    #[error("{path}: cannot read image: {source}")]
+    Read {
+        path: PathBuf,
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    #[error("{path}: cannot write image: {source}")]
+    Write {
+        path: PathBuf,
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    #[error("{path}: expected a 16-bit single-channel depth PNG, found {found}")]
+    NotDepth16 { path: PathBuf, found: String },
+    #[error("image buffer of {len} pixels does not match size {width}x{height}")]
+    SizeMismatch {
+        width: usize,
+        height: usize,
+        len: usize,
+    },
+}
+
+/// A row-major image of `T` pixels.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImageBuf<T> {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<T>,
+}
+
+/// 8-bit grayscale.
+pub type Gray8 = ImageBuf<u8>;
+/// 8-bit RGB.
+pub type Rgb8 = ImageBuf<[u8; 3]>;
+/// Depth in metres; 0 (or non-finite) means no measurement.
+pub type DepthMetres = ImageBuf<f32>;
+
+impl<T: Clone> ImageBuf<T> {
+    /// An image filled with `value`.
+    pub fn new(width: usize, height: usize, value: T) -> Self {
+        Self {
+            width,
+            height,
+            data: vec![value; width * height],
+        }
+    }
+
+    /// Wrap a buffer, checking its length.
+    pub fn from_vec(width: usize, height: usize, data: Vec<T>) -> Result<Self, ImageError> {
+        if data.len() != width * height {
+            return Err(ImageError::SizeMismatch {
+                width,
+                height,
+                len: data.len(),
+            });
+        }
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+}
+
+impl<T: Copy> ImageBuf<T> {
+    /// Pixel at column `x`, row `y`. Panics when out of bounds, like slice indexing.
+    #[inline]
+    pub fn get(&self, x: usize, y: usize) -> T {
+        self.data[y * self.width + x]
+    }
+
+    /// Set the pixel at column `x`, row `y`.
+    #[inline]
+    pub fn set(&mut self, x: usize, y: usize, v: T) {
+        self.data[y * self.width + x] = v;
+    }
+
+    /// Pixel at (x, y) if inside the image.
+    #[inline]
+    pub fn get_checked(&self, x: isize, y: isize) -> Option<T> {
+        if x < 0 || y < 0 || x as usize >= self.width || y as usize >= self.height {
+            None
+        } else {
+            Some(self.get(x as usize, y as usize))
+        }
+    }
+
+    /// One row as a slice.
+    #[inline]
+    pub fn row(&self, y: usize) -> &[T] {
+        &self.data[y * self.width..(y + 1) * self.width]
+    }
+
+    /// True when the image holds no pixel.
+    pub fn is_empty(&self) -> bool {
+        self.width == 0 || self.height == 0
+    }
+}
+
+/// ITU-R 601 luma, as OpenCV's `cvtColor(RGB2GRAY)` computes it (fixed point, rounded).
+#[inline]
+pub fn luma(p: [u8; 3]) -> u8 {
+    ((p[0] as u32 * 4899 + p[1] as u32 * 9617 + p[2] as u32 * 1868 + (1 << 13)) >> 14) as u8
+}
+
+/// Convert RGB to grayscale.
+pub fn rgb_to_gray(rgb: &Rgb8) -> Gray8 {
+    ImageBuf {
+        width: rgb.width,
+        height: rgb.height,
+        data: rgb.data.iter().map(|&p| luma(p)).collect(),
+    }
+}
+
+fn read_err(path: &Path, e: impl std::error::Error + Send + Sync + 'static) -> ImageError {
+    ImageError::Read {
+        path: path.to_path_buf(),
+        source: Box::new(e),
+    }
+}
+
+fn write_err(path: &Path, e: impl std::error::Error + Send + Sync + 'static) -> ImageError {
+    ImageError::Write {
+        path: path.to_path_buf(),
+        source: Box::new(e),
+    }
+}
+
+/// Read any PNG/JPEG as 8-bit RGB (16-bit input is scaled down, gray is replicated).
+pub fn read_rgb(path: &Path) -> Result<Rgb8, ImageError> {
+    let img = image::ImageReader::open(path)
+        .map_err(|e| read_err(path, e))?
+        .with_guessed_format()
+        .map_err(|e| read_err(path, e))?
+        .decode()
+        .map_err(|e| read_err(path, e))?
+        .to_rgb8();
+    let (w, h) = img.dimensions();
+    let data = img.pixels().map(|p| p.0).collect();
+    Ok(ImageBuf {
+        width: w as usize,
+        height: h as usize,
+        data,
+    })
+}
+
+/// Read any PNG/JPEG as 8-bit grayscale (colour is converted with [`luma`]).
+pub fn read_gray(path: &Path) -> Result<Gray8, ImageError> {
+    let dynimg = image::ImageReader::open(path)
+        .map_err(|e| read_err(path, e))?
+        .with_guessed_format()
+        .map_err(|e| read_err(path, e))?
+        .decode()
+        .map_err(|e| read_err(path, e))?;
+    if let image::DynamicImage::ImageLuma8(g) = dynimg {
+        let (w, h) = g.dimensions();
+        return Ok(ImageBuf {
+            width: w as usize,
+            height: h as usize,
+            data: g.into_raw(),
+        });
+    }
+    let rgb = dynimg.to_rgb8();
+    let (w, h) = rgb.dimensions();
+    Ok(ImageBuf {
+        width: w as usize,
+        height: h as usize,
+        data: rgb.pixels().map(|p| luma(p.0)).collect(),
+    })
+}
+
+/// Read a 16-bit single-channel depth PNG as raw values.
+pub fn read_depth16(path: &Path) -> Result<ImageBuf<u16>, ImageError> {
+    let dynimg = image::ImageReader::open(path)
+        .map_err(|e| read_err(path, e))?
+        .with_guessed_format()
+        .map_err(|e| read_err(path, e))?
+        .decode()
+        .map_err(|e| read_err(path, e))?;
+    match dynimg {
+        image::DynamicImage::ImageLuma16(g) => {
+            let (w, h) = g.dimensions();
+            Ok(ImageBuf {
+                width: w as usize,
+                height: h as usize,
+                data: g.into_raw(),
+            })
+        }
+        other => Err(ImageError::NotDepth16 {
+            path: path.to_path_buf(),
+            found: format!("{:?}", other.color()),
+        }),
+    }
+}
+
+/// Read a 16-bit depth PNG and divide by `factor` (TUM: 5000 units per metre). Zero stays zero.
+pub fn read_depth_metres(path: &Path, factor: f32) -> Result<DepthMetres, ImageError> {
+    let raw = read_depth16(path)?;
+    Ok(ImageBuf {
+        width: raw.width,
+        height: raw.height,
+        data: raw.data.iter().map(|&d| d as f32 / factor).collect(),
+    })
+}
+
+/// Write an 8-bit grayscale PNG.
+pub fn write_gray(path: &Path, img: &Gray8) -> Result<(), ImageError> {
+    image::save_buffer(
+        path,
+        &img.data,
+        img.width as u32,
+        img.height as u32,
+        image::ExtendedColorType::L8,
+    )
+    .map_err(|e| write_err(path, e))
+}
+
+/// Write an 8-bit RGB PNG.
+pub fn write_rgb(path: &Path, img: &Rgb8) -> Result<(), ImageError> {
+    let flat: Vec<u8> = img.data.iter().flat_map(|p| p.iter().copied()).collect();
+    image::save_buffer(
+        path,
+        &flat,
+        img.width as u32,
+        img.height as u32,
+        image::ExtendedColorType::Rgb8,
+    )
+    .map_err(|e| write_err(path, e))
+}
+
+/// Write raw 16-bit values as a single-channel PNG (big-endian, as PNG requires).
+pub fn write_depth16(path: &Path, img: &ImageBuf<u16>) -> Result<(), ImageError> {
+    let file = std::fs::File::create(path).map_err(|e| write_err(path, e))?;
+    let mut enc = png::Encoder::new(
+        std::io::BufWriter::new(file),
+        img.width as u32,
+        img.height as u32,
+    );
+    enc.set_color(png::ColorType::Grayscale);
+    enc.set_depth(png::BitDepth::Sixteen);
+    enc.set_compression(png::Compression::Fast);
+    let mut w = enc.write_header().map_err(|e| write_err(path, e))?;
+    let bytes: Vec<u8> = img.data.iter().flat_map(|v| v.to_be_bytes()).collect();
+    w.write_image_data(&bytes).map_err(|e| write_err(path, e))
+}
+
+/// Write depth in metres as a 16-bit PNG with `factor` units per metre (non-finite or out of
+/// range values become 0 = no measurement).
+pub fn write_depth_metres(path: &Path, img: &DepthMetres, factor: f32) -> Result<(), ImageError> {
+    let raw = ImageBuf {
+        width: img.width,
+        height: img.height,
+        data: img
+            .data
+            .iter()
+            .map(|&d| {
+                let v = (d * factor).round();
+                if v.is_finite() && v > 0.0 && v <= u16::MAX as f32 {
+                    v as u16
+                } else {
+                    0
+                }
+            })
+            .collect(),
+    };
+    write_depth16(path, &raw)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn depth_roundtrip_is_exact_at_factor_resolution() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("d.png");
+        let d = ImageBuf::from_vec(3, 1, vec![0.0, 1.2346, f32::NAN]).unwrap();
+        write_depth_metres(&p, &d, 5000.0).unwrap();
+        let back = read_depth_metres(&p, 5000.0).unwrap();
+        assert_eq!(back.data[0], 0.0);
+        assert!((back.data[1] - 1.2346).abs() < 1e-4);
+        assert_eq!(back.data[2], 0.0);
+    }
+
+    #[test]
+    fn gray_png_roundtrip_and_clear_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("g.png");
+        let g = ImageBuf::from_vec(2, 2, vec![0u8, 50, 100, 255]).unwrap();
+        write_gray(&p, &g).unwrap();
+        assert_eq!(read_gray(&p).unwrap(), g);
+        // an 8-bit image is not a depth map
+        let err = read_depth16(&p).unwrap_err().to_string();
+        assert!(err.contains("16-bit"), "{err}");
+        let missing = read_gray(&dir.path().join("nope.png"))
+            .unwrap_err()
+            .to_string();
+        assert!(missing.contains("nope.png"), "{missing}");
+        std::fs::write(&p, b"not a png").unwrap();
+        assert!(read_rgb(&p).is_err());
+    }
+
+    #[test]
+    fn size_mismatch_is_an_error() {
+        assert!(ImageBuf::from_vec(2, 2, vec![0u8; 3]).is_err());
+    }
+}

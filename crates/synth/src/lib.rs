@@ -1,0 +1,1 @@
+//! stillpoint-synth: see the crate's issue; filled in by its owner.

@@ -1,0 +1,8 @@
+//! One module per subcommand; each owns its clap arguments and its `run`.
+
+pub mod bench;
+pub mod demo;
+pub mod detect;
+pub mod eval;
+pub mod run;
+pub mod synth;

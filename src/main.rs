@@ -1,0 +1,64 @@
+//! `stillpoint`: a thin command line over the library crates. Results go to stdout, progress and
+//! logs to stderr; every command that reports numbers takes `--json`.
+
+use clap::{Parser, Subcommand};
+
+mod cmd;
+
+#[derive(Parser)]
+#[command(
+    name = "stillpoint",
+    version,
+    about = "Visual SLAM that stays accurate when the world moves"
+)]
+struct Cli {
+    /// Log level for stderr (error, warn, info, debug, trace); RUST_LOG overrides it.
+    #[arg(long, global = true, default_value = "info")]
+    log: String,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Generate a synthetic dynamic sequence, run SLAM with the dynamic front-end off and on, print ATE.
+    Demo(cmd::demo::Args),
+    /// Run SLAM on a dataset and write the trajectory.
+    Run(cmd::run::Args),
+    /// Write a synthetic dynamic sequence with exact ground truth.
+    Synth(cmd::synth::Args),
+    /// Detect objects (YOLOX) in images.
+    Detect(cmd::detect::Args),
+    /// Evaluate trajectories (ATE, RPE, KITTI metric).
+    #[command(subcommand)]
+    Eval(cmd::eval::EvalCommand),
+    /// Benchmarks: speed and accuracy, reported as ratios against references.
+    #[command(subcommand)]
+    Bench(cmd::bench::BenchCommand),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(&cli.log));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .init();
+    let result = match cli.command {
+        Command::Demo(a) => cmd::demo::run(a),
+        Command::Run(a) => cmd::run::run(a),
+        Command::Synth(a) => cmd::synth::run(a),
+        Command::Detect(a) => cmd::detect::run(a),
+        Command::Eval(c) => cmd::eval::run(c),
+        Command::Bench(c) => cmd::bench::run(c),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
