@@ -5,6 +5,7 @@
 //! name says otherwise; pixel (u, v) has u to the right and v down; camera z looks forward.
 
 pub mod align;
+pub mod bbox;
 pub mod camera;
 pub mod epipolar;
 

@@ -1,0 +1,68 @@
+//! Camera and front-end settings, as ORB-SLAM's settings files carry them.
+
+use serde::{Deserialize, Serialize};
+use stillpoint_geometry::PinholeCamera;
+
+/// What the sequence provides.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Sensor {
+    Rgbd,
+    Stereo,
+    Mono,
+}
+
+/// ORB extractor settings (`ORBextractor.*` in ORB-SLAM files).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OrbSettings {
+    pub n_features: usize,
+    pub scale_factor: f32,
+    pub n_levels: usize,
+    pub ini_th_fast: u8,
+    pub min_th_fast: u8,
+}
+
+impl Default for OrbSettings {
+    /// ORB-SLAM's TUM settings: 1000 features, 1.2, 8 levels, FAST 20 / 7.
+    fn default() -> Self {
+        Self {
+            n_features: 1000,
+            scale_factor: 1.2,
+            n_levels: 8,
+            ini_th_fast: 20,
+            min_th_fast: 7,
+        }
+    }
+}
+
+/// Everything needed to interpret a sequence's images.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Settings {
+    pub sensor: Sensor,
+    /// Left / only camera (distortion included).
+    pub camera: PinholeCamera,
+    /// Frames per second (`Camera.fps`).
+    pub fps: f64,
+    /// Raw depth units per metre (`DepthMapFactor`; TUM 5000). Depth images are divided by it.
+    pub depth_factor: f64,
+    /// Stereo baseline times fx, in pixel-metres (`Camera.bf`); RGB-D uses it for the virtual
+    /// right coordinate and the close/far split.
+    pub bf: Option<f64>,
+    /// Close/far threshold in baselines (`ThDepth`): close when depth < th_depth * bf / fx.
+    pub th_depth: f64,
+    /// True when the images are RGB (`Camera.RGB: 1`), false for BGR.
+    pub rgb: bool,
+    pub orb: OrbSettings,
+}
+
+impl Settings {
+    /// Baseline in metres, when `bf` is known.
+    pub fn baseline(&self) -> Option<f64> {
+        self.bf.map(|bf| bf / self.camera.fx)
+    }
+
+    /// Depth below which a point is "close" (ORB-SLAM: ThDepth baselines).
+    pub fn close_depth(&self) -> Option<f64> {
+        self.baseline().map(|b| b * self.th_depth)
+    }
+}
