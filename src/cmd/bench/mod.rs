@@ -1,14 +1,28 @@
-//! `stillpoint bench`: one module per benchmark.
+//! `stillpoint bench`: one module per benchmark. Speed is reported as ratios against a reference
+//! measured in the same run; accuracy as the metric itself.
+
+pub mod detect;
+pub mod dynamic;
+pub mod features;
+pub mod tum;
 
 #[derive(clap::Subcommand)]
 pub enum BenchCommand {
-    /// Feature front-end speed (ORB, Harris, LK).
-    Features(NotYet),
+    /// Feature front-end speed (ORB, Harris, LK) per stage.
+    Features(features::Args),
+    /// Detector latency per backend, thread count and input size.
+    Detect(detect::Args),
+    /// Precision/recall of the dynamic-keypoint decision against ground-truth masks.
+    Dynamic(dynamic::Args),
+    /// SLAM accuracy table (ATE, RPE) with the dynamic front-end on and off.
+    Tum(tum::Args),
 }
 
-#[derive(clap::Args)]
-pub struct NotYet {}
-
-pub fn run(_cmd: BenchCommand) -> anyhow::Result<()> {
-    anyhow::bail!("not implemented yet")
+pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
+    match cmd {
+        BenchCommand::Features(a) => features::run(a),
+        BenchCommand::Detect(a) => detect::run(a),
+        BenchCommand::Dynamic(a) => dynamic::run(a),
+        BenchCommand::Tum(a) => tum::run(a),
+    }
 }
