@@ -8,8 +8,11 @@ pub mod align;
 pub mod bbox;
 pub mod camera;
 pub mod epipolar;
+pub mod fundamental;
+pub mod homography;
 
 pub use align::{Sim3, umeyama};
+pub use bbox::BBox;
 pub use camera::{PinholeCamera, RadTan};
 pub use epipolar::{epipolar_distance, fundamental_from_poses};
 
