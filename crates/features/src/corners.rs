@@ -1,0 +1,425 @@
+//! Harris / Shi-Tomasi corners with sub-pixel refinement, as OpenCV's `goodFeaturesToTrack` and
+//! `cornerSubPix` compute them (DS-SLAM's and the paper's geometry module call those two).
+
+use crate::imgops::{reflect101, simd_fn};
+use crate::valid;
+use stillpoint_image::Gray8;
+
+/// Corner detection settings. `Default` = the paper's geometry module (DS-SLAM's
+/// `goodFeaturesToTrack(.., 1000, 0.01, 8, Mat(), 3, true, 0.04)` and
+/// `cornerSubPix(.., Size(10, 10), Size(-1, -1), TermCriteria(EPS + COUNT, 20, 0.03))`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CornerParams {
+    /// Most corners returned, strongest first (paper: 1000).
+    pub max_corners: usize,
+    /// Corners weaker than this fraction of the strongest response are dropped (paper: 0.01).
+    pub quality_level: f32,
+    /// Smallest distance between returned corners in pixels (paper: 8).
+    pub min_distance: f32,
+    /// Side of the window summing the gradient products (paper: 3).
+    pub block_size: usize,
+    /// Harris response (true, paper) or Shi-Tomasi minimum eigenvalue (false).
+    pub use_harris: bool,
+    /// Harris `k` (paper: 0.04).
+    pub harris_k: f32,
+    /// Half-size of the sub-pixel window (OpenCV `winSize` 10 → 21 x 21 px; paper: 10x10);
+    /// 0 switches refinement off.
+    pub subpix_half_window: usize,
+    /// Sub-pixel iterations (paper: 20).
+    pub subpix_max_iterations: usize,
+    /// Sub-pixel stop when the update is below this many pixels (paper: 0.03).
+    pub subpix_epsilon: f32,
+}
+
+impl Default for CornerParams {
+    fn default() -> Self {
+        Self {
+            max_corners: 1000,
+            quality_level: 0.01,
+            min_distance: 8.0,
+            block_size: 3,
+            use_harris: true,
+            harris_k: 0.04,
+            subpix_half_window: 10,
+            subpix_max_iterations: 20,
+            subpix_epsilon: 0.03,
+        }
+    }
+}
+
+simd_fn! {
+/// Corner response of every pixel: Sobel 3x3 gradients (scaled like OpenCV's `cornerHarris` on
+/// 8-bit input), products summed over `block` x `block` (reflect-101), then Harris or min-eig.
+fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32) -> Vec<f32> {
+    let (w, h) = (img.width, img.height);
+    let scale = 1.0 / (4.0 * block as f32 * 255.0);
+    let mut xx = vec![0f32; w * h];
+    let mut xy = vec![0f32; w * h];
+    let mut yy = vec![0f32; w * h];
+    let mut sm = vec![0i16; w + 2]; // [1 2 1] vertical smoothing, for dx
+    let mut df = vec![0i16; w + 2]; // vertical difference, for dy
+    for y in 0..h {
+        let up = img.row(reflect101(y as isize - 1, h));
+        let mid = img.row(y);
+        let down = img.row(reflect101(y as isize + 1, h));
+        {
+            let (s, d) = (&mut sm[1..w + 1], &mut df[1..w + 1]);
+            for x in 0..w {
+                s[x] = up[x] as i16 + 2 * mid[x] as i16 + down[x] as i16;
+                d[x] = down[x] as i16 - up[x] as i16;
+            }
+        }
+        let (l, r) = (reflect101(-1, w) + 1, reflect101(w as isize, w) + 1);
+        sm[0] = sm[l];
+        df[0] = df[l];
+        sm[w + 1] = sm[r];
+        df[w + 1] = df[r];
+        let o = y * w;
+        let (oxx, oxy, oyy) = (&mut xx[o..o + w], &mut xy[o..o + w], &mut yy[o..o + w]);
+        for x in 0..w {
+            let gx = (sm[x + 2] - sm[x]) as f32 * scale;
+            let gy = (df[x] + 2 * df[x + 1] + df[x + 2]) as f32 * scale;
+            oxx[x] = gx * gx;
+            oxy[x] = gx * gy;
+            oyy[x] = gy * gy;
+        }
+    }
+    // unnormalised box sum over block x block
+    let half = (block / 2) as isize;
+    let box_sum = |src: &[f32]| -> Vec<f32> {
+        let mut tmp = vec![0f32; w * h];
+        let mut pad = vec![0f32; w + block];
+        for y in 0..h {
+            let row = &src[y * w..(y + 1) * w];
+            for (i, p) in pad.iter_mut().enumerate() {
+                *p = row[reflect101(i as isize - half, w)];
+            }
+            let out = &mut tmp[y * w..(y + 1) * w];
+            for (x, o) in out.iter_mut().enumerate() {
+                *o = pad[x..x + block].iter().sum();
+            }
+        }
+        let mut dst = vec![0f32; w * h];
+        for y in 0..h {
+            let out = &mut dst[y * w..(y + 1) * w];
+            for dy in 0..block as isize {
+                let r = &tmp[reflect101(y as isize + dy - half, h) * w..][..w];
+                for (o, v) in out.iter_mut().zip(r) {
+                    *o += v;
+                }
+            }
+        }
+        dst
+    };
+    let (a, b, c) = (box_sum(&xx), box_sum(&xy), box_sum(&yy));
+    let mut resp = xx;
+    for i in 0..w * h {
+        let (a, b, c) = (a[i], b[i], c[i]);
+        resp[i] = if harris {
+            a * c - b * b - k * (a + c) * (a + c)
+        } else {
+            let (a, c) = (a * 0.5, c * 0.5);
+            (a + c) - ((a - c) * (a - c) + b * b).sqrt()
+        };
+    }
+    resp
+}
+}
+
+/// Strongest corners of `img` (OpenCV `goodFeaturesToTrack`: response above
+/// `quality_level` x max, 3x3 local maxima, strongest first, `min_distance` apart, at most
+/// `max_corners`), refined to sub-pixel accuracy with [`corner_sub_pix`]. Blank, tiny or
+/// malformed images give no corners.
+pub fn good_features_to_track(img: &Gray8, p: &CornerParams) -> Vec<[f32; 2]> {
+    if !valid(img) || img.width < 3 || img.height < 3 || p.max_corners == 0 {
+        return Vec::new();
+    }
+    let (w, h) = (img.width, img.height);
+    let resp = corner_response(img, p.block_size.max(1), p.use_harris, p.harris_k);
+    let max = resp.iter().copied().fold(0f32, f32::max);
+    if max.is_nan() || max <= 0.0 {
+        return Vec::new();
+    }
+    let thr = max * p.quality_level.max(0.0);
+    // local maxima of the thresholded response (OpenCV compares with its 3x3 dilation)
+    let mut cands: Vec<(f32, u32)> = Vec::new();
+    for y in 1..h - 1 {
+        let (up, mid, down) = (
+            &resp[(y - 1) * w..y * w],
+            &resp[y * w..(y + 1) * w],
+            &resp[(y + 1) * w..(y + 2) * w],
+        );
+        for x in 1..w - 1 {
+            let v = mid[x];
+            if v > thr
+                && v >= mid[x - 1]
+                && v >= mid[x + 1]
+                && v >= up[x - 1]
+                && v >= up[x]
+                && v >= up[x + 1]
+                && v >= down[x - 1]
+                && v >= down[x]
+                && v >= down[x + 1]
+            {
+                cands.push((v, (y * w + x) as u32));
+            }
+        }
+    }
+    // strongest first; ties: larger address first (OpenCV's greaterThanPtr)
+    cands.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(b.1.cmp(&a.1)));
+    let mut corners: Vec<[f32; 2]> = Vec::new();
+    if p.min_distance >= 1.0 {
+        let cell = p.min_distance.round().max(1.0) as usize;
+        let (gw, gh) = (w.div_ceil(cell), h.div_ceil(cell));
+        let mut grid: Vec<Vec<[f32; 2]>> = vec![Vec::new(); gw * gh];
+        let md2 = p.min_distance * p.min_distance;
+        for &(_, idx) in &cands {
+            let (x, y) = (idx as usize % w, idx as usize / w);
+            let (cx, cy) = (x / cell, y / cell);
+            let pt = [x as f32, y as f32];
+            let mut good = true;
+            'search: for yy in cy.saturating_sub(1)..=(cy + 1).min(gh - 1) {
+                for xx in cx.saturating_sub(1)..=(cx + 1).min(gw - 1) {
+                    for q in &grid[yy * gw + xx] {
+                        let (dx, dy) = (q[0] - pt[0], q[1] - pt[1]);
+                        if dx * dx + dy * dy < md2 {
+                            good = false;
+                            break 'search;
+                        }
+                    }
+                }
+            }
+            if good {
+                grid[cy * gw + cx].push(pt);
+                corners.push(pt);
+                if corners.len() >= p.max_corners {
+                    break;
+                }
+            }
+        }
+    } else {
+        corners.extend(
+            cands
+                .iter()
+                .take(p.max_corners)
+                .map(|&(_, i)| [(i as usize % w) as f32, (i as usize / w) as f32]),
+        );
+    }
+    if p.subpix_half_window > 0 {
+        corner_sub_pix(
+            img,
+            &mut corners,
+            p.subpix_half_window,
+            p.subpix_max_iterations,
+            p.subpix_epsilon,
+        );
+    }
+    corners
+}
+
+/// Bilinear sample with replicated borders (OpenCV `getRectSubPix` behaviour at the edge).
+#[inline(always)]
+fn sample_clamped(img: &Gray8, x: f32, y: f32) -> f32 {
+    let (w, h) = (img.width as isize, img.height as isize);
+    let (x0, y0) = (x.floor(), y.floor());
+    let (a, b) = (x - x0, y - y0);
+    let (x0, y0) = (x0 as isize, y0 as isize);
+    let px = |xx: isize, yy: isize| {
+        img.data[(yy.clamp(0, h - 1) * w + xx.clamp(0, w - 1)) as usize] as f32
+    };
+    (1.0 - b) * ((1.0 - a) * px(x0, y0) + a * px(x0 + 1, y0))
+        + b * ((1.0 - a) * px(x0, y0 + 1) + a * px(x0 + 1, y0 + 1))
+}
+
+simd_fn! {
+/// Refine corner positions in place (OpenCV `cornerSubPix` with no dead zone): iterate the
+/// point that makes image gradients in a Gaussian-weighted `(2 half_window + 1)²` window
+/// orthogonal to the offsets, until the step is below `epsilon` px or `max_iterations`.
+/// A point that drifts more than `half_window` away keeps its original position.
+pub fn corner_sub_pix(
+    img: &Gray8,
+    pts: &mut [[f32; 2]],
+    half_window: usize,
+    max_iterations: usize,
+    epsilon: f32,
+) {
+    if !valid(img) || half_window == 0 {
+        return;
+    }
+    let win = half_window as isize;
+    let side = 2 * half_window + 1;
+    let ps = side + 2; // sampled patch with a 1-pixel margin for the gradients
+    let coeff = 1.0 / (half_window * half_window) as f32;
+    let mask_1d: Vec<f32> = (-win..=win).map(|i| (-(i * i) as f32 * coeff).exp()).collect();
+    let mut patch = vec![0f32; ps * ps];
+    let eps2 = (epsilon * epsilon) as f64;
+    let (w, h) = (img.width as f32, img.height as f32);
+    for pt in pts.iter_mut() {
+        let start = *pt;
+        let mut c = *pt;
+        for _ in 0..max_iterations.max(1) {
+            // sample the (side + 2)² patch centred on c
+            let (ox, oy) = (c[0] - (half_window + 1) as f32, c[1] - (half_window + 1) as f32);
+            let (fx, fy) = (ox.floor(), oy.floor());
+            let (ix, iy) = (fx as isize, fy as isize);
+            let (a, b) = (ox - fx, oy - fy);
+            let inside = ix >= 0
+                && iy >= 0
+                && ix + (ps as isize) < img.width as isize
+                && iy + (ps as isize) < img.height as isize;
+            if inside {
+                let (w00, w01, w10, w11) = ((1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b);
+                for r in 0..ps {
+                    let base = (iy as usize + r) * img.width + ix as usize;
+                    let r0 = &img.data[base..base + ps + 1];
+                    let r1 = &img.data[base + img.width..base + img.width + ps + 1];
+                    let out = &mut patch[r * ps..(r + 1) * ps];
+                    for x in 0..ps {
+                        out[x] = w00 * r0[x] as f32
+                            + w01 * r0[x + 1] as f32
+                            + w10 * r1[x] as f32
+                            + w11 * r1[x + 1] as f32;
+                    }
+                }
+            } else {
+                for r in 0..ps {
+                    for x in 0..ps {
+                        patch[r * ps + x] = sample_clamped(img, ox + x as f32, oy + r as f32);
+                    }
+                }
+            }
+            let (mut sa, mut sb, mut sc, mut bb1, mut bb2) = (0f64, 0f64, 0f64, 0f64, 0f64);
+            for i in 0..side {
+                let py = i as f32 - win as f32;
+                let (mut ra, mut rb, mut rc, mut r1, mut r2) = (0f32, 0f32, 0f32, 0f32, 0f32);
+                for j in 0..side {
+                    let m = mask_1d[i] * mask_1d[j];
+                    let k = (i + 1) * ps + j + 1;
+                    let tgx = patch[k + 1] - patch[k - 1];
+                    let tgy = patch[k + ps] - patch[k - ps];
+                    let (gxx, gxy, gyy) = (tgx * tgx * m, tgx * tgy * m, tgy * tgy * m);
+                    let px = j as f32 - win as f32;
+                    ra += gxx;
+                    rb += gxy;
+                    rc += gyy;
+                    r1 += gxx * px + gxy * py;
+                    r2 += gxy * px + gyy * py;
+                }
+                sa += ra as f64;
+                sb += rb as f64;
+                sc += rc as f64;
+                bb1 += r1 as f64;
+                bb2 += r2 as f64;
+            }
+            let det = sa * sc - sb * sb;
+            if det.abs() <= f64::EPSILON * f64::EPSILON {
+                break;
+            }
+            let s = 1.0 / det;
+            let nx = c[0] as f64 + sc * s * bb1 - sb * s * bb2;
+            let ny = c[1] as f64 - sb * s * bb1 + sa * s * bb2;
+            let err = (nx - c[0] as f64).powi(2) + (ny - c[1] as f64).powi(2);
+            c = [nx as f32, ny as f32];
+            if !(c[0] >= 0.0 && c[0] < w && c[1] >= 0.0 && c[1] < h) || err <= eps2 {
+                break;
+            }
+        }
+        let far = (c[0] - start[0]).abs() > half_window as f32
+            || (c[1] - start[1]).abs() > half_window as f32;
+        *pt = if far || !c[0].is_finite() || !c[1].is_finite() { start } else { c };
+    }
+}
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A blurred checkerboard whose inner corners sit at (x0 + i*sq, y0 + j*sq) exactly.
+    fn checker(w: usize, h: usize, sq: f32, x0: f32, y0: f32) -> Gray8 {
+        let mut img = Gray8::new(w, h, 0);
+        // supersample 8x8 for an anti-aliased edge at sub-pixel positions
+        for y in 0..h {
+            for x in 0..w {
+                let mut s = 0.0;
+                for sy in 0..8 {
+                    for sx in 0..8 {
+                        let px = x as f32 + (sx as f32 + 0.5) / 8.0 - 0.5 - x0;
+                        let py = y as f32 + (sy as f32 + 0.5) / 8.0 - 0.5 - y0;
+                        let cx = (px / sq).floor() as i32;
+                        let cy = (py / sq).floor() as i32;
+                        s += if (cx + cy).rem_euclid(2) == 0 {
+                            200.0
+                        } else {
+                            40.0
+                        };
+                    }
+                }
+                img.set(x, y, (s / 64.0f32).round() as u8);
+            }
+        }
+        img
+    }
+
+    #[test]
+    fn checkerboard_corners_are_found_to_sub_pixel_accuracy() {
+        let (x0, y0, sq) = (20.3, 17.6, 20.0);
+        let img = checker(160, 120, sq, x0, y0);
+        let pts = good_features_to_track(&img, &CornerParams::default());
+        assert!(pts.len() >= 20, "{}", pts.len());
+        let mut errs: Vec<f32> = pts
+            .iter()
+            .filter(|p| p[0] > 12.0 && p[0] < 148.0 && p[1] > 12.0 && p[1] < 108.0)
+            .map(|p| {
+                let gx = ((p[0] - x0) / sq).round() * sq + x0;
+                let gy = ((p[1] - y0) / sq).round() * sq + y0;
+                ((p[0] - gx).powi(2) + (p[1] - gy).powi(2)).sqrt()
+            })
+            .collect();
+        errs.sort_by(f32::total_cmp);
+        assert!(errs.len() >= 15, "{}", errs.len());
+        assert!(
+            errs[errs.len() / 2] < 0.1,
+            "median {}",
+            errs[errs.len() / 2]
+        );
+    }
+
+    #[test]
+    fn min_distance_and_max_corners_hold_before_refinement() {
+        let img = checker(200, 200, 9.0, 3.0, 3.0);
+        let p = CornerParams {
+            max_corners: 30,
+            min_distance: 15.0,
+            subpix_half_window: 0,
+            ..CornerParams::default()
+        };
+        let pts = good_features_to_track(&img, &p);
+        assert_eq!(pts.len(), 30);
+        for (i, a) in pts.iter().enumerate() {
+            for b in &pts[i + 1..] {
+                assert!((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) >= 225.0);
+            }
+        }
+        let st = good_features_to_track(
+            &img,
+            &CornerParams {
+                use_harris: false,
+                ..p
+            },
+        );
+        assert_eq!(st.len(), 30);
+    }
+
+    #[test]
+    fn blank_and_tiny_images_give_no_corners() {
+        let p = CornerParams::default();
+        assert!(good_features_to_track(&Gray8::new(64, 48, 9), &p).is_empty());
+        assert!(good_features_to_track(&Gray8::new(2, 2, 9), &p).is_empty());
+        assert!(good_features_to_track(&Gray8::new(0, 0, 9), &p).is_empty());
+        // corners near the border of a small image are refined without panicking
+        let img = checker(12, 12, 4.0, 1.5, 1.5);
+        let pts = good_features_to_track(&img, &p);
+        assert!(pts.iter().all(|p| p[0].is_finite() && p[1].is_finite()));
+    }
+}

@@ -1,0 +1,270 @@
+//! Small image kernels the front-ends need: OpenCV-compatible bilinear resize, 7x7 Gaussian
+//! blur, `pyrDown`, Scharr derivatives. Plain loops written so LLVM vectorises them; on x86-64
+//! the hot ones are compiled a second time for AVX2 and picked at run time.
+
+use stillpoint_image::Gray8;
+
+/// Define `fn $name` that runs its body compiled for AVX2+FMA when the CPU has them, and the
+/// baseline build otherwise. The body must not capture generics.
+macro_rules! simd_fn {
+    ($(#[$m:meta])* $vis:vis fn $name:ident($($arg:ident : $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block) => {
+        $(#[$m])* $vis fn $name($($arg: $ty),*) $(-> $ret)? {
+            #[inline(always)]
+            fn inner($($arg: $ty),*) $(-> $ret)? $body
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx2,fma")]
+                unsafe fn avx2($($arg: $ty),*) $(-> $ret)? { inner($($arg),*) }
+                if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+                    // SAFETY: the CPU supports the features enabled on `avx2`.
+                    return unsafe { avx2($($arg),*) };
+                }
+            }
+            inner($($arg),*)
+        }
+    };
+}
+pub(crate) use simd_fn;
+
+/// OpenCV's BORDER_REFLECT_101 index (`gfedcb|abcdefgh|gfedcba`), valid for any `i`.
+#[inline]
+pub(crate) fn reflect101(i: isize, n: usize) -> usize {
+    let n = n as isize;
+    if n == 1 {
+        return 0;
+    }
+    let mut i = i;
+    loop {
+        if i < 0 {
+            i = -i;
+        } else if i >= n {
+            i = 2 * n - 2 - i;
+        } else {
+            return i as usize;
+        }
+    }
+}
+
+/// Bilinear resize with OpenCV's `INTER_LINEAR` sampling (`src = (dst + 0.5) * scale - 0.5`,
+/// 11-bit fixed-point weights), which ORB-SLAM3 uses to build its pyramid.
+pub(crate) fn resize_linear(src: &Gray8, dw: usize, dh: usize) -> Gray8 {
+    let (sw, sh) = (src.width, src.height);
+    let mut dst = Gray8::new(dw, dh, 0);
+    if sw == 0 || sh == 0 || dw == 0 || dh == 0 {
+        return dst;
+    }
+    let coef = |d: usize, scale: f64, n: usize| -> (usize, i32) {
+        let f = (d as f64 + 0.5) * scale - 0.5;
+        let mut s = f.floor() as isize;
+        let mut a = f - s as f64;
+        if s < 0 {
+            s = 0;
+            a = 0.0;
+        }
+        if s as usize >= n - 1 {
+            s = n as isize - 1;
+            a = 0.0;
+        }
+        (s as usize, (a * 2048.0).round() as i32)
+    };
+    let xs: Vec<(usize, i32)> = (0..dw)
+        .map(|x| coef(x, sw as f64 / dw as f64, sw))
+        .collect();
+    let ys: Vec<(usize, i32)> = (0..dh)
+        .map(|y| coef(y, sh as f64 / dh as f64, sh))
+        .collect();
+    let hrow = |y: usize, out: &mut Vec<i32>| {
+        let row = src.row(y);
+        out.clear();
+        out.extend(xs.iter().map(|&(sx, a)| {
+            let x1 = (sx + 1).min(sw - 1);
+            row[sx] as i32 * (2048 - a) + row[x1] as i32 * a
+        }));
+    };
+    let (mut r0, mut r1) = (Vec::with_capacity(dw), Vec::with_capacity(dw));
+    let mut cached: (usize, usize) = (usize::MAX, usize::MAX);
+    for (dy, &(sy, b)) in ys.iter().enumerate() {
+        let sy1 = (sy + 1).min(sh - 1);
+        if cached != (sy, sy1) {
+            if cached.1 == sy {
+                std::mem::swap(&mut r0, &mut r1);
+            } else {
+                hrow(sy, &mut r0);
+            }
+            hrow(sy1, &mut r1);
+            cached = (sy, sy1);
+        }
+        let out = &mut dst.data[dy * dw..(dy + 1) * dw];
+        let b0 = 2048 - b;
+        for ((o, &p), &q) in out.iter_mut().zip(&r0).zip(&r1) {
+            *o = ((p * b0 + q * b + (1 << 21)) >> 22) as u8;
+        }
+    }
+    dst
+}
+
+/// 7-tap Gaussian, sigma 2, in 8-bit fixed point (sum 256), as ORB-SLAM3 blurs each level
+/// (`GaussianBlur(7x7, 2, 2, BORDER_REFLECT_101)`) before computing descriptors.
+const GAUSS7: [u32; 7] = [18, 33, 49, 56, 49, 33, 18];
+
+simd_fn! {
+/// Separable 7x7 Gaussian blur (sigma 2) with reflect-101 borders.
+pub(crate) fn gaussian_blur7(src: &Gray8, dst: &mut Gray8) {
+    let (w, h) = (src.width, src.height);
+    dst.width = w;
+    dst.height = h;
+    dst.data.resize(w * h, 0);
+    if w == 0 || h == 0 {
+        return;
+    }
+    // horizontal pass into u16 (max 255 * 256)
+    let mut tmp = vec![0u16; w * h];
+    let mut padded = vec![0u8; w + 6];
+    for y in 0..h {
+        let row = src.row(y);
+        for (i, p) in padded.iter_mut().enumerate() {
+            *p = row[reflect101(i as isize - 3, w)];
+        }
+        let out = &mut tmp[y * w..(y + 1) * w];
+        for (x, o) in out.iter_mut().enumerate() {
+            let s = &padded[x..x + 7];
+            *o = (GAUSS7[0] * (s[0] as u32 + s[6] as u32)
+                + GAUSS7[1] * (s[1] as u32 + s[5] as u32)
+                + GAUSS7[2] * (s[2] as u32 + s[4] as u32)
+                + GAUSS7[3] * s[3] as u32) as u16;
+        }
+    }
+    // vertical pass
+    for y in 0..h {
+        let r: [&[u16]; 7] =
+            std::array::from_fn(|k| &tmp[reflect101(y as isize + k as isize - 3, h) * w..][..w]);
+        let out = &mut dst.data[y * w..(y + 1) * w];
+        for x in 0..w {
+            let v = GAUSS7[0] * (r[0][x] as u32 + r[6][x] as u32)
+                + GAUSS7[1] * (r[1][x] as u32 + r[5][x] as u32)
+                + GAUSS7[2] * (r[2][x] as u32 + r[4][x] as u32)
+                + GAUSS7[3] * r[3][x] as u32;
+            out[x] = ((v + (1 << 15)) >> 16) as u8;
+        }
+    }
+}
+}
+
+simd_fn! {
+/// OpenCV `pyrDown`: 5x5 Gaussian ([1 4 6 4 1]² / 256), reflect-101, size ((w+1)/2, (h+1)/2).
+pub(crate) fn pyr_down(src: &Gray8) -> Gray8 {
+    let (w, h) = (src.width, src.height);
+    let (dw, dh) = (w.div_ceil(2), h.div_ceil(2));
+    let mut dst = Gray8::new(dw, dh, 0);
+    if w == 0 || h == 0 {
+        return dst;
+    }
+    let mut vsum = vec![0u16; w + 4];
+    for dy in 0..dh {
+        let r: [&[u8]; 5] =
+            std::array::from_fn(|k| src.row(reflect101(2 * dy as isize + k as isize - 2, h)));
+        {
+            let inner = &mut vsum[2..w + 2];
+            for x in 0..w {
+                inner[x] = r[0][x] as u16
+                    + r[4][x] as u16
+                    + 4 * (r[1][x] as u16 + r[3][x] as u16)
+                    + 6 * r[2][x] as u16;
+            }
+        }
+        for k in 0..2 {
+            vsum[k] = vsum[2 + reflect101(k as isize - 2, w)];
+            vsum[w + 2 + k] = vsum[2 + reflect101((w + k) as isize, w)];
+        }
+        let out = &mut dst.data[dy * dw..(dy + 1) * dw];
+        for (x, o) in out.iter_mut().enumerate() {
+            let s = &vsum[2 * x..2 * x + 5];
+            let v = s[0] as u32 + s[4] as u32 + 4 * (s[1] as u32 + s[3] as u32) + 6 * s[2] as u32;
+            *o = ((v + 128) >> 8) as u8;
+        }
+    }
+    dst
+}
+}
+
+simd_fn! {
+/// Scharr derivatives as OpenCV's LK computes them (`[3 10 3]` smoothing × `[-1 0 1]`,
+/// reflect-101), unscaled, as f32: returns (dx, dy), each `w*h`.
+pub(crate) fn scharr(src: &Gray8) -> (Vec<f32>, Vec<f32>) {
+    let (w, h) = (src.width, src.height);
+    let mut dx = vec![0f32; w * h];
+    let mut dy = vec![0f32; w * h];
+    if w == 0 || h == 0 {
+        return (dx, dy);
+    }
+    let mut trow = vec![0i16; w + 2]; // 3*up + 10*mid + 3*down (for dx)
+    let mut drow = vec![0i16; w + 2]; // down - up (for dy)
+    for y in 0..h {
+        let up = src.row(reflect101(y as isize - 1, h));
+        let mid = src.row(y);
+        let down = src.row(reflect101(y as isize + 1, h));
+        {
+            let t = &mut trow[1..w + 1];
+            let d = &mut drow[1..w + 1];
+            for x in 0..w {
+                t[x] = 3 * (up[x] as i16 + down[x] as i16) + 10 * mid[x] as i16;
+                d[x] = down[x] as i16 - up[x] as i16;
+            }
+        }
+        let l = reflect101(-1, w) + 1;
+        let r = reflect101(w as isize, w) + 1;
+        trow[0] = trow[l];
+        drow[0] = drow[l];
+        trow[w + 1] = trow[r];
+        drow[w + 1] = drow[r];
+        let ox = &mut dx[y * w..(y + 1) * w];
+        let oy = &mut dy[y * w..(y + 1) * w];
+        for x in 0..w {
+            ox[x] = (trow[x + 2] - trow[x]) as f32;
+            oy[x] = (3 * (drow[x] + drow[x + 2]) + 10 * drow[x + 1]) as f32;
+        }
+    }
+    (dx, dy)
+}
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reflect101_matches_opencv() {
+        let idx: Vec<usize> = (-3..8).map(|i| reflect101(i, 5)).collect();
+        assert_eq!(idx, vec![3, 2, 1, 0, 1, 2, 3, 4, 3, 2, 1]);
+        assert_eq!(reflect101(-5, 1), 0);
+    }
+
+    #[test]
+    fn blur_and_pyr_keep_constant_images() {
+        let img = Gray8::new(13, 9, 77);
+        let mut out = Gray8::new(0, 0, 0);
+        gaussian_blur7(&img, &mut out);
+        assert!(out.data.iter().all(|&v| v == 77));
+        let d = pyr_down(&img);
+        assert_eq!((d.width, d.height), (7, 5));
+        assert!(d.data.iter().all(|&v| v == 77));
+        let r = resize_linear(&img, 10, 7);
+        assert!(r.data.iter().all(|&v| v == 77));
+        let (gx, gy) = scharr(&img);
+        assert!(gx.iter().chain(&gy).all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn scharr_of_a_ramp_is_32_per_step() {
+        let mut img = Gray8::new(8, 6, 0);
+        for y in 0..6 {
+            for x in 0..8 {
+                img.set(x, y, (x * 10) as u8);
+            }
+        }
+        let (gx, gy) = scharr(&img);
+        // (10 - (-10)) ... central difference of 2 steps * 10 * (3 + 10 + 3) = 320
+        assert_eq!(gx[3 * 8 + 4], 320.0);
+        assert_eq!(gy[3 * 8 + 4], 0.0);
+    }
+}

@@ -1,0 +1,694 @@
+//! ORB extraction as ORB-SLAM3's `ORBextractor` does it (file `ORBextractor.cc` of ORB-SLAM3
+//! v1.0): image pyramid, FAST on a grid of cells with a fallback threshold, quadtree ("octree")
+//! distribution, intensity-centroid angle, steered BRIEF on a blurred level.
+
+use std::time::Instant;
+
+use crate::fast::{self, Corner};
+use crate::imgops::{gaussian_blur7, resize_linear};
+use crate::pattern::BIT_PATTERN_31;
+use crate::{Descriptor, valid};
+use stillpoint_image::Gray8;
+
+/// Side of the BRIEF patch (ORB-SLAM3 `PATCH_SIZE`).
+const PATCH_SIZE: f32 = 31.0;
+/// Radius of the orientation patch (ORB-SLAM3 `HALF_PATCH_SIZE`).
+const HALF_PATCH_SIZE: usize = 15;
+/// Keypoints stay this far from a level's border (ORB-SLAM3 `EDGE_THRESHOLD`).
+const EDGE_THRESHOLD: usize = 19;
+/// Side of the FAST grid cells (ORB-SLAM3 `W` in `ComputeKeyPointsOctTree`).
+const CELL: f32 = 35.0;
+
+/// A keypoint in level-0 pixel coordinates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KeyPoint {
+    /// Column, level-0 pixels.
+    pub x: f32,
+    /// Row, level-0 pixels.
+    pub y: f32,
+    /// Pyramid level it was found on (0 = full resolution).
+    pub octave: u8,
+    /// Orientation in degrees, [0, 360), by intensity centroid.
+    pub angle: f32,
+    /// FAST score (larger = stronger corner).
+    pub response: f32,
+    /// Diameter of the described patch in level-0 pixels (31 x scale of its level).
+    pub size: f32,
+}
+
+/// ORB extractor settings. `Default` = ORB-SLAM3's TUM settings (`ORBextractor.*` in
+/// `TUM1.yaml`, the values the paper used); KITTI stereo uses `n_features: 2000`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OrbParams {
+    /// Target number of features per image (`ORBextractor.nFeatures`: 1000 TUM, 2000 KITTI).
+    pub n_features: usize,
+    /// Scale between pyramid levels (`ORBextractor.scaleFactor`: 1.2).
+    pub scale_factor: f32,
+    /// Number of pyramid levels (`ORBextractor.nLevels`: 8).
+    pub n_levels: usize,
+    /// FAST threshold tried first in each cell (`ORBextractor.iniThFAST`: 20).
+    pub ini_th_fast: u8,
+    /// FAST threshold used in cells where the first found nothing (`ORBextractor.minThFAST`: 7).
+    pub min_th_fast: u8,
+}
+
+impl Default for OrbParams {
+    fn default() -> Self {
+        Self {
+            n_features: 1000,
+            scale_factor: 1.2,
+            n_levels: 8,
+            ini_th_fast: 20,
+            min_th_fast: 7,
+        }
+    }
+}
+
+/// Keypoints and their descriptors (same length, same order; grouped by octave).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct OrbFeatures {
+    pub keypoints: Vec<KeyPoint>,
+    pub descriptors: Vec<Descriptor>,
+}
+
+/// Wall time of each stage of the last [`OrbExtractor::extract`] call, in milliseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct OrbTimings {
+    pub pyramid_ms: f64,
+    pub fast_ms: f64,
+    pub distribute_ms: f64,
+    /// Orientation, blur and descriptors.
+    pub describe_ms: f64,
+}
+
+/// ORB-SLAM3-style ORB extractor; keeps its buffers between frames (build it once).
+pub struct OrbExtractor {
+    params: OrbParams,
+    scale_factors: Vec<f32>,
+    level_sigma2: Vec<f32>,
+    features_per_level: Vec<usize>,
+    umax: Vec<usize>,
+    /// Levels 1.. (level 0 is the input itself).
+    pyramid: Vec<Gray8>,
+    blurred: Gray8,
+    timings: OrbTimings,
+}
+
+impl OrbExtractor {
+    /// Build an extractor; out-of-range parameters are clamped (at least 1 level, scale > 1).
+    pub fn new(params: OrbParams) -> Self {
+        let mut params = params;
+        params.n_levels = params.n_levels.clamp(1, 32);
+        if !(params.scale_factor.is_finite() && params.scale_factor > 1.0) {
+            params.scale_factor = 1.2;
+        }
+        params.min_th_fast = params.min_th_fast.max(1);
+        params.ini_th_fast = params.ini_th_fast.max(params.min_th_fast);
+        let n = params.n_levels;
+        let scale_factors: Vec<f32> = (0..n)
+            .scan(1.0f32, |s, i| {
+                if i > 0 {
+                    *s *= params.scale_factor;
+                }
+                Some(*s)
+            })
+            .collect();
+        let level_sigma2 = scale_factors.iter().map(|s| s * s).collect();
+        // features per level: geometric series with ratio 1/scale (ORB-SLAM3 constructor)
+        let factor = 1.0 / params.scale_factor;
+        let mut desired = params.n_features as f32 * (1.0 - factor) / (1.0 - factor.powi(n as i32));
+        let mut features_per_level = vec![0usize; n];
+        let mut sum = 0;
+        for f in features_per_level.iter_mut().take(n - 1) {
+            *f = desired.round() as usize;
+            sum += *f;
+            desired *= factor;
+        }
+        features_per_level[n - 1] = params.n_features.saturating_sub(sum);
+        // umax: half-width of each row of the circular orientation patch, made symmetric
+        let hp = HALF_PATCH_SIZE;
+        let mut umax = vec![0usize; hp + 1];
+        let vmax = (hp as f64 * 2f64.sqrt() / 2.0 + 1.0).floor() as usize;
+        let vmin = (hp as f64 * 2f64.sqrt() / 2.0).ceil() as usize;
+        for (v, u) in umax.iter_mut().enumerate().take(vmax + 1) {
+            *u = ((hp * hp - v * v) as f64).sqrt().round() as usize;
+        }
+        let mut v0 = 0;
+        for v in (vmin..=hp).rev() {
+            while umax[v0] == umax[v0 + 1] {
+                v0 += 1;
+            }
+            umax[v] = v0;
+            v0 += 1;
+        }
+        Self {
+            params,
+            scale_factors,
+            level_sigma2,
+            features_per_level,
+            umax,
+            pyramid: Vec::new(),
+            blurred: Gray8::new(0, 0, 0),
+            timings: OrbTimings::default(),
+        }
+    }
+
+    /// The settings in use.
+    pub fn params(&self) -> &OrbParams {
+        &self.params
+    }
+
+    /// Scale of each level relative to level 0 (1, 1.2, 1.44, ...).
+    pub fn scale_factors(&self) -> &[f32] {
+        &self.scale_factors
+    }
+
+    /// Squared scale of each level (ORB-SLAM's `mvLevelSigma2`, the measurement variance factor).
+    pub fn level_sigma2(&self) -> &[f32] {
+        &self.level_sigma2
+    }
+
+    /// Target number of features of each level.
+    pub fn features_per_level(&self) -> &[usize] {
+        &self.features_per_level
+    }
+
+    /// Stage timings of the last `extract`.
+    pub fn timings(&self) -> OrbTimings {
+        self.timings
+    }
+
+    /// Extract keypoints (level-0 pixels) and descriptors. A blank, tiny or malformed image
+    /// gives empty features.
+    pub fn extract(&mut self, img: &Gray8) -> OrbFeatures {
+        let mut out = OrbFeatures::default();
+        self.timings = OrbTimings::default();
+        if !valid(img) {
+            return out;
+        }
+        let t0 = Instant::now();
+        self.build_pyramid(img);
+        self.timings.pyramid_ms = ms(t0);
+        let mut corners = Vec::new();
+        for level in 0..self.params.n_levels {
+            let t1 = Instant::now();
+            let level_img = if level == 0 {
+                img
+            } else {
+                match self.pyramid.get(level - 1) {
+                    Some(l) => l,
+                    None => break,
+                }
+            };
+            let (w, h) = (level_img.width, level_img.height);
+            if w <= 2 * EDGE_THRESHOLD + 1 || h <= 2 * EDGE_THRESHOLD + 1 {
+                break;
+            }
+            corners.clear();
+            detect_in_cells(level_img, &self.params, &mut corners);
+            let t2 = Instant::now();
+            self.timings.fast_ms += (t2 - t1).as_secs_f64() * 1e3;
+            let keep = distribute_quadtree(
+                &corners,
+                [
+                    EDGE_THRESHOLD - 3,
+                    w - EDGE_THRESHOLD + 3,
+                    EDGE_THRESHOLD - 3,
+                    h - EDGE_THRESHOLD + 3,
+                ],
+                self.features_per_level[level],
+            );
+            let t3 = Instant::now();
+            self.timings.distribute_ms += (t3 - t2).as_secs_f64() * 1e3;
+            if keep.is_empty() {
+                continue;
+            }
+            gaussian_blur7(level_img, &mut self.blurred);
+            let scale = self.scale_factors[level];
+            let size = PATCH_SIZE * scale;
+            for &i in &keep {
+                let c = corners[i];
+                let (x, y) = (c.x as usize, c.y as usize);
+                let angle = ic_angle(level_img, x, y, &self.umax);
+                out.descriptors
+                    .push(steered_brief(&self.blurred, x, y, angle));
+                out.keypoints.push(KeyPoint {
+                    x: x as f32 * scale,
+                    y: y as f32 * scale,
+                    octave: level as u8,
+                    angle,
+                    response: c.score as f32,
+                    size,
+                });
+            }
+            self.timings.describe_ms += ms(t3);
+        }
+        out
+    }
+
+    fn build_pyramid(&mut self, img: &Gray8) {
+        self.pyramid.clear();
+        for level in 1..self.params.n_levels {
+            let inv = 1.0 / self.scale_factors[level];
+            let (w, h) = (
+                (img.width as f32 * inv).round() as usize,
+                (img.height as f32 * inv).round() as usize,
+            );
+            if w <= 2 * EDGE_THRESHOLD + 1 || h <= 2 * EDGE_THRESHOLD + 1 {
+                break;
+            }
+            // ORB-SLAM resizes each level from the previous one
+            let prev = if level == 1 {
+                img
+            } else {
+                &self.pyramid[level - 2]
+            };
+            let next = resize_linear(prev, w, h);
+            self.pyramid.push(next);
+        }
+    }
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// FAST on ORB-SLAM3's grid: cells of ~35 px between borders of 16 px, threshold
+/// `ini_th_fast`, and `min_th_fast` in the cells where that found nothing.
+fn detect_in_cells(img: &Gray8, p: &OrbParams, out: &mut Vec<Corner>) {
+    let (min_x, min_y) = (EDGE_THRESHOLD - 3, EDGE_THRESHOLD - 3);
+    let (max_x, max_y) = (
+        img.width - EDGE_THRESHOLD + 3,
+        img.height - EDGE_THRESHOLD + 3,
+    );
+    let (width, height) = ((max_x - min_x) as f32, (max_y - min_y) as f32);
+    let n_cols = ((width / CELL) as usize).max(1);
+    let n_rows = ((height / CELL) as usize).max(1);
+    let w_cell = (width / n_cols as f32).ceil() as usize;
+    let h_cell = (height / n_rows as f32).ceil() as usize;
+    // the strong threshold over the whole detection area at once (a corner's score does not
+    // depend on the threshold, so this equals running it cell by cell), then the fallback
+    let area = [min_x + 3, min_y + 3, max_x - 3, max_y - 3];
+    let mut strong = Vec::new();
+    fast::detect(img, area, p.ini_th_fast, &mut strong);
+    let mut per_cell = vec![0u32; n_cols * n_rows];
+    let cell_of = |c: &Corner| {
+        let j = ((c.x as usize - area[0]) / w_cell).min(n_cols - 1);
+        let i = ((c.y as usize - area[1]) / h_cell).min(n_rows - 1);
+        i * n_cols + j
+    };
+    for c in &strong {
+        per_cell[cell_of(c)] += 1;
+    }
+    out.extend_from_slice(&strong);
+    if p.min_th_fast >= p.ini_th_fast {
+        return;
+    }
+    for i in 0..n_rows {
+        for j in 0..n_cols {
+            if per_cell[i * n_cols + j] > 0 {
+                continue;
+            }
+            let x0 = area[0] + j * w_cell;
+            let y0 = area[1] + i * h_cell;
+            let x1 = if j + 1 == n_cols {
+                area[2]
+            } else {
+                (x0 + w_cell).min(area[2])
+            };
+            let y1 = if i + 1 == n_rows {
+                area[3]
+            } else {
+                (y0 + h_cell).min(area[3])
+            };
+            if x0 < x1 && y0 < y1 {
+                fast::detect(img, [x0, y0, x1, y1], p.min_th_fast, out);
+            }
+        }
+    }
+}
+
+struct Node {
+    ul: (i32, i32),
+    br: (i32, i32),
+    keys: Vec<u32>,
+    no_more: bool,
+    dead: bool,
+}
+
+impl Node {
+    /// ORB-SLAM3 `ExtractorNode::DivideNode`: four children split at the ceiling of half.
+    fn divide(&self, pts: &[(i32, i32)]) -> [Node; 4] {
+        let half_x = ((self.br.0 - self.ul.0) as f32 / 2.0).ceil() as i32;
+        let half_y = ((self.br.1 - self.ul.1) as f32 / 2.0).ceil() as i32;
+        let (mx, my) = (self.ul.0 + half_x, self.ul.1 + half_y);
+        let mk = |ul, br| Node {
+            ul,
+            br,
+            keys: Vec::new(),
+            no_more: false,
+            dead: false,
+        };
+        let mut n = [
+            mk(self.ul, (mx, my)),
+            mk((mx, self.ul.1), (self.br.0, my)),
+            mk((self.ul.0, my), (mx, self.br.1)),
+            mk((mx, my), self.br),
+        ];
+        for &k in &self.keys {
+            let (x, y) = pts[k as usize];
+            let q = match (x < mx, y < my) {
+                (true, true) => 0,
+                (false, true) => 1,
+                (true, false) => 2,
+                (false, false) => 3,
+            };
+            n[q].keys.push(k);
+        }
+        for c in n.iter_mut() {
+            c.no_more = c.keys.len() == 1;
+        }
+        n
+    }
+}
+
+/// ORB-SLAM3 `DistributeOctTree`: split the area into quadrants until there are `n` non-empty
+/// nodes (largest nodes first in the last round), then keep the strongest corner of each node.
+/// `bounds` = [min_x, max_x, min_y, max_y]. Returns indices into `corners`.
+fn distribute_quadtree(corners: &[Corner], bounds: [usize; 4], n: usize) -> Vec<usize> {
+    let [min_x, max_x, min_y, max_y] = bounds.map(|v| v as i32);
+    if corners.is_empty() || n == 0 {
+        return Vec::new();
+    }
+    let pts: Vec<(i32, i32)> = corners
+        .iter()
+        .map(|c| (c.x as i32 - min_x, c.y as i32 - min_y))
+        .collect();
+    let (w, h) = ((max_x - min_x) as f32, (max_y - min_y) as f32);
+    let n_ini = ((w / h).round() as usize).max(1);
+    let hx = w / n_ini as f32;
+    let mut nodes: Vec<Node> = (0..n_ini)
+        .map(|i| Node {
+            ul: ((hx * i as f32) as i32, 0),
+            br: ((hx * (i + 1) as f32) as i32, h as i32),
+            keys: Vec::new(),
+            no_more: false,
+            dead: false,
+        })
+        .collect();
+    for (k, &(x, _)) in pts.iter().enumerate() {
+        let i = ((x as f32 / hx) as usize).min(n_ini - 1);
+        nodes[i].keys.push(k as u32);
+    }
+    nodes.retain(|nd| !nd.keys.is_empty());
+    for nd in nodes.iter_mut() {
+        nd.no_more = nd.keys.len() == 1;
+    }
+    loop {
+        let prev_size = nodes.len();
+        let mut next = Vec::with_capacity(nodes.len() * 4);
+        let mut to_expand: Vec<usize> = Vec::new();
+        for nd in nodes.drain(..) {
+            if nd.no_more {
+                next.push(nd);
+                continue;
+            }
+            for c in nd.divide(&pts) {
+                if !c.keys.is_empty() {
+                    if c.keys.len() > 1 {
+                        to_expand.push(next.len());
+                    }
+                    next.push(c);
+                }
+            }
+        }
+        nodes = next;
+        if nodes.len() >= n || nodes.len() == prev_size {
+            break;
+        }
+        if nodes.len() + to_expand.len() * 3 > n {
+            // last rounds: split the biggest nodes first, stop as soon as there are enough
+            let mut live = nodes.len();
+            loop {
+                let prev_live = live;
+                let mut prev_expand = std::mem::take(&mut to_expand);
+                prev_expand.sort_by_key(|&i| nodes[i].keys.len());
+                let mut done = false;
+                for &i in prev_expand.iter().rev() {
+                    let children = nodes[i].divide(&pts);
+                    nodes[i].dead = true;
+                    nodes[i].keys.clear();
+                    live -= 1;
+                    for c in children {
+                        if !c.keys.is_empty() {
+                            if c.keys.len() > 1 {
+                                to_expand.push(nodes.len());
+                            }
+                            nodes.push(c);
+                            live += 1;
+                        }
+                    }
+                    if live >= n {
+                        done = true;
+                        break;
+                    }
+                }
+                if done || live >= n || live == prev_live || to_expand.is_empty() {
+                    break;
+                }
+            }
+            nodes.retain(|nd| !nd.dead);
+            break;
+        }
+    }
+    nodes
+        .iter()
+        .filter_map(|nd| {
+            let mut best = *nd.keys.first()? as usize;
+            for &k in &nd.keys[1..] {
+                if corners[k as usize].score > corners[best].score {
+                    best = k as usize;
+                }
+            }
+            Some(best)
+        })
+        .collect()
+}
+
+/// Orientation (degrees, [0, 360)) of the intensity centroid of the circular patch of radius 15
+/// around (x, y) (ORB-SLAM3 `IC_Angle`). The caller keeps (x, y) 15 px inside the image.
+fn ic_angle(img: &Gray8, x: usize, y: usize, umax: &[usize]) -> f32 {
+    let w = img.width;
+    let hp = HALF_PATCH_SIZE as isize;
+    let c = y * w + x;
+    let d = &img.data;
+    let mut m01 = 0i32;
+    let mut m10 = 0i32;
+    for u in -hp..=hp {
+        m10 += u as i32 * d[(c as isize + u) as usize] as i32;
+    }
+    for v in 1..=HALF_PATCH_SIZE {
+        let up = &d[c + v * w - umax[v]..=c + v * w + umax[v]];
+        let down = &d[c - v * w - umax[v]..=c - v * w + umax[v]];
+        let mut v_sum = 0i32;
+        let r = umax[v] as i32;
+        for (i, (&p, &m)) in up.iter().zip(down).enumerate() {
+            let u = i as i32 - r;
+            v_sum += p as i32 - m as i32;
+            m10 += u * (p as i32 + m as i32);
+        }
+        m01 += v as i32 * v_sum;
+    }
+    let a = (m01 as f32).atan2(m10 as f32).to_degrees();
+    if a < 0.0 { a + 360.0 } else { a }
+}
+
+/// 256-bit BRIEF with ORB's pattern rotated by `angle_deg` (ORB-SLAM3
+/// `computeOrbDescriptor`: offsets rounded half to even, as `cvRound`).
+fn steered_brief(img: &Gray8, x: usize, y: usize, angle_deg: f32) -> Descriptor {
+    let w = img.width as isize;
+    let (b, a) = angle_deg.to_radians().sin_cos();
+    let c = (y * img.width + x) as isize;
+    let d = &img.data;
+    let at = |px: i8, py: i8| -> u8 {
+        let (px, py) = (px as f32, py as f32);
+        let dy = (px * b + py * a).round_ties_even() as isize;
+        let dx = (px * a - py * b).round_ties_even() as isize;
+        d[(c + dy * w + dx) as usize]
+    };
+    let mut desc = [0u8; 32];
+    for (byte, pairs) in desc.iter_mut().zip(BIT_PATTERN_31.chunks_exact(8)) {
+        let mut v = 0u8;
+        for (bit, pr) in pairs.iter().enumerate() {
+            v |= ((at(pr[0], pr[1]) < at(pr[2], pr[3])) as u8) << bit;
+        }
+        *byte = v;
+    }
+    desc
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Smooth random texture (sum of blobs) so FAST finds corners everywhere.
+    pub(crate) fn texture(w: usize, h: usize, seed: u32) -> Gray8 {
+        let mut img = Gray8::new(w, h, 0);
+        let mut s = seed;
+        let mut rnd = || {
+            s = s.wrapping_mul(1664525).wrapping_add(1013904223);
+            (s >> 8) as f32 / (1u32 << 24) as f32
+        };
+        let mut f = vec![0f32; w * h];
+        for _ in 0..(w * h / 60) {
+            let (cx, cy, r, a) = (rnd() * w as f32, rnd() * h as f32, 2.0 + rnd() * 6.0, rnd());
+            let (x0, x1) = ((cx - r) as usize, ((cx + r) as usize).min(w - 1));
+            let (y0, y1) = ((cy - r) as usize, ((cy + r) as usize).min(h - 1));
+            for y in y0..=y1 {
+                for x in x0..=x1 {
+                    let (dx, dy) = (x as f32 - cx, y as f32 - cy);
+                    if dx * dx + dy * dy < r * r {
+                        f[y * w + x] += a * 90.0 - 45.0;
+                    }
+                }
+            }
+        }
+        for (o, v) in img.data.iter_mut().zip(&f) {
+            *o = (128.0 + v).clamp(0.0, 255.0) as u8;
+        }
+        img
+    }
+
+    #[test]
+    fn features_per_level_follow_the_geometric_series() {
+        let orb = OrbExtractor::new(OrbParams::default());
+        let f = orb.features_per_level();
+        assert_eq!(f.iter().sum::<usize>(), 1000);
+        assert_eq!(f[0], 217); // ORB-SLAM3 with 1000 features, 1.2, 8 levels
+        assert!(f.windows(2).all(|p| p[0] >= p[1]));
+        assert!((orb.scale_factors()[7] - 1.2f32.powi(7)).abs() < 1e-4);
+        assert!((orb.level_sigma2()[1] - 1.44).abs() < 1e-6);
+    }
+
+    #[test]
+    fn umax_is_symmetric_circle() {
+        let orb = OrbExtractor::new(OrbParams::default());
+        assert_eq!(
+            orb.umax,
+            vec![15, 15, 15, 15, 14, 14, 14, 13, 13, 12, 11, 10, 9, 8, 6, 3]
+        );
+    }
+
+    #[test]
+    fn keypoints_are_spread_over_a_textured_image() {
+        let img = texture(640, 480, 7);
+        let mut orb = OrbExtractor::new(OrbParams::default());
+        let f = orb.extract(&img);
+        assert!(f.keypoints.len() >= 900, "{}", f.keypoints.len());
+        assert!(f.keypoints.len() <= 1100);
+        let mut cells = [0usize; 100];
+        for k in &f.keypoints {
+            assert!(k.x >= 0.0 && k.x < 640.0 && k.y >= 0.0 && k.y < 480.0);
+            assert!(k.angle >= 0.0 && k.angle < 360.0);
+            let (cx, cy) = ((k.x / 64.0) as usize, (k.y / 48.0) as usize);
+            cells[cy.min(9) * 10 + cx.min(9)] += 1;
+        }
+        let max = *cells.iter().max().unwrap_or(&0);
+        assert!(
+            (max as f32) <= 0.05 * f.keypoints.len() as f32,
+            "max cell {max} of {}",
+            f.keypoints.len()
+        );
+        // all 8 octaves are used
+        let octaves: std::collections::BTreeSet<u8> =
+            f.keypoints.iter().map(|k| k.octave).collect();
+        assert_eq!(octaves.len(), 8);
+    }
+
+    #[test]
+    fn rotation_is_measured_by_the_intensity_centroid() {
+        // bright right half → centroid to the right → angle 0; bright bottom → 90 degrees
+        let mut img = Gray8::new(40, 40, 0);
+        let orb = OrbExtractor::new(OrbParams::default());
+        for y in 0..40 {
+            for x in 20..40 {
+                img.set(x, y, 200);
+            }
+        }
+        let a = ic_angle(&img, 20, 20, &orb.umax);
+        assert!(!(1.0..=359.0).contains(&a), "{a}");
+        let mut img = Gray8::new(40, 40, 0);
+        for y in 21..40 {
+            for x in 0..40 {
+                img.set(x, y, 200);
+            }
+        }
+        let a = ic_angle(&img, 20, 20, &orb.umax);
+        assert!((a - 90.0).abs() < 1.0, "{a}");
+    }
+
+    #[test]
+    fn descriptors_follow_a_rotated_image() {
+        // a 90-degree rotation of the image maps keypoints and keeps descriptors close
+        let img = texture(300, 300, 3);
+        let mut rot = Gray8::new(300, 300, 0);
+        for y in 0..300 {
+            for x in 0..300 {
+                rot.set(299 - y, x, img.get(x, y));
+            }
+        }
+        let mut orb = OrbExtractor::new(OrbParams {
+            n_features: 300,
+            ..OrbParams::default()
+        });
+        let a = orb.extract(&img);
+        let b = orb.extract(&rot);
+        let mut close = 0;
+        let mut total = 0;
+        for (ka, da) in a.keypoints.iter().zip(&a.descriptors) {
+            if ka.octave != 0 {
+                continue;
+            }
+            let (ex, ey) = (299.0 - ka.y, ka.x);
+            if let Some((_, db)) = b
+                .keypoints
+                .iter()
+                .zip(&b.descriptors)
+                .find(|(kb, _)| kb.octave == 0 && kb.x == ex && kb.y == ey)
+            {
+                total += 1;
+                if crate::hamming(da, db) < 50 {
+                    close += 1;
+                }
+            }
+        }
+        assert!(total > 20, "{total}");
+        assert!(close * 10 >= total * 8, "{close}/{total}");
+    }
+
+    #[test]
+    fn blank_tiny_and_malformed_images_give_no_features() {
+        let mut orb = OrbExtractor::new(OrbParams::default());
+        assert!(orb.extract(&Gray8::new(640, 480, 128)).keypoints.is_empty());
+        assert!(orb.extract(&texture(30, 20, 1)).keypoints.is_empty());
+        assert!(orb.extract(&Gray8::new(0, 0, 0)).keypoints.is_empty());
+        let bad = Gray8 {
+            width: 100,
+            height: 100,
+            data: vec![0; 10],
+        };
+        assert!(orb.extract(&bad).keypoints.is_empty());
+        // a thin strip still works
+        let f = orb.extract(&texture(640, 45, 2));
+        assert_eq!(f.keypoints.len(), f.descriptors.len());
+        // weird parameters are clamped, not a panic
+        let mut odd = OrbExtractor::new(OrbParams {
+            n_features: 0,
+            scale_factor: f32::NAN,
+            n_levels: 0,
+            ini_th_fast: 0,
+            min_th_fast: 0,
+        });
+        assert!(odd.extract(&texture(100, 100, 1)).keypoints.is_empty());
+    }
+}
