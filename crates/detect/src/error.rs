@@ -1,0 +1,58 @@
+//! Errors of the detect crate; each names the file (and line, where one applies).
+
+use std::path::PathBuf;
+
+/// Where to get YOLOX weights, appended to "model not found" errors.
+pub const WEIGHTS_HINT: &str = "get YOLOX ONNX weights from the YOLOX project's GitHub releases \
+(https://github.com/Megvii-BaseDetection/YOLOX/releases, e.g. yolox_nano.onnx) and pass --model FILE, \
+set `model` in the [detect] settings, set STILLPOINT_MODEL, or put it at models/yolox_nano.onnx beside \
+the stillpoint binary";
+
+/// Everything that can go wrong while loading a detector or detecting.
+#[derive(Debug, thiserror::Error)]
+pub enum DetectError {
+    /// No model file anywhere on the search path.
+    #[error("no YOLOX model found (looked in: {searched}); {hint}", hint = WEIGHTS_HINT)]
+    ModelNotFound { searched: String },
+    /// A model path that was named explicitly does not exist or cannot be read.
+    #[error("{path}: cannot read model: {source}")]
+    ModelIo {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    /// The file is not a loadable ONNX model.
+    #[error("{path}: not a loadable ONNX model: {msg}")]
+    NotOnnx { path: PathBuf, msg: String },
+    /// The model loads but is not shaped like a YOLOX detector.
+    #[error("{path}: not a YOLOX model: {msg}")]
+    ModelShape { path: PathBuf, msg: String },
+    /// The inference backend failed at run time.
+    #[error("{backend}: inference failed: {msg}")]
+    Inference { backend: &'static str, msg: String },
+    /// ONNX Runtime's shared library is not available.
+    #[error(
+        "ONNX Runtime library not found ({msg}); run scripts/setup-onnxruntime.sh and set \
+         ORT_DYLIB_PATH to the libonnxruntime.so it prints (or `ort_dylib_path` in the [detect] \
+         settings), or use --backend tract"
+    )]
+    OrtLibrary { msg: String },
+    /// The backend was asked for but not compiled in.
+    #[error("backend `{0}` is not compiled into this build (rebuild with `--features ort`)")]
+    BackendUnavailable(String),
+    /// An unknown backend or detector name.
+    #[error("unknown {what} `{name}` (expected one of: {expected})")]
+    UnknownName {
+        what: &'static str,
+        name: String,
+        expected: &'static str,
+    },
+    /// Bad parameters or bad input data (empty image, NaN threshold, ...).
+    #[error("{0}")]
+    BadInput(String),
+    /// Ground-truth boxes could not be read.
+    #[error(transparent)]
+    Annotations(#[from] stillpoint_datasets::annotations::AnnotationError),
+    /// The detector thread is gone (it panicked or was shut down).
+    #[error("detector thread stopped: {0}")]
+    ThreadStopped(String),
+}

@@ -1,0 +1,111 @@
+//! Every parameter of the detect crate in one place, with where its default comes from.
+
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// Which inference engine runs the YOLOX ONNX model.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    /// tract-onnx: pure Rust, always compiled in, needs nothing on the machine.
+    #[default]
+    Tract,
+    /// ONNX Runtime through the `ort` crate (cargo feature `ort`), loaded at run time from
+    /// `libonnxruntime.so` (`scripts/setup-onnxruntime.sh`). About 3x faster than tract here.
+    Ort,
+}
+
+impl Backend {
+    /// Backend names accepted on the command line and in settings files.
+    pub const NAMES: &'static str = "tract, ort";
+
+    /// The name as the command line spells it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Backend::Tract => "tract",
+            Backend::Ort => "ort",
+        }
+    }
+}
+
+impl std::str::FromStr for Backend {
+    type Err = crate::DetectError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "tract" => Ok(Backend::Tract),
+            "ort" | "onnxruntime" => Ok(Backend::Ort),
+            _ => Err(crate::DetectError::UnknownName {
+                what: "backend",
+                name: s.to_string(),
+                expected: Backend::NAMES,
+            }),
+        }
+    }
+}
+
+/// Settings of the YOLOX detector (the `[detect]` table of a stillpoint TOML settings file).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DetectSettings {
+    /// YOLOX ONNX file; `None` searches the default places (see `model::resolve_model`).
+    pub model: Option<PathBuf>,
+    /// Inference engine; tract by default so a fresh machine needs nothing else.
+    pub backend: Backend,
+    /// Intra-op threads of the inference engine. 1 by default: the paper runs detection beside
+    /// tracking, and on a 2-core laptop the other core must stay free for tracking.
+    pub threads: usize,
+    /// Keep boxes whose score (objectness x class probability) is at least this. 0.3 as in
+    /// YOLOX's `demo/ONNXRuntime/onnx_inference.py` (`--score_thr 0.3`).
+    pub conf_threshold: f32,
+    /// Class-wise NMS IoU threshold: 0.45, YOLOX's demo (`multiclass_nms(..., nms_thr=0.45)`).
+    pub nms_threshold: f32,
+    /// Letterbox padding value: 114, YOLOX's `preproc` (`np.ones(...) * 114`).
+    pub pad_value: f32,
+    /// Input size (height, width) for models whose declared input shape is dynamic; a model
+    /// with a fixed shape always uses its own. 640x640 is YOLOX-s/m/l/x's test size.
+    pub fallback_input_size: (usize, usize),
+    /// `libonnxruntime.so` for the `ort` backend; `None` reads env `ORT_DYLIB_PATH`, then
+    /// `third_party/onnxruntime/libonnxruntime.so` under the working directory.
+    pub ort_dylib_path: Option<PathBuf>,
+}
+
+impl Default for DetectSettings {
+    fn default() -> Self {
+        Self {
+            model: None,
+            backend: Backend::Tract,
+            threads: 1,
+            conf_threshold: 0.3,
+            nms_threshold: 0.45,
+            pad_value: 114.0,
+            fallback_input_size: (640, 640),
+            ort_dylib_path: None,
+        }
+    }
+}
+
+impl DetectSettings {
+    /// Reject settings that would silently give nonsense (NaN thresholds, zero threads).
+    pub fn validate(&self) -> Result<(), crate::DetectError> {
+        let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
+        if !unit(self.conf_threshold) || !unit(self.nms_threshold) {
+            return Err(crate::DetectError::BadInput(format!(
+                "detect settings: thresholds must be in 0..1 (conf {}, nms {})",
+                self.conf_threshold, self.nms_threshold
+            )));
+        }
+        if self.threads == 0 || !self.pad_value.is_finite() {
+            return Err(crate::DetectError::BadInput(format!(
+                "detect settings: threads must be at least 1 and the pad value finite (threads {}, pad {})",
+                self.threads, self.pad_value
+            )));
+        }
+        let (h, w) = self.fallback_input_size;
+        if h == 0 || w == 0 || h % 32 != 0 || w % 32 != 0 {
+            return Err(crate::DetectError::BadInput(format!(
+                "detect settings: fallback input size {h}x{w} must be positive multiples of 32"
+            )));
+        }
+        Ok(())
+    }
+}
