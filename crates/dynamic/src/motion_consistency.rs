@@ -1,0 +1,488 @@
+//! The geometry module: motion consistency check between the previous and the current grayscale
+//! frame (paper section 2, module 2; DS-SLAM's `ProcessMovingObject`, which the authors reuse).
+//!
+//! Steps, as the authors' code:
+//! 1. Harris corners on the previous frame, refined to sub-pixel;
+//! 2. pyramidal LK into the current frame, failed tracks dropped;
+//! 3. pairs with a point within 5 px of the border, or whose 3x3 patches differ by a sum of
+//!    absolute differences above 2120, dropped;
+//! 4. F by RANSAC (0.1 px, 0.99);
+//! 5. outlier when the distance of the current point to the epipolar line of the previous one
+//!    exceeds 1 px.
+//!
+//! Where we differ, and why:
+//! - F is refit on the RANSAC inliers (the authors keep OpenCV's best minimal-sample model);
+//! - too few pairs, or no F (degenerate samples), never yields an empty or garbage F: the check
+//!   falls back to a homography, then to the flow, and says so in [`MotionCheck::model`];
+//! - when a homography explains the points as well as F does (static or purely rotating camera,
+//!   no measurable parallax), F is not determined by the static scene and RANSAC may align its
+//!   epipolar lines with a moving person; then the homography's transfer error is used instead
+//!   ([`GeometryParams::homography_support_ratio`]).
+
+use crate::settings::GeometryParams;
+use serde::Serialize;
+use stillpoint_features::{good_features_to_track, track_lk};
+use stillpoint_geometry::fundamental::fundamental_ransac;
+use stillpoint_geometry::homography::{HomographyRansac, homography_ransac, transfer_error2};
+use stillpoint_geometry::{Mat3, Vec2, epipolar_distance};
+use stillpoint_image::Gray8;
+
+/// One corner tracked from the previous into the current frame.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct TrackedPoint {
+    /// Position in the previous frame (pixels).
+    pub prev: [f32; 2],
+    /// Position in the current frame (pixels).
+    pub cur: [f32; 2],
+    /// Residual under [`MotionCheck::model`] in pixels: distance to the epipolar line (F), transfer
+    /// error (homography), or distance of the flow from the median flow (flow).
+    pub epipolar_distance: f32,
+    /// Residual above [`GeometryParams::outlier_threshold_px`]: the point moved in the world.
+    pub outlier: bool,
+}
+
+/// Which motion model judged the points.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum MotionModel {
+    /// Epipolar distance to the fundamental matrix (the paper's check).
+    Fundamental,
+    /// Transfer error of a homography (no parallax, or too few points for F).
+    Homography,
+    /// Distance of each flow vector from the median flow (too few points for a homography).
+    Flow,
+    /// Nothing could be estimated; no point is an outlier.
+    None,
+}
+
+/// Time spent per stage, milliseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct GeometryTimings {
+    pub corners_ms: f64,
+    pub lk_ms: f64,
+    pub checks_ms: f64,
+    pub model_ms: f64,
+}
+
+impl GeometryTimings {
+    /// Sum of the stages.
+    pub fn total_ms(&self) -> f64 {
+        self.corners_ms + self.lk_ms + self.checks_ms + self.model_ms
+    }
+}
+
+/// The result of [`motion_consistency`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct MotionCheck {
+    /// Pairs that survived tracking, border and patch checks, each judged.
+    pub points: Vec<TrackedPoint>,
+    pub model: MotionModel,
+    /// Corners found on the previous frame.
+    pub corners: usize,
+    /// Corners LK lost.
+    pub lk_failed: usize,
+    /// Pairs dropped by the border check.
+    pub border_rejected: usize,
+    /// Pairs dropped by the patch check.
+    pub patch_rejected: usize,
+    /// Why a fallback model (or none) was used; `None` for the paper's F.
+    pub fallback_reason: Option<&'static str>,
+    /// The model matrix (F or H; `None` for flow or none).
+    #[serde(skip)]
+    pub matrix: Option<Mat3>,
+    pub timings: GeometryTimings,
+}
+
+impl MotionCheck {
+    fn empty(reason: &'static str) -> Self {
+        Self {
+            points: Vec::new(),
+            model: MotionModel::None,
+            corners: 0,
+            lk_failed: 0,
+            border_rejected: 0,
+            patch_rejected: 0,
+            fallback_reason: Some(reason),
+            matrix: None,
+            timings: GeometryTimings::default(),
+        }
+    }
+
+    /// Number of outliers.
+    pub fn outliers(&self) -> usize {
+        self.points.iter().filter(|t| t.outlier).count()
+    }
+}
+
+/// Run the motion consistency check from `prev` to `cur` (same size, grayscale). Never panics:
+/// empty or differently sized images give [`MotionModel::None`] with no points.
+///
+/// ```
+/// use stillpoint_dynamic::{GeometryParams, MotionModel, motion_consistency};
+/// use stillpoint_image::Gray8;
+/// let mut img = Gray8::new(160, 120, 0);
+/// for y in 0..120 { for x in 0..160 {
+///     img.set(x, y, ((x / 8 * 37 + y / 8 * 91) % 200 + 20) as u8);
+/// }}
+/// let check = motion_consistency(&img, &img, &GeometryParams::default());
+/// assert_eq!(check.model, MotionModel::Homography); // a static camera: F is undefined
+/// assert_eq!(check.outliers(), 0);
+/// ```
+pub fn motion_consistency(prev: &Gray8, cur: &Gray8, p: &GeometryParams) -> MotionCheck {
+    if prev.is_empty() || cur.is_empty() {
+        return MotionCheck::empty("empty image");
+    }
+    if prev.width != cur.width || prev.height != cur.height {
+        return MotionCheck::empty("previous and current frames differ in size");
+    }
+    let clock = std::time::Instant::now();
+    let corners = good_features_to_track(prev, &p.corners);
+    let t_corners = clock.elapsed();
+    let tracks = track_lk(prev, cur, &corners, &p.lk);
+    let t_lk = clock.elapsed();
+
+    let mut check = MotionCheck::empty("");
+    check.corners = corners.len();
+    let (mut p1, mut p2) = (
+        Vec::with_capacity(corners.len()),
+        Vec::with_capacity(corners.len()),
+    );
+    for (c, t) in corners.iter().zip(&tracks) {
+        let Some(t) = t else {
+            check.lk_failed += 1;
+            continue;
+        };
+        if !inside_border(prev, *c, p.border_px) || !inside_border(cur, *t, p.border_px) {
+            check.border_rejected += 1;
+            continue;
+        }
+        if patch_sad(prev, *c, cur, *t, p.patch_half) > p.max_patch_sad {
+            check.patch_rejected += 1;
+            continue;
+        }
+        p1.push(Vec2::new(c[0] as f64, c[1] as f64));
+        p2.push(Vec2::new(t[0] as f64, t[1] as f64));
+    }
+    let t_checks = clock.elapsed();
+
+    let (model, residuals, matrix, reason) = choose_model(&p1, &p2, p);
+    check.model = model;
+    check.matrix = matrix;
+    check.fallback_reason = reason;
+    check.points = p1
+        .iter()
+        .zip(&p2)
+        .zip(&residuals)
+        .map(|((a, b), &r)| TrackedPoint {
+            prev: [a.x as f32, a.y as f32],
+            cur: [b.x as f32, b.y as f32],
+            epipolar_distance: r as f32,
+            outlier: model != MotionModel::None && r > p.outlier_threshold_px,
+        })
+        .collect();
+    let t_model = clock.elapsed();
+    let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+    check.timings = GeometryTimings {
+        corners_ms: ms(t_corners),
+        lk_ms: ms(t_lk - t_corners),
+        checks_ms: ms(t_checks - t_lk),
+        model_ms: ms(t_model - t_checks),
+    };
+    check
+}
+
+type ModelChoice = (MotionModel, Vec<f64>, Option<Mat3>, Option<&'static str>);
+
+/// Pick the motion model for the surviving pairs and return each pair's residual (pixels).
+pub fn choose_model(p1: &[Vec2], p2: &[Vec2], p: &GeometryParams) -> ModelChoice {
+    let n = p1.len();
+    let threshold = p.outlier_threshold_px;
+    let h_params = HomographyRansac {
+        threshold_px: threshold,
+        confidence: p.ransac.confidence,
+        max_iterations: p.ransac.max_iterations,
+        seed: p.ransac.seed,
+    };
+    let homography = (n >= 4)
+        .then(|| homography_ransac(p1, p2, &h_params))
+        .flatten();
+    let h_residuals = |h: &Mat3| -> Vec<f64> {
+        p1.iter()
+            .zip(p2)
+            .map(|(a, b)| transfer_error2(h, a, b).sqrt())
+            .collect()
+    };
+    let fundamental = (n >= p.min_points_fundamental.max(8))
+        .then(|| fundamental_ransac(p1, p2, &p.ransac))
+        .flatten();
+    match (fundamental, homography) {
+        (Some((f, _)), h) => {
+            let f_res: Vec<f64> = p1
+                .iter()
+                .zip(p2)
+                .map(|(a, b)| epipolar_distance(&f, a, b))
+                .collect();
+            if let Some((h, _)) = h {
+                let h_res = h_residuals(&h);
+                let f_static = f_res.iter().filter(|&&r| r <= threshold).count();
+                let h_static = h_res.iter().filter(|&&r| r <= threshold).count();
+                if h_static as f64 >= p.homography_support_ratio * f_static as f64 {
+                    return (
+                        MotionModel::Homography,
+                        h_res,
+                        Some(h),
+                        Some("no parallax: a homography explains the static points"),
+                    );
+                }
+            }
+            (MotionModel::Fundamental, f_res, Some(f), None)
+        }
+        (None, Some((h, _))) => {
+            let reason = if n < p.min_points_fundamental.max(8) {
+                "too few tracked points for F"
+            } else {
+                "F degenerate (no parallax)"
+            };
+            (
+                MotionModel::Homography,
+                h_residuals(&h),
+                Some(h),
+                Some(reason),
+            )
+        }
+        (None, None) if n >= p.min_points_flow.max(1) => (
+            MotionModel::Flow,
+            flow_residuals(p1, p2),
+            None,
+            Some("too few tracked points for a homography"),
+        ),
+        (None, None) => (
+            MotionModel::None,
+            vec![0.0; n],
+            None,
+            Some("too few tracked points"),
+        ),
+    }
+}
+
+/// Distance of each flow vector from the component-wise median flow.
+fn flow_residuals(p1: &[Vec2], p2: &[Vec2]) -> Vec<f64> {
+    let flows: Vec<Vec2> = p1.iter().zip(p2).map(|(a, b)| b - a).collect();
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let m = Vec2::new(
+        median(flows.iter().map(|f| f.x).collect()),
+        median(flows.iter().map(|f| f.y).collect()),
+    );
+    flows.iter().map(|f| (f - m).norm()).collect()
+}
+
+/// The authors' border check: at least `border` px from every edge.
+fn inside_border(img: &Gray8, p: [f32; 2], border: f32) -> bool {
+    p[0] >= border
+        && p[1] >= border
+        && p[0] <= img.width as f32 - 1.0 - border
+        && p[1] <= img.height as f32 - 1.0 - border
+}
+
+/// Sum of absolute differences of the (2 half + 1)² patches around the two points, at their
+/// integer (truncated, as the authors' `int` casts) positions. Out-of-image pixels count as the
+/// maximal difference, so the check fails safe.
+fn patch_sad(a: &Gray8, pa: [f32; 2], b: &Gray8, pb: [f32; 2], half: usize) -> u32 {
+    let h = half as isize;
+    let (ax, ay) = (pa[0] as isize, pa[1] as isize);
+    let (bx, by) = (pb[0] as isize, pb[1] as isize);
+    let mut sad = 0u32;
+    for dy in -h..=h {
+        for dx in -h..=h {
+            sad += match (
+                a.get_checked(ax + dx, ay + dy),
+                b.get_checked(bx + dx, by + dy),
+            ) {
+                (Some(u), Some(v)) => u.abs_diff(v) as u32,
+                _ => 255,
+            };
+        }
+    }
+    sad
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A blocky random texture (7 px blocks, values from a hash of the block), lightly blurred so
+    /// LK has gradients everywhere; `seed` picks the pattern.
+    fn texture(seed: u32) -> impl Fn(isize, isize) -> u8 {
+        move |x: isize, y: isize| {
+            let block = |bx: isize, by: isize| -> f32 {
+                let mut v = (bx as u32).wrapping_mul(73_856_093)
+                    ^ (by as u32).wrapping_mul(19_349_663)
+                    ^ seed.wrapping_mul(83_492_791);
+                v ^= v >> 13;
+                v = v.wrapping_mul(0x5bd1_e995);
+                v ^= v >> 15;
+                30.0 + (v % 200) as f32
+            };
+            let mut sum = 0.0;
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    sum += block((x + dx).div_euclid(7), (y + dy).div_euclid(7));
+                }
+            }
+            (sum / 9.0) as u8
+        }
+    }
+
+    /// A frame with layers drawn back to front: each layer is (texture seed, rect in the frame
+    /// or the whole frame, shift applied to its content and rect).
+    type Layer = (u32, Option<[isize; 4]>, [isize; 2]);
+
+    fn render(w: usize, h: usize, layers: &[Layer]) -> Gray8 {
+        let mut img = Gray8::new(w, h, 0);
+        for &(seed, rect, [sx, sy]) in layers {
+            let tex = texture(seed);
+            for y in 0..h as isize {
+                for x in 0..w as isize {
+                    let (u, v) = (x - sx, y - sy);
+                    let inside =
+                        rect.is_none_or(|[x1, y1, x2, y2]| u >= x1 && u < x2 && v >= y1 && v < y2);
+                    if inside {
+                        img.set(x as usize, y as usize, tex(u, v));
+                    }
+                }
+            }
+        }
+        img
+    }
+
+    fn in_rect(p: [f32; 2], [x1, y1, x2, y2]: [isize; 4], margin: f32) -> bool {
+        p[0] > x1 as f32 + margin
+            && p[0] < x2 as f32 - margin
+            && p[1] > y1 as f32 + margin
+            && p[1] < y2 as f32 - margin
+    }
+
+    #[test]
+    fn static_camera_gives_no_spurious_outliers() {
+        let img = render(320, 240, &[(1, None, [0, 0])]);
+        let check = motion_consistency(&img, &img, &GeometryParams::default());
+        assert!(check.points.len() > 200, "{} points", check.points.len());
+        assert_eq!(check.model, MotionModel::Homography);
+        assert_eq!(check.outliers(), 0);
+    }
+
+    #[test]
+    fn static_camera_flags_a_moving_object() {
+        let mover = [120, 80, 200, 160];
+        let prev = render(320, 240, &[(1, None, [0, 0]), (2, Some(mover), [0, 0])]);
+        let cur = render(320, 240, &[(1, None, [0, 0]), (2, Some(mover), [4, -3])]);
+        let check = motion_consistency(&prev, &cur, &GeometryParams::default());
+        assert_eq!(check.model, MotionModel::Homography);
+        let (mut moving, mut moving_out, mut still, mut still_out) = (0, 0, 0, 0);
+        for t in &check.points {
+            if in_rect(t.prev, mover, 6.0) {
+                moving += 1;
+                moving_out += usize::from(t.outlier);
+            } else if !in_rect(t.prev, mover, -14.0) {
+                still += 1;
+                still_out += usize::from(t.outlier);
+            }
+        }
+        assert!(
+            moving >= 20 && moving_out == moving,
+            "{moving_out}/{moving} movers flagged"
+        );
+        assert!(
+            still >= 100 && still_out == 0,
+            "{still_out}/{still} static flagged"
+        );
+    }
+
+    #[test]
+    fn translating_camera_with_parallax_uses_f_and_flags_the_mover() {
+        // Camera moves right: far wall shifts 2 px, a near box 6 px (parallax along the
+        // horizontal epipolar lines); a mover slides down 4 px, across its epipolar line.
+        let near = [20, 30, 130, 200];
+        let mover = [190, 60, 280, 150];
+        let layers = |k: isize| {
+            vec![
+                (1, None, [2 * k, 0]),
+                (3, Some(near), [6 * k, 0]),
+                (2, Some(mover), [2 * k, 4 * k]),
+            ]
+        };
+        let prev = render(320, 240, &layers(0));
+        let cur = render(320, 240, &layers(1));
+        let check = motion_consistency(&prev, &cur, &GeometryParams::default());
+        assert_eq!(
+            check.model,
+            MotionModel::Fundamental,
+            "{:?}",
+            check.fallback_reason
+        );
+        let (mut moving, mut moving_out, mut still, mut still_out) = (0, 0, 0, 0);
+        for t in &check.points {
+            let boundary = in_rect(t.prev, near, -14.0) && !in_rect(t.prev, near, 14.0);
+            if in_rect(t.prev, mover, 6.0) {
+                moving += 1;
+                moving_out += usize::from(t.outlier);
+            } else if !in_rect(t.prev, mover, -14.0) && !boundary {
+                still += 1;
+                still_out += usize::from(t.outlier);
+            }
+        }
+        assert!(
+            moving >= 20 && moving_out == moving,
+            "{moving_out}/{moving} movers flagged"
+        );
+        assert!(
+            still >= 100 && still_out == 0,
+            "{still_out}/{still} static flagged"
+        );
+    }
+
+    #[test]
+    fn bad_input_is_no_model_not_a_panic() {
+        let a = Gray8::new(64, 48, 0);
+        let b = Gray8::new(32, 48, 0);
+        assert_eq!(
+            motion_consistency(&a, &b, &GeometryParams::default()).model,
+            MotionModel::None
+        );
+        let empty = Gray8::new(0, 0, 0);
+        assert_eq!(
+            motion_consistency(&empty, &empty, &GeometryParams::default()).model,
+            MotionModel::None
+        );
+        // A flat image has no corners: nothing to judge, nothing flagged.
+        let check = motion_consistency(&a, &a, &GeometryParams::default());
+        assert_eq!((check.model, check.outliers()), (MotionModel::None, 0));
+    }
+
+    #[test]
+    fn too_few_points_fall_back_to_the_flow() {
+        let p1: Vec<Vec2> = [[10.0, 10.0], [50.0, 12.0], [30.0, 40.0]]
+            .iter()
+            .map(|&[x, y]| Vec2::new(x, y))
+            .collect();
+        let mut p2: Vec<Vec2> = p1.iter().map(|p| p + Vec2::new(1.0, 0.0)).collect();
+        p2[2].y += 5.0;
+        let (model, residuals, _, _) = choose_model(&p1, &p2, &GeometryParams::default());
+        assert_eq!(model, MotionModel::Flow);
+        assert!(residuals[0] < 1e-9 && residuals[1] < 1e-9 && (residuals[2] - 5.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn patch_and_border_checks() {
+        let img = render(64, 48, &[(1, None, [0, 0])]);
+        assert_eq!(patch_sad(&img, [20.3, 20.7], &img, [20.9, 20.1], 1), 0);
+        let dark = Gray8::new(64, 48, 0);
+        assert!(patch_sad(&img, [20.0, 20.0], &dark, [20.0, 20.0], 1) > 0);
+        assert_eq!(patch_sad(&img, [0.0, 0.0], &img, [0.0, 0.0], 1), 5 * 255);
+        assert!(inside_border(&img, [5.0, 5.0], 5.0));
+        assert!(!inside_border(&img, [4.9, 20.0], 5.0));
+        assert!(!inside_border(&img, [20.0, 42.5], 5.0));
+    }
+}
