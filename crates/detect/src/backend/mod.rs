@@ -87,3 +87,17 @@ pub(crate) fn check_model_file(path: &Path) -> Result<(), DetectError> {
     }
     Ok(())
 }
+
+/// Whether the `ort` backend can run here: compiled in and its library found (see
+/// `ort::resolve_dylib`; `configured` is the settings' `ort_dylib_path`).
+pub fn ort_dylib_available(configured: Option<&Path>) -> bool {
+    #[cfg(feature = "ort")]
+    {
+        ort::resolve_dylib(configured).is_ok()
+    }
+    #[cfg(not(feature = "ort"))]
+    {
+        let _ = configured;
+        false
+    }
+}
