@@ -1,8 +1,181 @@
-//! Not built yet: see the open issue for this command.
+//! `stillpoint synth`: write a synthetic dynamic sequence (TUM layout, optional KITTI stereo and
+//! masks) and/or a contact sheet of it.
+
+use anyhow::{Context, bail};
+use std::path::PathBuf;
+use stillpoint_synth::{KinectNoise, Noise, Preset, SynthConfig, WriteOptions};
 
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Scene and camera motion: walking_xyz, walking_static, walking_halfsphere, walking_rpy,
+    /// sitting_xyz, sitting_static, sitting_halfsphere, crowd, placing_box, person_tracking,
+    /// static; "all" only with --contact-sheet.
+    #[arg(long, default_value = "walking_xyz")]
+    preset: String,
+    /// Output folder (TUM layout). Optional when only a contact sheet is wanted.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Number of frames (30 Hz).
+    #[arg(long, default_value_t = 300)]
+    frames: usize,
+    /// Seed of all random choices.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Folder of photos (posters) and person cut-outs (an image with a `<stem>_person_mask*.png`).
+    #[arg(long)]
+    textures: Option<PathBuf>,
+    /// Image size WxH; the TUM fr3 intrinsics are scaled to it.
+    #[arg(long, default_value = "640x480")]
+    size: String,
+    /// Sensor noise: none or kinect.
+    #[arg(long, default_value = "none")]
+    noise: String,
+    /// Also write a KITTI-layout stereo sequence (image_0, image_1, calib.txt, times.txt, poses.txt).
+    #[arg(long)]
+    stereo: bool,
+    /// Stereo baseline in metres.
+    #[arg(long, default_value_t = 0.1)]
+    baseline: f64,
+    /// Write per-pixel dynamic masks (mask/*.png: 255 moving, 0 static).
+    #[arg(long)]
+    masks: bool,
+    /// Write a contact sheet PNG (frames with their boxes: red moving, green still).
+    #[arg(long)]
+    contact_sheet: Option<PathBuf>,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    json: bool,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("not implemented yet")
+fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .with_context(|| format!("--size {s:?}: expected WxH, e.g. 640x480"))?;
+    let w: u32 = w
+        .trim()
+        .parse()
+        .with_context(|| format!("--size {s:?}: bad width"))?;
+    let h: u32 = h
+        .trim()
+        .parse()
+        .with_context(|| format!("--size {s:?}: bad height"))?;
+    if !(16..=8192).contains(&w) || !(16..=8192).contains(&h) {
+        bail!("--size {s:?}: width and height must be within 16..8192");
+    }
+    Ok((w, h))
+}
+
+fn config(args: &Args, preset: Preset) -> anyhow::Result<SynthConfig> {
+    let (w, h) = parse_size(&args.size)?;
+    let mut cam = stillpoint_synth::tum_fr3_camera();
+    let (sx, sy) = (w as f64 / cam.width as f64, h as f64 / cam.height as f64);
+    cam.fx *= sx;
+    cam.fy *= sy;
+    cam.cx = (cam.cx + 0.5) * sx - 0.5;
+    cam.cy = (cam.cy + 0.5) * sy - 0.5;
+    cam.width = w;
+    cam.height = h;
+    let noise = match args.noise.as_str() {
+        "none" => Noise::None,
+        "kinect" => Noise::Kinect(KinectNoise::default()),
+        other => bail!("--noise {other:?}: expected none or kinect"),
+    };
+    if args.stereo && !(args.baseline > 0.0) {
+        bail!("--baseline {} must be positive", args.baseline);
+    }
+    Ok(SynthConfig {
+        preset,
+        frames: args.frames,
+        seed: args.seed,
+        camera: cam,
+        noise,
+        textures: args.textures.clone(),
+        stereo_baseline: args.stereo.then_some(args.baseline),
+        ..SynthConfig::default()
+    })
+}
+
+fn parse_preset(s: &str) -> anyhow::Result<Preset> {
+    Preset::from_name(s).with_context(|| {
+        let names: Vec<&str> = Preset::ALL.iter().map(|p| p.name()).collect();
+        format!("unknown preset {s:?}; known: {}", names.join(", "))
+    })
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.out.is_none() && args.contact_sheet.is_none() {
+        bail!("nothing to do: give --out DIR and/or --contact-sheet PNG");
+    }
+    if args.frames == 0 {
+        bail!("--frames must be at least 1");
+    }
+    if let Some(sheet) = &args.contact_sheet {
+        let presets = if args.preset == "all" {
+            Preset::ALL.to_vec()
+        } else {
+            vec![parse_preset(&args.preset)?]
+        };
+        let per_row = if presets.len() > 1 { 4 } else { 6 };
+        let mut images = Vec::new();
+        for p in &presets {
+            let cfg = config(&args, *p)?;
+            let g =
+                stillpoint_synth::generate(&cfg).with_context(|| format!("preset {}", p.name()))?;
+            let idx: Vec<usize> = (0..per_row)
+                .map(|k| k * (args.frames - 1) / (per_row - 1).max(1))
+                .collect();
+            images.extend(stillpoint_synth::write::annotated_frames(&g, &idx));
+        }
+        let img = stillpoint_synth::contact_sheet(&images, per_row, 2);
+        stillpoint_image::write_rgb(sheet, &img)
+            .with_context(|| format!("writing contact sheet {}", sheet.display()))?;
+        tracing::info!(
+            "contact sheet of {} presets in {}",
+            presets.len(),
+            sheet.display()
+        );
+    }
+    let Some(out) = &args.out else {
+        return Ok(());
+    };
+    let preset = parse_preset(&args.preset)?;
+    let cfg = config(&args, preset)?;
+    let opts = WriteOptions {
+        stereo: args.stereo,
+        masks: args.masks,
+    };
+    tracing::info!(
+        "writing {} frames of {} to {}",
+        cfg.frames,
+        preset.name(),
+        out.display()
+    );
+    let s = stillpoint_synth::write_sequence(&cfg, opts, out)
+        .with_context(|| format!("writing {} into {}", preset.name(), out.display()))?;
+    if args.json {
+        let v = serde_json::json!({
+            "preset": preset.name(),
+            "dir": s.dir,
+            "frames": s.frames,
+            "seconds": s.seconds,
+            "frames_per_second": s.frames_per_second,
+            "mean_dynamic_fraction": s.mean_dynamic_fraction,
+            "mean_person_fraction": s.mean_person_fraction,
+            "boxes": s.boxes,
+        });
+        println!("{v}");
+    } else {
+        println!(
+            "{}: {} frames in {:.2} s ({:.1} frames/s), people cover {:.1} % and moving parts {:.1} % of the image on average, {} boxes -> {}",
+            preset.name(),
+            s.frames,
+            s.seconds,
+            s.frames_per_second,
+            100.0 * s.mean_person_fraction,
+            100.0 * s.mean_dynamic_fraction,
+            s.boxes,
+            s.dir.display()
+        );
+    }
+    Ok(())
 }
