@@ -80,7 +80,7 @@ fn config(args: &Args, preset: Preset) -> anyhow::Result<SynthConfig> {
         "kinect" => Noise::Kinect(KinectNoise::default()),
         other => bail!("--noise {other:?}: expected none or kinect"),
     };
-    if args.stereo && !(args.baseline > 0.0) {
+    if args.stereo && (args.baseline.is_nan() || args.baseline <= 0.0) {
         bail!("--baseline {} must be positive", args.baseline);
     }
     Ok(SynthConfig {
