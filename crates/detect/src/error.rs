@@ -15,10 +15,11 @@ pub enum DetectError {
     #[error("no YOLOX model found (looked in: {searched}); {hint}", hint = WEIGHTS_HINT)]
     ModelNotFound { searched: String },
     /// A model path that was named explicitly does not exist or cannot be read.
-    #[error("{path}: cannot read model: {source}")]
+    #[error("{path}: cannot read model: {error}")]
     ModelIo {
         path: PathBuf,
-        source: std::io::Error,
+        /// Not a `#[source]`: it is already in the message, and error chains would repeat it.
+        error: std::io::Error,
     },
     /// The file is not a loadable ONNX model.
     #[error("{path}: not a loadable ONNX model: {msg}")]

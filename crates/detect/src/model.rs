@@ -29,7 +29,7 @@ pub fn resolve_model(explicit: Option<&Path>) -> Result<PathBuf, DetectError> {
         } else {
             Err(DetectError::ModelIo {
                 path: p,
-                source: std::io::Error::new(
+                error: std::io::Error::new(
                     std::io::ErrorKind::NotFound,
                     format!("no such model file (named by {from})"),
                 ),

@@ -109,3 +109,61 @@ impl DetectSettings {
         Ok(())
     }
 }
+
+/// Read the `[detect]` table of a stillpoint TOML settings file (other tables are ignored; a
+/// file without one gives the defaults). Unknown keys in `[detect]` are errors, so typos show.
+///
+/// ```toml
+/// [detect]
+/// model = "models/yolox_nano.onnx"
+/// backend = "ort"
+/// threads = 2
+/// ```
+pub fn load_toml(path: &std::path::Path) -> Result<DetectSettings, crate::DetectError> {
+    #[derive(Deserialize)]
+    struct File {
+        #[serde(default)]
+        detect: DetectSettings,
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| {
+        crate::DetectError::BadInput(format!("{}: cannot read settings: {e}", path.display()))
+    })?;
+    let file: File = toml::from_str(&text).map_err(|e| {
+        crate::DetectError::BadInput(format!("{}: {}", path.display(), e.to_string().trim_end()))
+    })?;
+    file.detect
+        .validate()
+        .map_err(|e| crate::DetectError::BadInput(format!("{}: {e}", path.display())))?;
+    Ok(file.detect)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn toml_detect_table_is_read_and_typos_are_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("settings.toml");
+        std::fs::write(
+            &path,
+            "[camera]\nfx = 1.0\n\n[detect]\nbackend = \"ort\"\nthreads = 2\nmodel = \"m.onnx\"\n",
+        )
+        .unwrap();
+        let s = load_toml(&path).unwrap();
+        assert_eq!(s.backend, Backend::Ort);
+        assert_eq!(s.threads, 2);
+        assert_eq!(s.model.as_deref(), Some(std::path::Path::new("m.onnx")));
+        assert_eq!(s.conf_threshold, 0.3);
+        std::fs::write(&path, "[detect]\nthreshold = 0.5\n").unwrap();
+        let err = load_toml(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("settings.toml") && err.contains("threshold"),
+            "{err}"
+        );
+        std::fs::write(&path, "[detect]\nthreads = 0\n").unwrap();
+        assert!(load_toml(&path).is_err());
+        std::fs::write(&path, "[other]\n").unwrap();
+        assert_eq!(load_toml(&path).unwrap(), DetectSettings::default());
+    }
+}

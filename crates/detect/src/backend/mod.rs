@@ -69,14 +69,14 @@ pub(crate) fn choose_input_size(
 /// Check that a model file can be read and is not trivially empty, before a backend parses it
 /// (an empty file is a valid, empty protobuf, which would otherwise give a confusing error).
 pub(crate) fn check_model_file(path: &Path) -> Result<(), DetectError> {
-    let meta = std::fs::metadata(path).map_err(|source| DetectError::ModelIo {
+    let meta = std::fs::metadata(path).map_err(|error| DetectError::ModelIo {
         path: path.to_path_buf(),
-        source,
+        error,
     })?;
     if !meta.is_file() {
         return Err(DetectError::ModelIo {
             path: path.to_path_buf(),
-            source: std::io::Error::other("not a regular file"),
+            error: std::io::Error::other("not a regular file"),
         });
     }
     if meta.len() < 16 {
