@@ -221,8 +221,16 @@ pub fn choose_model(p1: &[Vec2], p2: &[Vec2], p: &GeometryParams) -> ModelChoice
                 .zip(p2)
                 .map(|(a, b)| epipolar_distance(&f, a, b))
                 .collect();
-            if let Some((h, _)) = h {
+            if let Some((h, h_inliers)) = h {
                 let h_res = h_residuals(&h);
+                if still_camera(p1, p2, &h_inliers, p.still_camera_flow_px) {
+                    return (
+                        MotionModel::Homography,
+                        h_res,
+                        Some(h),
+                        Some("still camera: the static points barely move"),
+                    );
+                }
                 let f_static = f_res.iter().filter(|&&r| r <= threshold).count();
                 let h_static = h_res.iter().filter(|&&r| r <= threshold).count();
                 if h_static as f64 >= p.homography_support_ratio * f_static as f64 {
@@ -262,6 +270,24 @@ pub fn choose_model(p1: &[Vec2], p2: &[Vec2], p: &GeometryParams) -> ModelChoice
             Some("too few tracked points"),
         ),
     }
+}
+
+/// True when 90 % of the homography's inliers moved less than `max_flow_px`: the camera (nearly)
+/// stood still, so parallax, which is at most the translational flow of the nearest point, is
+/// below the outlier threshold too, and F is undetermined.
+fn still_camera(p1: &[Vec2], p2: &[Vec2], inliers: &[bool], max_flow_px: f64) -> bool {
+    let mut flows: Vec<f64> = p1
+        .iter()
+        .zip(p2)
+        .zip(inliers)
+        .filter(|(_, inlier)| **inlier)
+        .map(|((a, b), _)| (b - a).norm())
+        .collect();
+    if flows.is_empty() {
+        return false;
+    }
+    flows.sort_by(f64::total_cmp);
+    flows[(flows.len() * 9 / 10).min(flows.len() - 1)] < max_flow_px
 }
 
 /// Distance of each flow vector from the component-wise median flow.

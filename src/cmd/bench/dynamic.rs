@@ -1,8 +1,351 @@
-//! Not built yet: see the open issue for this benchmark.
+//! `stillpoint bench dynamic`: precision and recall of the dynamic-keypoint decision against the
+//! ground-truth masks of a synthetic sequence (`stillpoint synth --masks`), for our method
+//! (geometry + NHBC/ATA + culling), our method with the unknown-object option, a person-box-only
+//! baseline (Crowd-SLAM: cull everything in person boxes) and a detection-free baseline
+//! (epipolar outliers only, dilated to a radius). Also times the geometry module per frame, as a
+//! ratio to ORB extraction of the same frames.
+//!
+//! Ground truth: an ORB keypoint (level-0 pixel, rounded) is dynamic when the mask is non-zero
+//! there. Frame 0 has no previous frame and is skipped by every method.
+
+use anyhow::{Context, bail};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use stillpoint_detect::{DetectInput, DetectSettings, GtDetectorParams, open_detector};
+use stillpoint_dynamic::{
+    CullParams, DynamicSettings, MotionModel, cull_with, judge_boxes, motion_consistency,
+    near_outliers,
+};
+use stillpoint_features::{OrbExtractor, OrbParams};
+use stillpoint_image::{Gray8, read_gray, read_rgb, rgb_to_gray};
 
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// A synthetic sequence written with `stillpoint synth --masks` (rgb.txt, rgb/, mask/,
+    /// boxes.jsonl).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Boxes from: gt (boxes.jsonl), yolox (the ONNX model), none.
+    #[arg(long, default_value = "gt")]
+    detector: String,
+    /// Radius in pixels of the detection-free baseline's dilation around outliers.
+    #[arg(long, default_value_t = 20.0)]
+    radius: f32,
+    /// Use at most this many frames (0: all).
+    #[arg(long, default_value_t = 0)]
+    max_frames: usize,
+    /// Print one line per frame as well.
+    #[arg(long)]
+    per_frame: bool,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("not implemented yet")
+/// Confusion counts of one method.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+struct Counts {
+    tp: usize,
+    fp: usize,
+    fn_: usize,
+    tn: usize,
+}
+
+impl Counts {
+    fn add(&mut self, predicted: &[bool], truth: &[bool]) {
+        for (&p, &t) in predicted.iter().zip(truth) {
+            match (p, t) {
+                (true, true) => self.tp += 1,
+                (true, false) => self.fp += 1,
+                (false, true) => self.fn_ += 1,
+                (false, false) => self.tn += 1,
+            }
+        }
+    }
+    /// Precision; `None` when nothing was predicted dynamic.
+    fn precision(&self) -> Option<f64> {
+        let d = self.tp + self.fp;
+        (d > 0).then(|| self.tp as f64 / d as f64)
+    }
+    /// Recall; `None` when nothing is truly dynamic.
+    fn recall(&self) -> Option<f64> {
+        let d = self.tp + self.fn_;
+        (d > 0).then(|| self.tp as f64 / d as f64)
+    }
+}
+
+const METHODS: [&str; 4] = ["ours", "ours+unknown", "person_boxes", "outliers_only"];
+
+#[derive(Serialize)]
+struct FrameReport {
+    frame: usize,
+    keypoints: usize,
+    truly_dynamic: usize,
+    model: MotionModel,
+    corners: usize,
+    lk_failed: usize,
+    border_rejected: usize,
+    patch_rejected: usize,
+    tracked: usize,
+    outliers: usize,
+    geometry_ms: f64,
+    counts: Vec<Counts>,
+}
+
+#[derive(Serialize)]
+struct MethodReport {
+    method: &'static str,
+    counts: Counts,
+    precision: Option<f64>,
+    recall: Option<f64>,
+}
+
+#[derive(Serialize)]
+struct Report {
+    dataset: String,
+    detector: String,
+    frames: usize,
+    methods: Vec<MethodReport>,
+    models: Vec<(MotionModel, usize)>,
+    geometry_ms_mean: f64,
+    geometry_ms_median: f64,
+    geometry_stage_ms_mean: [f64; 4],
+    orb_ms_mean: f64,
+    geometry_over_orb: f64,
+    per_frame: Vec<FrameReport>,
+}
+
+/// The frames of a TUM-layout sequence: (timestamp, rgb path, mask path).
+fn read_frames(dir: &Path) -> anyhow::Result<Vec<(f64, PathBuf, PathBuf)>> {
+    let list = dir.join("rgb.txt");
+    let text = std::fs::read_to_string(&list)
+        .with_context(|| format!("{}: cannot read", list.display()))?;
+    let mut frames = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let mut it = line.split_whitespace();
+        let (Some(t), Some(file)) = (it.next(), it.next()) else {
+            bail!("{}:{}: expected `timestamp file`", list.display(), n + 1);
+        };
+        let t: f64 = t
+            .parse()
+            .with_context(|| format!("{}:{}: bad timestamp {t:?}", list.display(), n + 1))?;
+        let name = Path::new(file)
+            .file_name()
+            .with_context(|| format!("{}:{}: no file name in {file:?}", list.display(), n + 1))?;
+        frames.push((t, dir.join(file), dir.join("mask").join(name)));
+    }
+    if frames.len() < 2 {
+        bail!(
+            "{}: need at least 2 frames, found {}",
+            list.display(),
+            frames.len()
+        );
+    }
+    Ok(frames)
+}
+
+fn mean(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        0.0
+    } else {
+        v.iter().sum::<f64>() / v.len() as f64
+    }
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(0.0)
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let frames = read_frames(&args.dataset)?;
+    let n = if args.max_frames > 0 {
+        args.max_frames.min(frames.len())
+    } else {
+        frames.len()
+    };
+    let boxes = args.dataset.join("boxes.jsonl");
+    let mut detector = open_detector(
+        &args.detector,
+        &DetectSettings::default(),
+        boxes.exists().then_some(boxes.as_path()),
+        GtDetectorParams::default(),
+    )
+    .with_context(|| format!("detector {:?}", args.detector))?;
+    let settings = DynamicSettings::default();
+    let unknown = CullParams {
+        unknown_objects: true,
+        ..settings.cull.clone()
+    };
+    let mut orb = OrbExtractor::new(OrbParams::default());
+
+    let mut totals = [Counts::default(); 4];
+    let mut per_frame = Vec::new();
+    let (mut geometry_ms, mut orb_ms) = (Vec::new(), Vec::new());
+    let mut stages = [0.0f64; 4];
+    let mut models: Vec<(MotionModel, usize)> = Vec::new();
+    let mut prev: Option<Gray8> = None;
+    for (index, (t, rgb_path, mask_path)) in frames.iter().take(n).enumerate() {
+        let rgb = read_rgb(rgb_path).with_context(|| format!("frame {index}"))?;
+        let gray = rgb_to_gray(&rgb);
+        let Some(prev_gray) = prev.replace(gray.clone()) else {
+            continue;
+        };
+        let mask = read_gray(mask_path)
+            .with_context(|| format!("frame {index}: ground-truth mask (synth --masks)"))?;
+        if (mask.width, mask.height) != (gray.width, gray.height) {
+            bail!("{}: mask size differs from the image", mask_path.display());
+        }
+        let clock = std::time::Instant::now();
+        let features = orb.extract(&gray);
+        orb_ms.push(clock.elapsed().as_secs_f64() * 1e3);
+        let kps: Vec<[f32; 2]> = features.keypoints.iter().map(|k| [k.x, k.y]).collect();
+        let truth: Vec<bool> = kps
+            .iter()
+            .map(|&[x, y]| {
+                let (x, y) = (x.round() as usize, y.round() as usize);
+                x < mask.width && y < mask.height && mask.get(x, y) > 0
+            })
+            .collect();
+
+        let check = motion_consistency(&prev_gray, &gray, &settings.geometry);
+        geometry_ms.push(check.timings.total_ms());
+        let tm = check.timings;
+        for (s, v) in stages
+            .iter_mut()
+            .zip([tm.corners_ms, tm.lk_ms, tm.checks_ms, tm.model_ms])
+        {
+            *s += v;
+        }
+        match models.iter_mut().find(|(m, _)| *m == check.model) {
+            Some((_, c)) => *c += 1,
+            None => models.push((check.model, 1)),
+        }
+        let dets = detector
+            .detect(&DetectInput {
+                index,
+                timestamp: *t,
+                rgb: &rgb,
+            })
+            .with_context(|| format!("frame {index}: detector"))?;
+        let states = judge_boxes(&dets, &check.points, &settings.judge);
+        let person = settings.judge.person_class;
+        let predictions = [
+            cull_with(&kps, &states, &check.points, &settings.cull),
+            cull_with(&kps, &states, &check.points, &unknown),
+            kps.iter()
+                .map(|&[x, y]| {
+                    dets.iter()
+                        .any(|d| d.class_id == person && d.bbox.contains_strict(x, y))
+                })
+                .collect(),
+            near_outliers(&kps, &check.points, args.radius, 1),
+        ];
+        let mut counts = [Counts::default(); 4];
+        for ((c, total), p) in counts.iter_mut().zip(&mut totals).zip(&predictions) {
+            c.add(p, &truth);
+            total.add(p, &truth);
+        }
+        let report = FrameReport {
+            frame: index,
+            keypoints: kps.len(),
+            truly_dynamic: truth.iter().filter(|&&d| d).count(),
+            model: check.model,
+            corners: check.corners,
+            lk_failed: check.lk_failed,
+            border_rejected: check.border_rejected,
+            patch_rejected: check.patch_rejected,
+            tracked: check.points.len(),
+            outliers: check.outliers(),
+            geometry_ms: check.timings.total_ms(),
+            counts: counts.to_vec(),
+        };
+        if args.per_frame && !args.json {
+            let pr: Vec<String> = counts
+                .iter()
+                .map(|c| format!("{}/{}", fmt_opt(c.precision()), fmt_opt(c.recall())))
+                .collect();
+            println!(
+                "frame {:4}  kps {:4}  dyn {:4}  {:?} tracked {:4} outliers {:3}  P/R {}",
+                index,
+                report.keypoints,
+                report.truly_dynamic,
+                report.model,
+                report.tracked,
+                report.outliers,
+                pr.join("  ")
+            );
+        }
+        tracing::debug!(frame = index, ms = report.geometry_ms, "geometry");
+        per_frame.push(report);
+    }
+    let judged = per_frame.len().max(1) as f64;
+    let report = Report {
+        dataset: args.dataset.display().to_string(),
+        detector: detector.name().to_string(),
+        frames: per_frame.len(),
+        methods: METHODS
+            .iter()
+            .zip(&totals)
+            .map(|(&method, c)| MethodReport {
+                method,
+                counts: *c,
+                precision: c.precision(),
+                recall: c.recall(),
+            })
+            .collect(),
+        models,
+        geometry_ms_mean: mean(&geometry_ms),
+        geometry_ms_median: median(&geometry_ms),
+        geometry_stage_ms_mean: stages.map(|s| s / judged),
+        orb_ms_mean: mean(&orb_ms),
+        geometry_over_orb: mean(&geometry_ms) / mean(&orb_ms).max(1e-9),
+        per_frame,
+    };
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    println!(
+        "{}: {} frames judged, detector {}",
+        report.dataset, report.frames, report.detector
+    );
+    println!(
+        "{:<14} {:>9} {:>9} {:>7} {:>7} {:>7}",
+        "method", "precision", "recall", "tp", "fp", "fn"
+    );
+    for m in &report.methods {
+        println!(
+            "{:<14} {:>9} {:>9} {:>7} {:>7} {:>7}",
+            m.method,
+            fmt_opt(m.precision),
+            fmt_opt(m.recall),
+            m.counts.tp,
+            m.counts.fp,
+            m.counts.fn_
+        );
+    }
+    println!("motion models: {:?}", report.models);
+    let s = report.geometry_stage_ms_mean;
+    println!(
+        "geometry module: mean {:.2} ms, median {:.2} ms per frame (corners {:.2}, LK {:.2}, checks {:.2}, model {:.2}); {:.2}x ORB extraction ({:.2} ms)",
+        report.geometry_ms_mean,
+        report.geometry_ms_median,
+        s[0],
+        s[1],
+        s[2],
+        s[3],
+        report.geometry_over_orb,
+        report.orb_ms_mean
+    );
+    Ok(())
+}
+
+fn fmt_opt(v: Option<f64>) -> String {
+    v.map_or("-".to_string(), |v| format!("{v:.3}"))
 }
