@@ -1,11 +1,28 @@
 //! Datasets: readers that turn TUM, Bonn, KITTI, EuRoC and image folders (and stillpoint's own
 //! synthetic sequences, which use the TUM layout) into a stream of timestamped frames with
 //! calibration, and the settings files (ORB-SLAM `%YAML:1.0`, our TOML) that describe a camera.
+//!
+//! Frames are read lazily: [`open`] reads file lists only, [`Sequence::frame`] loads one frame.
 
 pub mod annotations;
+pub mod error;
+pub mod euroc;
+pub mod folder;
 pub mod frame;
+pub mod kitti;
+pub mod lists;
+pub mod sequence;
 pub mod settings;
+pub mod settings_file;
+pub mod tum;
 
 pub use annotations::{FrameBoxes, GtBox};
+pub use error::DatasetError;
 pub use frame::Frame;
+pub use lists::{associate_nearest, read_associations, read_stamped_list, read_times};
+pub use sequence::{DatasetKind, Sequence, detect_kind, open};
 pub use settings::{OrbSettings, Sensor, Settings};
+pub use settings_file::{
+    parse_orbslam_yaml, parse_settings_toml, read_orbslam_yaml, read_settings, read_settings_toml,
+    write_settings_toml,
+};

@@ -41,21 +41,56 @@ pub struct Settings {
     pub sensor: Sensor,
     /// Left / only camera (distortion included).
     pub camera: PinholeCamera,
-    /// Frames per second (`Camera.fps`).
+    /// Frames per second (`Camera.fps`; ORB-SLAM's default 30).
+    #[serde(default = "default_fps")]
     pub fps: f64,
     /// Raw depth units per metre (`DepthMapFactor`; TUM 5000). Depth images are divided by it.
+    #[serde(default = "default_depth_factor")]
     pub depth_factor: f64,
     /// Stereo baseline times fx, in pixel-metres (`Camera.bf`); RGB-D uses it for the virtual
     /// right coordinate and the close/far split.
+    #[serde(default)]
     pub bf: Option<f64>,
     /// Close/far threshold in baselines (`ThDepth`): close when depth < th_depth * bf / fx.
+    /// ORB-SLAM's TUM files use 40, its KITTI/EuRoC files 35.
+    #[serde(default = "default_th_depth")]
     pub th_depth: f64,
     /// True when the images are RGB (`Camera.RGB: 1`), false for BGR.
+    #[serde(default = "default_rgb")]
     pub rgb: bool,
+    #[serde(default)]
     pub orb: OrbSettings,
 }
 
+fn default_fps() -> f64 {
+    30.0
+}
+fn default_depth_factor() -> f64 {
+    5000.0
+}
+fn default_th_depth() -> f64 {
+    40.0
+}
+fn default_rgb() -> bool {
+    true
+}
+
 impl Settings {
+    /// Settings for `camera` with ORB-SLAM's TUM defaults for everything else (30 fps, depth
+    /// factor 5000, `bf` 40, `ThDepth` 40, RGB order, 1000 ORB features).
+    pub fn with_camera(sensor: Sensor, camera: PinholeCamera) -> Self {
+        Self {
+            sensor,
+            camera,
+            fps: default_fps(),
+            depth_factor: default_depth_factor(),
+            bf: Some(40.0),
+            th_depth: default_th_depth(),
+            rgb: true,
+            orb: OrbSettings::default(),
+        }
+    }
+
     /// Baseline in metres, when `bf` is known.
     pub fn baseline(&self) -> Option<f64> {
         self.bf.map(|bf| bf / self.camera.fx)

@@ -1,0 +1,54 @@
+//! The crate's error: every message names the file (and the line, where one applies).
+
+use std::path::Path;
+
+/// What can go wrong opening a sequence or reading a frame.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    /// A malformed line in a text file (list, association, calibration, times).
+    #[error("{path}:{line}: {msg}")]
+    Parse {
+        path: String,
+        line: usize,
+        msg: String,
+    },
+    /// A settings file without a required key, or with a value of the wrong kind.
+    #[error("{path}: {msg}")]
+    Settings { path: String, msg: String },
+    /// An image that cannot be decoded, or does not fit the sequence.
+    #[error("{0}")]
+    Image(#[from] stillpoint_image::ImageError),
+    /// The directory is not a sequence of any known layout, or lacks a needed file.
+    #[error("{path}: {msg}")]
+    Layout { path: String, msg: String },
+    /// A frame index past the end.
+    #[error("frame {index} is out of range: the sequence has {len} frames")]
+    OutOfRange { index: usize, len: usize },
+}
+
+pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
+    move |source| DatasetError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+pub(crate) fn parse_err(path: &Path, line: usize, msg: impl Into<String>) -> DatasetError {
+    DatasetError::Parse {
+        path: path.display().to_string(),
+        line,
+        msg: msg.into(),
+    }
+}
+
+pub(crate) fn layout_err(path: &Path, msg: impl Into<String>) -> DatasetError {
+    DatasetError::Layout {
+        path: path.display().to_string(),
+        msg: msg.into(),
+    }
+}

@@ -1,0 +1,195 @@
+//! EuRoC MAV layout: `mav0/cam0/data.csv` (`#timestamp [ns],filename`), images in
+//! `mav0/cam0/data/`, intrinsics in `mav0/cam0/sensor.yaml`, ground truth in
+//! `mav0/state_groundtruth_estimate0/data.csv`.
+
+use crate::error::{DatasetError, io_err, layout_err, parse_err};
+use crate::lists::data_lines;
+use crate::sequence::{Sequence, check_index, check_size, dir_name};
+use crate::{Frame, Sensor, Settings};
+use std::path::{Path, PathBuf};
+use stillpoint_geometry::{PinholeCamera, RadTan};
+use stillpoint_image::read_gray;
+
+/// Read a camera's `data.csv`: (seconds, image path), stamps strictly increasing.
+fn read_cam_csv(cam: &Path) -> Result<Vec<(f64, PathBuf)>, DatasetError> {
+    let csv = cam.join("data.csv");
+    let mut out: Vec<(f64, PathBuf)> = Vec::new();
+    for (line, text) in data_lines(&csv)? {
+        let Some((ns, file)) = text.split_once(',') else {
+            return Err(parse_err(&csv, line, "expected \"timestamp_ns,filename\""));
+        };
+        let ns: u64 = ns
+            .trim()
+            .parse()
+            .map_err(|_| parse_err(&csv, line, format!("{ns:?} is not a nanosecond timestamp")))?;
+        let t = ns as f64 / 1e9;
+        if let Some(prev) = out.last()
+            && t <= prev.0
+        {
+            return Err(parse_err(&csv, line, "timestamps must increase strictly"));
+        }
+        out.push((t, cam.join("data").join(file.trim())));
+    }
+    if out.is_empty() {
+        return Err(parse_err(&csv, 1, "no frames listed"));
+    }
+    Ok(out)
+}
+
+/// Intrinsics of an EuRoC `sensor.yaml` (`intrinsics: [fu, fv, cu, cv]`, `resolution`,
+/// `distortion_coefficients: [k1, k2, p1, p2]`, `rate_hz`).
+pub fn read_euroc_sensor_yaml(path: &Path) -> Result<Settings, DatasetError> {
+    let text = std::fs::read_to_string(path).map_err(io_err(path))?;
+    let fixed: String = text
+        .lines()
+        .map(|l| {
+            if l.trim_start().starts_with("%YAML") {
+                ""
+            } else {
+                l
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let bad = |msg: String| DatasetError::Settings {
+        path: path.display().to_string(),
+        msg,
+    };
+    let docs = yaml_rust2::YamlLoader::load_from_str(&fixed)
+        .map_err(|e| bad(format!("line {}: {}", e.marker().line(), e.info())))?;
+    let root = docs.into_iter().next().unwrap_or(yaml_rust2::Yaml::Null);
+    let nums = |k: &str, n: usize| -> Result<Vec<f64>, DatasetError> {
+        let v: Option<Vec<f64>> = root[k]
+            .as_vec()
+            .map(|a| {
+                a.iter()
+                    .map(|y| y.as_f64().or_else(|| y.as_i64().map(|i| i as f64)))
+                    .collect::<Option<Vec<f64>>>()
+            })
+            .unwrap_or(None);
+        v.filter(|v| v.len() >= n && v.iter().all(|x| x.is_finite()))
+            .ok_or_else(|| bad(format!("{k} must be a list of at least {n} numbers")))
+    };
+    let k = nums("intrinsics", 4)?;
+    let res = nums("resolution", 2)?;
+    let d = nums("distortion_coefficients", 4).unwrap_or_else(|_| vec![0.0; 4]);
+    if !(res[0] >= 1.0 && res[1] >= 1.0 && k[0] > 0.0 && k[1] > 0.0) {
+        return Err(bad("resolution and focal lengths must be positive".into()));
+    }
+    let mut camera = PinholeCamera::new(k[0], k[1], k[2], k[3], res[0] as u32, res[1] as u32);
+    camera.distortion = RadTan {
+        k1: d[0],
+        k2: d[1],
+        p1: d[2],
+        p2: d[3],
+        k3: 0.0,
+    };
+    let mut s = Settings::with_camera(Sensor::Mono, camera);
+    s.bf = None;
+    s.fps = root["rate_hz"]
+        .as_f64()
+        .or_else(|| root["rate_hz"].as_i64().map(|v| v as f64))
+        .unwrap_or(20.0);
+    s.th_depth = 35.0;
+    s.orb.n_features = 1000;
+    Ok(s)
+}
+
+/// An EuRoC MAV sequence: cam0 (left); cam1 as the right image when the settings are stereo
+/// (an ORB-SLAM EuRoC settings file; images are not rectified here).
+pub struct EurocSequence {
+    mav: PathBuf,
+    settings: Settings,
+    left: Vec<(f64, PathBuf)>,
+    right: Option<Vec<PathBuf>>,
+}
+
+impl EurocSequence {
+    /// Open `dir` (the sequence folder holding `mav0/`, or `mav0/` itself).
+    pub fn open(dir: &Path, settings: Option<Settings>) -> Result<Self, DatasetError> {
+        let mav = if dir.join("mav0").is_dir() {
+            dir.join("mav0")
+        } else {
+            dir.to_path_buf()
+        };
+        let cam0 = mav.join("cam0");
+        if !cam0.join("data.csv").is_file() {
+            return Err(layout_err(&mav, "no cam0/data.csv: not a EuRoC sequence"));
+        }
+        let left = read_cam_csv(&cam0)?;
+        let settings = match settings {
+            Some(s) => s,
+            None => read_euroc_sensor_yaml(&cam0.join("sensor.yaml"))?,
+        };
+        let right = if settings.sensor == Sensor::Stereo && mav.join("cam1/data.csv").is_file() {
+            let r = read_cam_csv(&mav.join("cam1"))?;
+            // Pair by equal stamp (EuRoC cameras are hardware-synchronised).
+            let mut paths = Vec::with_capacity(left.len());
+            for (t, p) in &left {
+                let j = r.partition_point(|x| x.0 < *t);
+                match r.get(j) {
+                    Some(x) if (x.0 - t).abs() < 1e-6 => paths.push(x.1.clone()),
+                    _ => {
+                        return Err(layout_err(
+                            &mav.join("cam1/data.csv"),
+                            format!("no cam1 frame at the stamp of {}", p.display()),
+                        ));
+                    }
+                }
+            }
+            Some(paths)
+        } else {
+            None
+        };
+        Ok(Self {
+            mav,
+            settings,
+            left,
+            right,
+        })
+    }
+}
+
+impl Sequence for EurocSequence {
+    fn settings(&self) -> &Settings {
+        &self.settings
+    }
+    fn len(&self) -> usize {
+        self.left.len()
+    }
+    fn frame(&self, i: usize) -> Result<Frame, DatasetError> {
+        check_index(i, self.left.len())?;
+        let (t, p) = &self.left[i];
+        let gray = read_gray(p)?;
+        check_size(p, gray.width, gray.height, &self.settings)?;
+        let right = match &self.right {
+            Some(r) => Some(read_gray(&r[i])?),
+            None => None,
+        };
+        Ok(Frame {
+            index: i,
+            timestamp: *t,
+            gray,
+            rgb: None,
+            depth: None,
+            right,
+        })
+    }
+    fn ground_truth(&self) -> Option<PathBuf> {
+        Some(self.mav.join("state_groundtruth_estimate0/data.csv")).filter(|p| p.is_file())
+    }
+    fn boxes(&self) -> Option<PathBuf> {
+        None
+    }
+    fn name(&self) -> String {
+        let n = dir_name(&self.mav);
+        if n == "mav0" {
+            self.mav.parent().map(dir_name).unwrap_or(n)
+        } else {
+            n
+        }
+    }
+    fn timestamp(&self, i: usize) -> Option<f64> {
+        self.left.get(i).map(|f| f.0)
+    }
+}

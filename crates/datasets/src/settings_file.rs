@@ -1,0 +1,266 @@
+//! Settings files: ORB-SLAM's OpenCV `%YAML:1.0` files as they are (ORB-SLAM2 keys `Camera.fx`,
+//! ORB-SLAM3 keys `Camera1.fx`, `Stereo.b`, `RGBD.DepthMapFactor`), and stillpoint's TOML form
+//! of [`Settings`] (its serde form).
+//!
+//! OpenCV's YAML is not quite YAML: a `%YAML:1.0` directive, `!!opencv-matrix` tags, and
+//! `key:value` without a space (`data:[`). Those are fixed in the text (keeping line numbers)
+//! before `yaml-rust2` parses it.
+
+use crate::error::{DatasetError, io_err};
+use crate::settings::{OrbSettings, Sensor, Settings};
+use std::path::Path;
+use stillpoint_geometry::{PinholeCamera, RadTan};
+use yaml_rust2::{Yaml, YamlLoader};
+
+fn settings_err(path: &Path, msg: impl Into<String>) -> DatasetError {
+    DatasetError::Settings {
+        path: path.display().to_string(),
+        msg: msg.into(),
+    }
+}
+
+/// Make OpenCV's YAML dialect parseable, line for line.
+fn opencv_to_yaml(text: &str) -> String {
+    let mut out = String::with_capacity(text.len() + 64);
+    for line in text.lines() {
+        let trimmed = line.trim_start();
+        if trimmed.starts_with("%YAML") {
+            out.push('\n');
+            continue;
+        }
+        let mut l = line.replace("!!opencv-matrix", "");
+        if !trimmed.starts_with('#')
+            && let Some(colon) = l.find(':')
+        {
+            let key = l[..colon].trim();
+            let next = l[colon + 1..].chars().next();
+            let is_key = !key.is_empty()
+                && key
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '.' || c == '-');
+            if is_key && next.is_some_and(|c| !c.is_whitespace()) {
+                l.insert(colon + 1, ' ');
+            }
+        }
+        out.push_str(&l);
+        out.push('\n');
+    }
+    out
+}
+
+/// A parsed YAML document with the file it came from, for messages.
+struct Doc<'a> {
+    path: &'a Path,
+    text: &'a str,
+    root: Yaml,
+}
+
+impl Doc<'_> {
+    /// Line of `key:` in the file, for messages.
+    fn line_of(&self, key: &str) -> usize {
+        self.text
+            .lines()
+            .position(|l| l.trim_start().starts_with(&format!("{key}:")))
+            .map_or(0, |i| i + 1)
+    }
+
+    fn number(&self, key: &str) -> Result<Option<f64>, DatasetError> {
+        let v = &self.root[key];
+        let n = match v {
+            Yaml::BadValue | Yaml::Null => return Ok(None),
+            Yaml::Integer(i) => *i as f64,
+            Yaml::Real(_) => v.as_f64().unwrap_or(f64::NAN),
+            _ => f64::NAN,
+        };
+        if n.is_finite() {
+            Ok(Some(n))
+        } else {
+            Err(settings_err(
+                self.path,
+                format!("line {}: {key} must be a finite number", self.line_of(key)),
+            ))
+        }
+    }
+
+    /// The first of `keys` that is present.
+    fn any(&self, keys: &[&str]) -> Result<Option<f64>, DatasetError> {
+        for k in keys {
+            if let Some(v) = self.number(k)? {
+                return Ok(Some(v));
+            }
+        }
+        Ok(None)
+    }
+
+    fn required(&self, keys: &[&str]) -> Result<f64, DatasetError> {
+        self.any(keys)?
+            .ok_or_else(|| settings_err(self.path, format!("missing key {}", keys.join(" or "))))
+    }
+}
+
+/// Read an ORB-SLAM settings file (`%YAML:1.0`).
+///
+/// The sensor is not in the file: a `DepthMapFactor` means RGB-D, else a `Camera.bf` (or
+/// `Stereo.b`) means stereo, else monocular.
+pub fn read_orbslam_yaml(path: &Path) -> Result<Settings, DatasetError> {
+    let raw = std::fs::read(path).map_err(io_err(path))?;
+    let text = String::from_utf8(raw).map_err(|_| settings_err(path, "file is not valid UTF-8"))?;
+    parse_orbslam_yaml(&text, path)
+}
+
+/// Parse the text of an ORB-SLAM settings file; `path` names it in messages.
+pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetError> {
+    let fixed = opencv_to_yaml(text);
+    let docs = YamlLoader::load_from_str(&fixed)
+        .map_err(|e| settings_err(path, format!("line {}: {}", e.marker().line(), e.info())))?;
+    let root = docs.into_iter().next().unwrap_or(Yaml::Null);
+    if root.as_hash().is_none() {
+        return Err(settings_err(
+            path,
+            "not a settings file (no key: value pairs)",
+        ));
+    }
+    let d = Doc { path, text, root };
+    let fx = d.required(&["Camera.fx", "Camera1.fx"])?;
+    let fy = d.required(&["Camera.fy", "Camera1.fy"])?;
+    let cx = d.required(&["Camera.cx", "Camera1.cx"])?;
+    let cy = d.required(&["Camera.cy", "Camera1.cy"])?;
+    let dim = |keys: &[&str]| -> Result<u32, DatasetError> {
+        let v = d.required(keys)?;
+        if (1.0..=100_000.0).contains(&v) && v.fract() == 0.0 {
+            Ok(v as u32)
+        } else {
+            Err(settings_err(
+                path,
+                format!("{} must be a positive whole number", keys[0]),
+            ))
+        }
+    };
+    let width = dim(&["Camera.width", "Camera1.width"])?;
+    let height = dim(&["Camera.height", "Camera1.height"])?;
+    let coef = |k: &str| -> Result<f64, DatasetError> {
+        Ok(d.any(&[&format!("Camera.{k}"), &format!("Camera1.{k}")])?
+            .unwrap_or(0.0))
+    };
+    let mut camera = PinholeCamera::new(fx, fy, cx, cy, width, height);
+    camera.distortion = RadTan {
+        k1: coef("k1")?,
+        k2: coef("k2")?,
+        p1: coef("p1")?,
+        p2: coef("p2")?,
+        k3: coef("k3")?,
+    };
+    if !(fx > 0.0 && fy > 0.0) {
+        return Err(settings_err(path, "focal lengths must be positive"));
+    }
+    let depth_factor = d.any(&["DepthMapFactor", "RGBD.DepthMapFactor"])?;
+    let bf = match d.number("Camera.bf")? {
+        Some(bf) => Some(bf),
+        None => d.number("Stereo.b")?.map(|b| b * fx),
+    };
+    let sensor = if depth_factor.is_some() {
+        Sensor::Rgbd
+    } else if bf.is_some() {
+        Sensor::Stereo
+    } else {
+        Sensor::Mono
+    };
+    let defaults = OrbSettings::default();
+    let int = |k: &str, dflt: f64| -> Result<f64, DatasetError> {
+        let v = d.number(k)?.unwrap_or(dflt);
+        if v >= 0.0 && v.fract() == 0.0 {
+            Ok(v)
+        } else {
+            Err(settings_err(
+                path,
+                format!("line {}: {k} must be a whole number >= 0", d.line_of(k)),
+            ))
+        }
+    };
+    let orb = OrbSettings {
+        n_features: int("ORBextractor.nFeatures", defaults.n_features as f64)? as usize,
+        scale_factor: d
+            .number("ORBextractor.scaleFactor")?
+            .map_or(defaults.scale_factor, |v| v as f32),
+        n_levels: int("ORBextractor.nLevels", defaults.n_levels as f64)?.max(1.0) as usize,
+        ini_th_fast: int("ORBextractor.iniThFAST", defaults.ini_th_fast as f64)?.min(255.0) as u8,
+        min_th_fast: int("ORBextractor.minThFAST", defaults.min_th_fast as f64)?.min(255.0) as u8,
+    };
+    Ok(Settings {
+        sensor,
+        camera,
+        fps: d.number("Camera.fps")?.unwrap_or(30.0),
+        depth_factor: depth_factor.unwrap_or(5000.0),
+        bf,
+        th_depth: d.any(&["ThDepth", "Stereo.ThDepth"])?.unwrap_or(40.0),
+        rgb: d.number("Camera.RGB")?.is_none_or(|v| v != 0.0),
+        orb,
+    })
+}
+
+/// Read stillpoint's TOML settings (the serde form of [`Settings`]).
+///
+/// ```
+/// use stillpoint_datasets::{Settings, Sensor};
+/// let text = r#"
+/// sensor = "rgbd"
+/// [camera]
+/// fx = 535.4
+/// fy = 539.2
+/// cx = 320.1
+/// cy = 247.6
+/// width = 640
+/// height = 480
+/// "#;
+/// let s = stillpoint_datasets::parse_settings_toml(text, "s.toml".as_ref()).unwrap();
+/// assert_eq!((s.sensor, s.depth_factor, s.orb.n_features), (Sensor::Rgbd, 5000.0, 1000));
+/// ```
+pub fn read_settings_toml(path: &Path) -> Result<Settings, DatasetError> {
+    let text = std::fs::read_to_string(path).map_err(io_err(path))?;
+    parse_settings_toml(&text, path)
+}
+
+/// Parse the TOML settings text; `path` names it in messages.
+pub fn parse_settings_toml(text: &str, path: &Path) -> Result<Settings, DatasetError> {
+    let s: Settings = toml::from_str(text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|r| text[..r.start.min(text.len())].matches('\n').count() + 1);
+        let msg = e.message().to_string();
+        match line {
+            Some(l) => settings_err(path, format!("line {l}: {msg}")),
+            None => settings_err(path, msg),
+        }
+    })?;
+    let c = &s.camera;
+    if ![c.fx, c.fy, c.cx, c.cy, s.fps, s.depth_factor, s.th_depth]
+        .iter()
+        .all(|v| v.is_finite())
+        || c.fx <= 0.0
+        || c.fy <= 0.0
+    {
+        return Err(settings_err(
+            path,
+            "camera and rates must be finite, focal lengths positive",
+        ));
+    }
+    Ok(s)
+}
+
+/// Write settings as TOML.
+pub fn write_settings_toml(path: &Path, s: &Settings) -> Result<(), DatasetError> {
+    let text = toml::to_string(s).map_err(|e| settings_err(path, e.to_string()))?;
+    std::fs::write(path, text).map_err(io_err(path))
+}
+
+/// Read a settings file by extension: `.toml` is ours, anything else ORB-SLAM YAML.
+pub fn read_settings(path: &Path) -> Result<Settings, DatasetError> {
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+    {
+        read_settings_toml(path)
+    } else {
+        read_orbslam_yaml(path)
+    }
+}

@@ -1,0 +1,220 @@
+//! Self-contained readers on small temp-dir sequences: the good path and clear errors.
+
+use proptest::prelude::*;
+use std::path::Path;
+use stillpoint_datasets::{
+    DatasetKind, Sensor, Settings, detect_kind, open, parse_orbslam_yaml, parse_settings_toml,
+    write_settings_toml,
+};
+use stillpoint_geometry::PinholeCamera;
+use stillpoint_image::{Gray8, ImageBuf, Rgb8, write_depth16, write_gray, write_rgb};
+
+fn small_settings(sensor: Sensor) -> Settings {
+    Settings::with_camera(sensor, PinholeCamera::new(40.0, 40.0, 16.0, 12.0, 32, 24))
+}
+
+/// A TUM-layout sequence of `n` frames with depth 30 ms after each rgb frame.
+fn tum_dir(dir: &Path, n: usize) {
+    std::fs::create_dir_all(dir.join("rgb")).unwrap();
+    std::fs::create_dir_all(dir.join("depth")).unwrap();
+    let (mut rgb, mut depth) = (String::from("# rgb\n"), String::from("# depth\n"));
+    for i in 0..n {
+        let t = 1.0 + i as f64 * 0.1;
+        write_rgb(
+            &dir.join(format!("rgb/{i}.png")),
+            &Rgb8::new(32, 24, [i as u8 * 10, 50, 90]),
+        )
+        .unwrap();
+        write_depth16(
+            &dir.join(format!("depth/{i}.png")),
+            &ImageBuf::<u16>::new(32, 24, 5000),
+        )
+        .unwrap();
+        rgb.push_str(&format!("{t:.6} rgb/{i}.png\n"));
+        depth.push_str(&format!("{:.6} depth/{i}.png\n", t + 0.015));
+    }
+    std::fs::write(dir.join("rgb.txt"), rgb).unwrap();
+    std::fs::write(dir.join("depth.txt"), depth).unwrap();
+    write_settings_toml(&dir.join("settings.toml"), &small_settings(Sensor::Rgbd)).unwrap();
+}
+
+#[test]
+fn tum_layout_reads_lazily_and_associates_depth() {
+    let d = tempfile::tempdir().unwrap();
+    tum_dir(d.path(), 4);
+    assert_eq!(detect_kind(d.path()).unwrap(), DatasetKind::Tum);
+    let seq = open(d.path(), None, None).unwrap();
+    assert_eq!((seq.len(), seq.settings().sensor), (4, Sensor::Rgbd));
+    let f = seq.frame(2).unwrap();
+    assert_eq!((f.index, f.gray.width), (2, 32));
+    assert!((f.timestamp - 1.2).abs() < 1e-9);
+    assert_eq!(f.depth.unwrap().get(3, 3), 1.0);
+    assert!(
+        seq.frame(4)
+            .unwrap_err()
+            .to_string()
+            .contains("out of range")
+    );
+    std::fs::write(d.path().join("boxes.jsonl"), "").unwrap();
+    assert_eq!(detect_kind(d.path()).unwrap(), DatasetKind::Synth);
+    assert!(open(d.path(), None, None).unwrap().boxes().is_some());
+}
+
+#[test]
+fn tum_errors_name_file_and_line() {
+    let d = tempfile::tempdir().unwrap();
+    tum_dir(d.path(), 3);
+    // Unsorted stamps.
+    std::fs::write(d.path().join("rgb.txt"), "2.0 rgb/0.png\n1.0 rgb/1.png\n").unwrap();
+    let e = open(d.path(), None, None).err().unwrap().to_string();
+    assert!(e.contains("rgb.txt:2:") && e.contains("sorted"), "{e}");
+    // A line with three fields, and a non-number.
+    std::fs::write(d.path().join("rgb.txt"), "1.0 rgb/0.png x\n").unwrap();
+    assert!(
+        open(d.path(), None, None)
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("rgb.txt:1:")
+    );
+    std::fs::write(d.path().join("rgb.txt"), "abc rgb/0.png\n").unwrap();
+    assert!(
+        open(d.path(), None, None)
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("\"abc\"")
+    );
+    // A missing depth image fails when its frame is read, naming it.
+    std::fs::write(d.path().join("rgb.txt"), "1.0 rgb/0.png\n1.1 rgb/1.png\n").unwrap();
+    std::fs::remove_file(d.path().join("depth/1.png")).unwrap();
+    let seq = open(d.path(), None, None).unwrap();
+    assert!(seq.frame(0).is_ok());
+    let e = seq.frame(1).unwrap_err().to_string();
+    assert!(e.contains("depth/1.png"), "{e}");
+    // A corrupt PNG.
+    std::fs::write(d.path().join("rgb/0.png"), b"\x89PNG not really").unwrap();
+    let e = seq.frame(0).unwrap_err().to_string();
+    assert!(e.contains("rgb/0.png"), "{e}");
+    // Without depth.txt the sequence is monocular.
+    std::fs::remove_file(d.path().join("depth.txt")).unwrap();
+    assert_eq!(
+        open(d.path(), None, None).unwrap().settings().sensor,
+        Sensor::Mono
+    );
+    // A missing directory.
+    assert!(
+        open(&d.path().join("nope"), None, None)
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("nope")
+    );
+}
+
+#[test]
+fn kitti_folder_and_euroc_layouts() {
+    let d = tempfile::tempdir().unwrap();
+    let k = d.path().join("kitti");
+    for cam in ["image_0", "image_1"] {
+        std::fs::create_dir_all(k.join(cam)).unwrap();
+        for i in 0..3 {
+            write_gray(&k.join(format!("{cam}/{i:06}.png")), &Gray8::new(32, 24, 7)).unwrap();
+        }
+    }
+    std::fs::write(
+        k.join("calib.txt"),
+        "P0: 40 0 16 0 0 40 12 0 0 0 1 0\nP1: 40 0 16 -20 0 40 12 0 0 0 1 0\n",
+    )
+    .unwrap();
+    std::fs::write(k.join("times.txt"), "0.0\n0.1\n0.2\n").unwrap();
+    let seq = open(&k, None, None).unwrap();
+    assert_eq!(
+        (seq.len(), seq.settings().sensor, seq.settings().bf),
+        (3, Sensor::Stereo, Some(20.0))
+    );
+    assert!(seq.frame(1).unwrap().right.is_some());
+    std::fs::write(k.join("times.txt"), "0.0\n0.2\n0.1\n").unwrap();
+    assert!(
+        open(&k, None, None)
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("times.txt:3:")
+    );
+
+    let f = d.path().join("folder");
+    std::fs::create_dir_all(&f).unwrap();
+    for i in 0..2 {
+        write_rgb(&f.join(format!("{i}.jpg")), &Rgb8::new(32, 24, [1, 2, 3])).unwrap();
+    }
+    let seq = open(&f, None, None).unwrap();
+    assert_eq!((seq.len(), seq.settings().camera.fx), (2, 32.0));
+    assert!((seq.frame(1).unwrap().timestamp - 1.0 / 30.0).abs() < 1e-12);
+
+    let e = d.path().join("euroc/mav0/cam0");
+    std::fs::create_dir_all(e.join("data")).unwrap();
+    write_gray(
+        &e.join("data/1403636579763555584.png"),
+        &Gray8::new(32, 24, 3),
+    )
+    .unwrap();
+    std::fs::write(
+        e.join("data.csv"),
+        "#timestamp [ns],filename\n1403636579763555584,1403636579763555584.png\n",
+    )
+    .unwrap();
+    std::fs::write(
+        e.join("sensor.yaml"),
+        "%YAML:1.0\nrate_hz: 20\nresolution: [32, 24]\nintrinsics: [40.0, 41.0, 16.0, 12.0]\ndistortion_coefficients: [-0.28, 0.07, 0.0002, 0.00002]\n",
+    )
+    .unwrap();
+    let seq = open(&d.path().join("euroc"), None, None).unwrap();
+    assert_eq!(
+        (seq.len(), seq.settings().camera.fy, seq.settings().fps),
+        (1, 41.0, 20.0)
+    );
+    assert!((seq.frame(0).unwrap().timestamp - 1_403_636_579.763_555_6).abs() < 1e-6);
+}
+
+#[test]
+fn orbslam_yaml_dialect_and_toml_form() {
+    let text = "%YAML:1.0\nCamera1.fx: 500\nCamera1.fy: 501\nCamera1.cx: 320\nCamera1.cy: 240\n\
+                Camera.width: 640\nCamera.height: 480\nStereo.b: 0.1\nViewer.PointSize:2\n\
+                M: !!opencv-matrix\n   rows: 1\n   cols: 2\n   dt: d\n   data:[1.0, 2.0]\n";
+    let s = parse_orbslam_yaml(text, "a.yaml".as_ref()).unwrap();
+    assert_eq!((s.camera.fx, s.sensor), (500.0, Sensor::Stereo));
+    assert!((s.bf.unwrap() - 50.0).abs() < 1e-12);
+    let e = parse_orbslam_yaml("%YAML:1.0\nCamera.fx: 500\n", "b.yaml".as_ref())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("b.yaml") && e.contains("Camera.fy"), "{e}");
+    let e = parse_orbslam_yaml("Camera.fx: [oops\n", "c.yaml".as_ref())
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with("c.yaml: line"), "{e}");
+    let e = parse_orbslam_yaml("Camera.fx: .nan\n", "d.yaml".as_ref())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("line 1") && e.contains("finite"), "{e}");
+
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.toml");
+    write_settings_toml(&p, &s).unwrap();
+    assert_eq!(stillpoint_datasets::read_settings(&p).unwrap(), s);
+    let e = parse_settings_toml(
+        "sensor = \"rgbd\"\n[camera]\nfx = \"x\"\n",
+        "t.toml".as_ref(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.starts_with("t.toml: line 3"), "{e}");
+}
+
+proptest! {
+    #[test]
+    fn settings_parsers_never_panic(text in "[ -~\n]{0,300}") {
+        let _ = parse_orbslam_yaml(&text, "r.yaml".as_ref());
+        let _ = parse_settings_toml(&text, "r.toml".as_ref());
+    }
+}
