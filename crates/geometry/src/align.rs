@@ -50,7 +50,7 @@ pub fn umeyama(src: &[Vec3], dst: &[Vec3], with_scale: bool) -> Option<Sim3> {
     }
     cov /= nf;
     var_s /= nf;
-    if !(var_s > 1e-300) || !cov.iter().all(|v| v.is_finite()) {
+    if var_s.is_nan() || var_s <= 1e-300 || !cov.iter().all(|v| v.is_finite()) {
         return None;
     }
     let svd = cov.svd(true, true);

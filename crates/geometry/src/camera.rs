@@ -83,7 +83,7 @@ impl PinholeCamera {
 
     /// Project a point in camera coordinates to a (distorted) pixel. `None` behind the camera.
     pub fn project(&self, p: &Vec3) -> Option<Vec2> {
-        if !(p.z > 1e-9) {
+        if p.z.is_nan() || p.z <= 1e-9 {
             return None;
         }
         let (x, y) = self.distortion.distort(p.x / p.z, p.y / p.z);
@@ -92,7 +92,7 @@ impl PinholeCamera {
 
     /// Project ignoring distortion (for undistorted keypoints).
     pub fn project_undistorted(&self, p: &Vec3) -> Option<Vec2> {
-        if !(p.z > 1e-9) {
+        if p.z.is_nan() || p.z <= 1e-9 {
             return None;
         }
         Some(Vec2::new(

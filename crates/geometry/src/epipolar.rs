@@ -8,7 +8,7 @@ use crate::{Mat3, Se3, Vec2, Vec3, skew};
 pub fn epipolar_distance(f: &Mat3, p1: &Vec2, p2: &Vec2) -> f64 {
     let l = f * Vec3::new(p1.x, p1.y, 1.0);
     let norm = (l.x * l.x + l.y * l.y).sqrt();
-    if !(norm > 1e-300) {
+    if norm.is_nan() || norm <= 1e-300 {
         return f64::INFINITY;
     }
     (p2.x * l.x + p2.y * l.y + l.z).abs() / norm
