@@ -33,7 +33,7 @@ pub fn cull_with(
     p: &CullParams,
 ) -> Vec<bool> {
     let protects = |s: &BoxState| match s.verdict {
-        Verdict::Static => true,
+        Verdict::Static => p.static_box_protects,
         Verdict::StaticUnknown => p.unknown_box_protects,
         Verdict::Dynamic => false,
     };

@@ -119,6 +119,9 @@ impl Default for JudgeParams {
 /// Culling (paper algorithm 3) and the optional culling near unexplained outliers.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CullParams {
+    /// Whether a [`crate::Verdict::Static`] box protects the keypoints inside it (paper
+    /// algorithm 3: yes). Off only to measure what the protection costs in recall.
+    pub static_box_protects: bool,
     /// Whether a [`crate::Verdict::StaticUnknown`] box protects the keypoints inside it like a
     /// static one (paper: yes, NaN → static). Default true.
     pub unknown_box_protects: bool,
@@ -135,6 +138,7 @@ pub struct CullParams {
 impl Default for CullParams {
     fn default() -> Self {
         Self {
+            static_box_protects: true,
             unknown_box_protects: true,
             unknown_objects: false,
             unknown_radius_px: 20.0,

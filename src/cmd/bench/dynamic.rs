@@ -74,7 +74,13 @@ impl Counts {
     }
 }
 
-const METHODS: [&str; 4] = ["ours", "ours+unknown", "person_boxes", "outliers_only"];
+const METHODS: [&str; 5] = [
+    "ours",
+    "ours+unknown",
+    "ours_no_protect",
+    "person_boxes",
+    "outliers_only",
+];
 
 #[derive(Serialize)]
 struct FrameReport {
@@ -178,13 +184,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )
     .with_context(|| format!("detector {:?}", args.detector))?;
     let settings = DynamicSettings::default();
+    let no_protect = CullParams {
+        static_box_protects: false,
+        unknown_box_protects: false,
+        ..settings.cull.clone()
+    };
     let unknown = CullParams {
         unknown_objects: true,
         ..settings.cull.clone()
     };
     let mut orb = OrbExtractor::new(OrbParams::default());
 
-    let mut totals = [Counts::default(); 4];
+    let mut totals = [Counts::default(); 5];
     let mut per_frame = Vec::new();
     let (mut geometry_ms, mut orb_ms) = (Vec::new(), Vec::new());
     let mut stages = [0.0f64; 4];
@@ -238,6 +249,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let predictions = [
             cull_with(&kps, &states, &check.points, &settings.cull),
             cull_with(&kps, &states, &check.points, &unknown),
+            cull_with(&kps, &states, &check.points, &no_protect),
             kps.iter()
                 .map(|&[x, y]| {
                     dets.iter()
@@ -246,7 +258,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .collect(),
             near_outliers(&kps, &check.points, args.radius, 1),
         ];
-        let mut counts = [Counts::default(); 4];
+        let mut counts = [Counts::default(); 5];
         for ((c, total), p) in counts.iter_mut().zip(&mut totals).zip(&predictions) {
             c.add(p, &truth);
             total.add(p, &truth);
