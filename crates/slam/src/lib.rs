@@ -1,1 +1,60 @@
-//! stillpoint-slam: see the crate's issue; filled in by its owner.
+//! stillpoint-slam: ORB-SLAM3-style RGB-D SLAM in stella_vslam-like modules.
+//!
+//! - [`data`]: frames, keyframes, map points and the map (covisibility graph, spanning tree);
+//! - [`matching`]: descriptor matching by projection and brute force, rotation histogram;
+//! - [`optimize`]: pose-only optimisation (Huber, 4 rounds of chi-square rejection) and local
+//!   bundle adjustment with a Schur complement;
+//! - [`solve`]: robust absolute pose (RANSAC) for relocalisation;
+//! - [`module`]: tracking, local mapping (own thread, channels) and the keypoint-filter hook
+//!   through which the dynamic front-end removes moving keypoints;
+//! - [`System`]: the entry point that ties them together.
+//!
+//! The crate works on already extracted features ([`Feature`] + [`Descriptor`]), so the ORB
+//! extractor and the dynamic front-end stay in their own crates; the binary wires them.
+//!
+//! ```
+//! use stillpoint_slam::{SlamSettings, System};
+//! use stillpoint_geometry::PinholeCamera;
+//! let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
+//! let settings = SlamSettings::rgbd(cam, 40.0, 30.0);
+//! let system = System::new(settings);
+//! assert_eq!(system.keyframe_count(), 0);
+//! ```
+
+pub mod data;
+pub mod matching;
+pub mod module;
+pub mod optimize;
+pub mod settings;
+pub mod solve;
+mod system;
+
+pub use data::frame::{Descriptor, Feature, Frame};
+pub use module::tracking::TrackingState;
+pub use settings::SlamSettings;
+pub use system::{FrameReport, System};
+
+/// Errors from the SLAM core. Input problems (wrong sizes, NaN) are reported, not panicked on.
+#[derive(Debug, thiserror::Error)]
+pub enum SlamError {
+    #[error("frame {index}: {msg}")]
+    BadInput { index: usize, msg: String },
+    #[error("local mapping thread stopped: {0}")]
+    LocalMapping(String),
+}
+
+/// Hamming distance between two 256-bit descriptors.
+///
+/// ```
+/// assert_eq!(stillpoint_slam::hamming(&[0u8; 32], &[0xffu8; 32]), 256);
+/// ```
+#[inline]
+pub fn hamming(a: &Descriptor, b: &Descriptor) -> u32 {
+    let mut d = 0;
+    for i in 0..4 {
+        let x = u64::from_le_bytes(a[i * 8..i * 8 + 8].try_into().unwrap_or([0; 8]));
+        let y = u64::from_le_bytes(b[i * 8..i * 8 + 8].try_into().unwrap_or([0; 8]));
+        d += (x ^ y).count_ones();
+    }
+    d
+}

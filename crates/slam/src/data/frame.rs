@@ -1,0 +1,296 @@
+//! A frame as tracking sees it: undistorted keypoints with depth and a virtual right coordinate.
+
+use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3};
+use stillpoint_image::DepthMetres;
+
+use super::map::MpId;
+use crate::SlamSettings;
+
+/// A 256-bit binary descriptor (ORB's steered BRIEF).
+pub type Descriptor = [u8; 32];
+
+/// One keypoint as extracted: level-0 pixel position (distorted, as in the image), octave and
+/// orientation in degrees.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Feature {
+    pub x: f32,
+    pub y: f32,
+    pub octave: u8,
+    pub angle: f32,
+}
+
+/// Keypoints bucketed in cells so that projection searches only look nearby (ORB-SLAM's
+/// 64 x 48 `FRAME_GRID`).
+#[derive(Clone, Debug)]
+pub struct KeypointGrid {
+    cols: usize,
+    rows: usize,
+    cell_w: f64,
+    cell_h: f64,
+    cells: Vec<Vec<u32>>,
+}
+
+impl KeypointGrid {
+    /// Bucket `points` over a `width` x `height` image; points outside are left out.
+    pub fn new(points: &[Vec2], width: f64, height: f64) -> Self {
+        let (cols, rows) = (64usize, 48usize);
+        let cell_w = (width / cols as f64).max(1e-6);
+        let cell_h = (height / rows as f64).max(1e-6);
+        let mut cells = vec![Vec::new(); cols * rows];
+        for (i, p) in points.iter().enumerate() {
+            if !(p.x >= 0.0 && p.y >= 0.0) {
+                continue;
+            }
+            let (cx, cy) = ((p.x / cell_w) as usize, (p.y / cell_h) as usize);
+            if cx < cols && cy < rows {
+                cells[cy * cols + cx].push(i as u32);
+            }
+        }
+        Self {
+            cols,
+            rows,
+            cell_w,
+            cell_h,
+            cells,
+        }
+    }
+
+    /// Indices of points within `radius` (square window, as ORB-SLAM) of (x, y) whose octave is in
+    /// `[min_octave, max_octave]`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn candidates(
+        &self,
+        points: &[Vec2],
+        octaves: &[u8],
+        x: f64,
+        y: f64,
+        radius: f64,
+        min_octave: i32,
+        max_octave: i32,
+    ) -> Vec<usize> {
+        let mut out = Vec::new();
+        if !(x.is_finite() && y.is_finite() && radius.is_finite()) {
+            return out;
+        }
+        let x0 = ((x - radius) / self.cell_w).floor().max(0.0) as usize;
+        let y0 = ((y - radius) / self.cell_h).floor().max(0.0) as usize;
+        let x1 = ((x + radius) / self.cell_w).floor();
+        let y1 = ((y + radius) / self.cell_h).floor();
+        if x1 < 0.0 || y1 < 0.0 {
+            return out;
+        }
+        let x1 = (x1 as usize).min(self.cols - 1);
+        let y1 = (y1 as usize).min(self.rows - 1);
+        for cy in y0..=y1 {
+            for cx in x0..=x1 {
+                for &i in &self.cells[cy * self.cols + cx] {
+                    let i = i as usize;
+                    let o = octaves[i] as i32;
+                    if o < min_octave || o > max_octave {
+                        continue;
+                    }
+                    let p = points[i];
+                    if (p.x - x).abs() < radius && (p.y - y).abs() < radius {
+                        out.push(i);
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+/// A frame ready for tracking.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// Position in the sequence.
+    pub index: usize,
+    pub timestamp: f64,
+    /// Undistorted keypoint positions (pixels of the ideal camera).
+    pub points: Vec<Vec2>,
+    pub octaves: Vec<u8>,
+    /// Orientation in degrees (for the rotation-consistency histogram).
+    pub angles: Vec<f32>,
+    pub descriptors: Vec<Descriptor>,
+    /// Depth per keypoint in metres, 0 when unknown.
+    pub depth: Vec<f32>,
+    /// Virtual right coordinate u - bf / z, negative when no depth (ORB-SLAM's `mvuRight`).
+    pub u_right: Vec<f32>,
+    /// Map point matched to each keypoint.
+    pub map_points: Vec<Option<MpId>>,
+    /// Outlier flag from pose optimisation.
+    pub outliers: Vec<bool>,
+    /// World-to-camera pose once tracked.
+    pub pose_cw: Option<Se3>,
+    pub grid: KeypointGrid,
+}
+
+impl Frame {
+    /// Build a frame from extracted features. Depth is read at the raw (distorted) keypoint pixel
+    /// because depth images are registered to the raw image; keypoints with NaN positions are
+    /// dropped.
+    pub fn new(
+        index: usize,
+        timestamp: f64,
+        features: &[Feature],
+        descriptors: &[Descriptor],
+        depth: Option<&DepthMetres>,
+        settings: &SlamSettings,
+    ) -> Result<Self, crate::SlamError> {
+        if features.len() != descriptors.len() {
+            return Err(crate::SlamError::BadInput {
+                index,
+                msg: format!(
+                    "{} keypoints but {} descriptors",
+                    features.len(),
+                    descriptors.len()
+                ),
+            });
+        }
+        let cam = &settings.camera;
+        let n_levels = settings.n_levels.max(1);
+        let mut f = Frame {
+            index,
+            timestamp,
+            points: Vec::with_capacity(features.len()),
+            octaves: Vec::with_capacity(features.len()),
+            angles: Vec::with_capacity(features.len()),
+            descriptors: Vec::with_capacity(features.len()),
+            depth: Vec::with_capacity(features.len()),
+            u_right: Vec::with_capacity(features.len()),
+            map_points: Vec::new(),
+            outliers: Vec::new(),
+            pose_cw: None,
+            grid: KeypointGrid::new(&[], 1.0, 1.0),
+        };
+        for (kp, d) in features.iter().zip(descriptors) {
+            if !(kp.x.is_finite() && kp.y.is_finite()) {
+                continue;
+            }
+            let raw = Vec2::new(kp.x as f64, kp.y as f64);
+            let un = cam.undistort_pixel(&raw);
+            if !(un.x.is_finite() && un.y.is_finite()) {
+                continue;
+            }
+            let z = depth
+                .and_then(|dm| {
+                    let (x, y) = (kp.x.round() as isize, kp.y.round() as isize);
+                    if x < 0 || y < 0 || x as usize >= dm.width || y as usize >= dm.height {
+                        return None;
+                    }
+                    let z = dm.get(x as usize, y as usize);
+                    (z.is_finite() && z > 0.0).then_some(z)
+                })
+                .unwrap_or(0.0);
+            f.points.push(un);
+            f.octaves.push(kp.octave.min((n_levels - 1).min(255) as u8));
+            f.angles
+                .push(if kp.angle.is_finite() { kp.angle } else { 0.0 });
+            f.descriptors.push(*d);
+            f.depth.push(z);
+            f.u_right.push(if z > 0.0 {
+                (un.x - settings.bf / z as f64) as f32
+            } else {
+                -1.0
+            });
+        }
+        let n = f.points.len();
+        f.map_points = vec![None; n];
+        f.outliers = vec![false; n];
+        f.grid = KeypointGrid::new(&f.points, cam.width as f64, cam.height as f64);
+        Ok(f)
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// Number of keypoints with a depth measurement.
+    pub fn with_depth(&self) -> usize {
+        self.depth.iter().filter(|&&z| z > 0.0).count()
+    }
+
+    /// Camera-frame 3D point of keypoint `i` from its depth.
+    pub fn unproject_camera(&self, i: usize, cam: &PinholeCamera) -> Option<Vec3> {
+        let z = *self.depth.get(i)?;
+        (z > 0.0).then(|| cam.unproject(&self.points[i], z as f64))
+    }
+
+    /// World point of keypoint `i` from its depth and the frame pose.
+    pub fn unproject_world(&self, i: usize, cam: &PinholeCamera) -> Option<Vec3> {
+        let pc = self.unproject_camera(i, cam)?;
+        let t_wc = self.pose_cw?.inverse();
+        Some(t_wc * nalgebra::Point3::from(pc)).map(|p| p.coords)
+    }
+
+    /// Camera centre in the world.
+    pub fn camera_center(&self) -> Option<Vec3> {
+        self.pose_cw.map(|p| p.inverse().translation.vector)
+    }
+
+    /// Keypoints inside a square window around (x, y) within an octave range.
+    pub fn features_in_area(
+        &self,
+        x: f64,
+        y: f64,
+        radius: f64,
+        min_octave: i32,
+        max_octave: i32,
+    ) -> Vec<usize> {
+        self.grid.candidates(
+            &self.points,
+            &self.octaves,
+            x,
+            y,
+            radius,
+            min_octave,
+            max_octave,
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_reads_depth_and_virtual_right() {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let s = SlamSettings::rgbd(cam, 40.0, 30.0);
+        let mut depth = DepthMetres::new(640, 480, 0.0);
+        depth.set(100, 50, 2.0);
+        let feats = [
+            Feature {
+                x: 100.0,
+                y: 50.0,
+                octave: 0,
+                angle: 0.0,
+            },
+            Feature {
+                x: 200.0,
+                y: 60.0,
+                octave: 9,
+                angle: f32::NAN,
+            },
+            Feature {
+                x: f32::NAN,
+                y: 60.0,
+                octave: 1,
+                angle: 0.0,
+            },
+        ];
+        let f = Frame::new(0, 0.0, &feats, &[[0; 32]; 3], Some(&depth), &s).unwrap();
+        assert_eq!(f.len(), 2);
+        assert_eq!(f.depth, vec![2.0, 0.0]);
+        assert!((f.u_right[0] - (100.0 - 20.0)).abs() < 1e-4);
+        assert!(f.u_right[1] < 0.0);
+        assert_eq!(f.octaves[1], 7);
+        assert_eq!(f.features_in_area(101.0, 51.0, 3.0, 0, 7), vec![0]);
+        assert!(f.features_in_area(101.0, 51.0, 3.0, 1, 7).is_empty());
+        assert!(Frame::new(0, 0.0, &feats, &[[0; 32]; 2], None, &s).is_err());
+    }
+}

@@ -1,0 +1,526 @@
+//! Keyframes, map points and the map with its covisibility graph and spanning tree.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3};
+
+use super::frame::{Descriptor, Frame, KeypointGrid};
+use crate::hamming;
+
+pub type KfId = u64;
+pub type MpId = u64;
+
+/// A keyframe: a frame kept in the map, with its observations.
+#[derive(Clone, Debug)]
+pub struct KeyFrame {
+    pub id: KfId,
+    /// Map this keyframe belongs to (a new map starts when tracking is lost for good).
+    pub map_epoch: u32,
+    pub frame_index: usize,
+    pub timestamp: f64,
+    pub pose_cw: Se3,
+    pub points: Vec<Vec2>,
+    pub octaves: Vec<u8>,
+    pub angles: Vec<f32>,
+    pub descriptors: Vec<Descriptor>,
+    pub depth: Vec<f32>,
+    pub u_right: Vec<f32>,
+    pub map_points: Vec<Option<MpId>>,
+    pub grid: KeypointGrid,
+    /// Covisibility: keyframe -> shared map points (only edges with >= the minimum weight, or
+    /// the single best when none reaches it, as ORB-SLAM).
+    pub connections: BTreeMap<KfId, usize>,
+    /// Spanning tree.
+    pub parent: Option<KfId>,
+    pub children: BTreeSet<KfId>,
+    pub bad: bool,
+}
+
+impl KeyFrame {
+    pub fn from_frame(id: KfId, map_epoch: u32, f: &Frame) -> Option<Self> {
+        Some(Self {
+            id,
+            map_epoch,
+            frame_index: f.index,
+            timestamp: f.timestamp,
+            pose_cw: f.pose_cw?,
+            points: f.points.clone(),
+            octaves: f.octaves.clone(),
+            angles: f.angles.clone(),
+            descriptors: f.descriptors.clone(),
+            depth: f.depth.clone(),
+            u_right: f.u_right.clone(),
+            map_points: f.map_points.clone(),
+            grid: f.grid.clone(),
+            connections: BTreeMap::new(),
+            parent: None,
+            children: BTreeSet::new(),
+            bad: false,
+        })
+    }
+
+    pub fn camera_center(&self) -> Vec3 {
+        self.pose_cw.inverse().translation.vector
+    }
+
+    pub fn unproject_world(&self, i: usize, cam: &PinholeCamera) -> Option<Vec3> {
+        let z = *self.depth.get(i)?;
+        (z > 0.0).then(|| {
+            let pc = cam.unproject(&self.points[i], z as f64);
+            (self.pose_cw.inverse() * nalgebra::Point3::from(pc)).coords
+        })
+    }
+
+    /// Best covisible keyframes, highest weight first.
+    pub fn best_covisibles(&self, n: usize) -> Vec<KfId> {
+        let mut v: Vec<(usize, KfId)> = self.connections.iter().map(|(&k, &w)| (w, k)).collect();
+        v.sort_by(|a, b| b.cmp(a));
+        v.into_iter().take(n).map(|(_, k)| k).collect()
+    }
+
+    /// Keypoints inside a window, as [`Frame::features_in_area`].
+    pub fn features_in_area(&self, x: f64, y: f64, r: f64, min_o: i32, max_o: i32) -> Vec<usize> {
+        self.grid
+            .candidates(&self.points, &self.octaves, x, y, r, min_o, max_o)
+    }
+}
+
+/// A 3D landmark.
+#[derive(Clone, Debug)]
+pub struct MapPoint {
+    pub id: MpId,
+    pub map_epoch: u32,
+    pub position: Vec3,
+    /// Representative descriptor: the observation descriptor with the least median distance to
+    /// the others (ORB-SLAM's `ComputeDistinctiveDescriptors`).
+    pub descriptor: Descriptor,
+    /// Mean viewing direction (unit).
+    pub normal: Vec3,
+    /// Scale-invariance distances: the point can be matched between these camera distances.
+    pub min_distance: f64,
+    pub max_distance: f64,
+    /// keyframe -> keypoint index.
+    pub observations: BTreeMap<KfId, usize>,
+    pub reference_kf: KfId,
+    pub first_kf: KfId,
+    /// Frames in whose frustum the point fell / frames in which it was matched.
+    pub visible: u32,
+    pub found: u32,
+    pub bad: bool,
+}
+
+impl MapPoint {
+    /// The octave at which the point should appear from camera distance `dist`.
+    pub fn predict_scale(&self, dist: f64, log_scale: f64, n_levels: usize) -> i32 {
+        let ratio = self.max_distance / dist.max(1e-9);
+        let l = (ratio.ln() / log_scale).ceil() as i32;
+        l.clamp(0, n_levels as i32 - 1)
+    }
+
+    /// Observations weighted as ORB-SLAM counts them: 2 for a keypoint with depth (stereo), 1
+    /// otherwise. Needs the keyframes to look up the depth.
+    pub fn weighted_observations(&self, keyframes: &BTreeMap<KfId, KeyFrame>) -> usize {
+        self.observations
+            .iter()
+            .map(|(k, &i)| {
+                let depth = keyframes
+                    .get(k)
+                    .and_then(|kf| kf.u_right.get(i))
+                    .is_some_and(|&u| u >= 0.0);
+                if depth { 2 } else { 1 }
+            })
+            .sum()
+    }
+
+    pub fn found_ratio(&self) -> f64 {
+        self.found as f64 / self.visible.max(1) as f64
+    }
+}
+
+/// The map: keyframes and points by id (ordered maps, so iteration is deterministic).
+#[derive(Clone, Debug, Default)]
+pub struct Map {
+    pub keyframes: BTreeMap<KfId, KeyFrame>,
+    pub points: BTreeMap<MpId, MapPoint>,
+    next_kf: KfId,
+    next_mp: MpId,
+    /// Current map; older maps stay for the keyframe trajectory but are not tracked against.
+    pub epoch: u32,
+    /// First keyframe of the current map (fixed in bundle adjustment: the gauge).
+    pub origin_kf: Option<KfId>,
+}
+
+impl Map {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn next_kf_id(&mut self) -> KfId {
+        let id = self.next_kf;
+        self.next_kf += 1;
+        id
+    }
+
+    /// Insert a keyframe built from a tracked frame; returns its id.
+    pub fn add_keyframe(&mut self, f: &Frame) -> Option<KfId> {
+        let id = self.next_kf;
+        let kf = KeyFrame::from_frame(id, self.epoch, f)?;
+        self.next_kf += 1;
+        if self.origin_kf.is_none() {
+            self.origin_kf = Some(id);
+        }
+        self.keyframes.insert(id, kf);
+        Some(id)
+    }
+
+    /// Create a map point at `position` observed by keypoint `idx` of keyframe `kf`.
+    pub fn add_point(&mut self, position: Vec3, kf: KfId, idx: usize) -> Option<MpId> {
+        let k = self.keyframes.get_mut(&kf)?;
+        let descriptor = *k.descriptors.get(idx)?;
+        let id = self.next_mp;
+        self.next_mp += 1;
+        k.map_points[idx] = Some(id);
+        let mut observations = BTreeMap::new();
+        observations.insert(kf, idx);
+        self.points.insert(
+            id,
+            MapPoint {
+                id,
+                map_epoch: self.epoch,
+                position,
+                descriptor,
+                normal: Vec3::z(),
+                min_distance: 0.0,
+                max_distance: 0.0,
+                observations,
+                reference_kf: kf,
+                first_kf: kf,
+                visible: 1,
+                found: 1,
+                bad: false,
+            },
+        );
+        Some(id)
+    }
+
+    /// Record that keypoint `idx` of `kf` observes `mp`.
+    pub fn add_observation(&mut self, mp: MpId, kf: KfId, idx: usize) {
+        let (Some(p), Some(k)) = (self.points.get_mut(&mp), self.keyframes.get_mut(&kf)) else {
+            return;
+        };
+        if p.bad || idx >= k.map_points.len() {
+            return;
+        }
+        p.observations.insert(kf, idx);
+        k.map_points[idx] = Some(mp);
+    }
+
+    /// Remove a point and every reference to it.
+    pub fn erase_point(&mut self, mp: MpId) {
+        if let Some(p) = self.points.remove(&mp) {
+            for (kf, idx) in p.observations {
+                if let Some(k) = self.keyframes.get_mut(&kf)
+                    && k.map_points.get(idx) == Some(&Some(mp))
+                {
+                    k.map_points[idx] = None;
+                }
+            }
+        }
+    }
+
+    /// Remove the observation of `mp` by `kf`; a point left with < 2 observations is erased (as
+    /// ORB-SLAM does).
+    pub fn erase_observation(&mut self, mp: MpId, kf: KfId) {
+        let mut erase = false;
+        if let Some(p) = self.points.get_mut(&mp)
+            && let Some(idx) = p.observations.remove(&kf)
+        {
+            if let Some(k) = self.keyframes.get_mut(&kf)
+                && k.map_points.get(idx) == Some(&Some(mp))
+            {
+                k.map_points[idx] = None;
+            }
+            if p.reference_kf == kf {
+                p.reference_kf = p.observations.keys().next().copied().unwrap_or(kf);
+            }
+            erase = p.observations.len() < 2;
+        }
+        if erase {
+            self.erase_point(mp);
+        }
+    }
+
+    /// Make `keep` absorb `drop` (duplicate landmarks found by fusion).
+    pub fn replace_point(&mut self, drop: MpId, keep: MpId) {
+        if drop == keep {
+            return;
+        }
+        let Some(old) = self.points.remove(&drop) else {
+            return;
+        };
+        let (found, visible) = (old.found, old.visible);
+        for (kf, idx) in old.observations {
+            let Some(k) = self.keyframes.get_mut(&kf) else {
+                continue;
+            };
+            let already = self
+                .points
+                .get(&keep)
+                .is_some_and(|p| p.observations.contains_key(&kf));
+            if already {
+                if k.map_points.get(idx) == Some(&Some(drop)) {
+                    k.map_points[idx] = None;
+                }
+            } else {
+                k.map_points[idx] = Some(keep);
+                if let Some(p) = self.points.get_mut(&keep) {
+                    p.observations.insert(kf, idx);
+                }
+            }
+        }
+        if let Some(p) = self.points.get_mut(&keep) {
+            p.found += found;
+            p.visible += visible;
+        }
+        self.update_point(keep, &[]);
+    }
+
+    /// Recompute a point's normal, scale-invariance distances and representative descriptor.
+    /// `scale_factors` empty keeps the previous distances' level ratio (used after fusion).
+    pub fn update_point(&mut self, mp: MpId, scale_factors: &[f64]) {
+        let Some(p) = self.points.get(&mp) else {
+            return;
+        };
+        let mut normal = Vec3::zeros();
+        let mut descs = Vec::with_capacity(p.observations.len());
+        for (&kf, &idx) in &p.observations {
+            if let Some(k) = self.keyframes.get(&kf) {
+                let d = p.position - k.camera_center();
+                if d.norm() > 1e-12 {
+                    normal += d.normalize();
+                }
+                if let Some(desc) = k.descriptors.get(idx) {
+                    descs.push(*desc);
+                }
+            }
+        }
+        let refkf = self.keyframes.get(&p.reference_kf).and_then(|k| {
+            let idx = *p.observations.get(&k.id)?;
+            Some((k.camera_center(), *k.octaves.get(idx)?))
+        });
+        let descriptor = best_descriptor(&descs).unwrap_or(p.descriptor);
+        let Some(p) = self.points.get_mut(&mp) else {
+            return;
+        };
+        if normal.norm() > 1e-12 {
+            p.normal = normal.normalize();
+        }
+        p.descriptor = descriptor;
+        if let Some((center, octave)) = refkf
+            && !scale_factors.is_empty()
+        {
+            let dist = (p.position - center).norm();
+            let level_scale = scale_factors[(octave as usize).min(scale_factors.len() - 1)];
+            p.max_distance = dist * level_scale;
+            p.min_distance = p.max_distance / scale_factors[scale_factors.len() - 1];
+        }
+    }
+
+    /// Recompute the covisibility edges of `kf` (and the reverse edges), and attach it to the
+    /// spanning tree on first connection (parent = strongest covisible keyframe).
+    pub fn update_connections(&mut self, kf: KfId, min_shared: usize) {
+        let Some(k) = self.keyframes.get(&kf) else {
+            return;
+        };
+        let mut counts: BTreeMap<KfId, usize> = BTreeMap::new();
+        for mp in k.map_points.iter().flatten() {
+            if let Some(p) = self.points.get(mp) {
+                if p.bad {
+                    continue;
+                }
+                for &other in p.observations.keys() {
+                    if other != kf {
+                        *counts.entry(other).or_default() += 1;
+                    }
+                }
+            }
+        }
+        counts.retain(|o, _| self.keyframes.get(o).is_some_and(|k| !k.bad));
+        let best = counts
+            .iter()
+            .max_by_key(|(_, w)| **w)
+            .map(|(k, w)| (*k, *w));
+        let mut edges: BTreeMap<KfId, usize> = counts
+            .iter()
+            .filter(|(_, w)| **w >= min_shared)
+            .map(|(k, w)| (*k, *w))
+            .collect();
+        if edges.is_empty()
+            && let Some((b, w)) = best
+        {
+            edges.insert(b, w);
+        }
+        // Old edges that vanished must also vanish on the other side.
+        let old: Vec<KfId> = self.keyframes[&kf].connections.keys().copied().collect();
+        for o in old {
+            if !edges.contains_key(&o)
+                && let Some(ok) = self.keyframes.get_mut(&o)
+            {
+                ok.connections.remove(&kf);
+            }
+        }
+        for (&o, &w) in &edges {
+            if let Some(ok) = self.keyframes.get_mut(&o) {
+                ok.connections.insert(kf, w);
+            }
+        }
+        let first_connection = {
+            let k = &self.keyframes[&kf];
+            k.parent.is_none() && Some(kf) != self.origin_kf
+        };
+        if let Some(k) = self.keyframes.get_mut(&kf) {
+            k.connections = edges;
+        }
+        if first_connection && let Some((b, _)) = best {
+            if let Some(k) = self.keyframes.get_mut(&kf) {
+                k.parent = Some(b);
+            }
+            if let Some(pk) = self.keyframes.get_mut(&b) {
+                pk.children.insert(kf);
+            }
+        }
+    }
+
+    /// Mark a keyframe bad: drop its observations and edges, hand its children to its parent.
+    pub fn set_bad_keyframe(&mut self, kf: KfId, min_shared: usize) {
+        if Some(kf) == self.origin_kf {
+            return;
+        }
+        let Some(k) = self.keyframes.get(&kf) else {
+            return;
+        };
+        let mps: Vec<MpId> = k.map_points.iter().flatten().copied().collect();
+        let conns: Vec<KfId> = k.connections.keys().copied().collect();
+        let parent = k.parent;
+        let children: Vec<KfId> = k.children.iter().copied().collect();
+        for mp in mps {
+            self.erase_observation(mp, kf);
+        }
+        for c in &conns {
+            if let Some(ck) = self.keyframes.get_mut(c) {
+                ck.connections.remove(&kf);
+            }
+        }
+        if let Some(k) = self.keyframes.get_mut(&kf) {
+            k.bad = true;
+            k.connections.clear();
+            k.children.clear();
+            k.map_points.iter_mut().for_each(|m| *m = None);
+        }
+        if let Some(p) = parent
+            && let Some(pk) = self.keyframes.get_mut(&p)
+        {
+            pk.children.remove(&kf);
+        }
+        // Children re-attach to their strongest good covisible keyframe, else the parent.
+        for c in children {
+            let new_parent = self
+                .keyframes
+                .get(&c)
+                .and_then(|ck| {
+                    ck.best_covisibles(usize::MAX)
+                        .into_iter()
+                        .find(|o| *o != kf && self.keyframes.get(o).is_some_and(|k| !k.bad))
+                })
+                .or(parent);
+            if let Some(ck) = self.keyframes.get_mut(&c) {
+                ck.parent = new_parent;
+            }
+            if let Some(np) = new_parent
+                && let Some(pk) = self.keyframes.get_mut(&np)
+            {
+                pk.children.insert(c);
+            }
+        }
+        for c in conns {
+            self.update_connections(c, min_shared);
+        }
+    }
+
+    /// Good keyframes of the current map.
+    pub fn current_keyframes(&self) -> impl Iterator<Item = &KeyFrame> {
+        self.keyframes
+            .values()
+            .filter(move |k| !k.bad && k.map_epoch == self.epoch)
+    }
+
+    /// Start a new map: later keyframes and points get the next epoch.
+    pub fn start_new_map(&mut self) {
+        self.epoch += 1;
+        self.origin_kf = None;
+    }
+}
+
+/// The descriptor with the least median Hamming distance to the others.
+pub fn best_descriptor(descs: &[Descriptor]) -> Option<Descriptor> {
+    if descs.len() <= 2 {
+        return descs.first().copied();
+    }
+    let n = descs.len();
+    let mut best = (u32::MAX, 0);
+    for i in 0..n {
+        let mut d: Vec<u32> = (0..n).map(|j| hamming(&descs[i], &descs[j])).collect();
+        d.sort_unstable();
+        let median = d[(n - 1) / 2];
+        if median < best.0 {
+            best = (median, i);
+        }
+    }
+    Some(descs[best.1])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Feature, SlamSettings};
+
+    #[test]
+    fn covisibility_spanning_tree_and_bad_keyframes() {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let s = SlamSettings::rgbd(cam, 40.0, 30.0);
+        let feats: Vec<Feature> = (0..20)
+            .map(|i| Feature {
+                x: 10.0 + 20.0 * i as f32,
+                y: 100.0,
+                octave: 0,
+                angle: 0.0,
+            })
+            .collect();
+        let descs = vec![[7u8; 32]; 20];
+        let mut f = Frame::new(0, 0.0, &feats, &descs, None, &s).unwrap();
+        f.pose_cw = Some(Se3::identity());
+        let mut map = Map::new();
+        let k0 = map.add_keyframe(&f).unwrap();
+        let k1 = map.add_keyframe(&f).unwrap();
+        let k2 = map.add_keyframe(&f).unwrap();
+        for i in 0..20 {
+            let mp = map.add_point(Vec3::new(i as f64, 0.0, 3.0), k0, i).unwrap();
+            map.add_observation(mp, k1, i);
+            if i < 16 {
+                map.add_observation(mp, k2, i);
+            }
+        }
+        map.update_connections(k1, 15);
+        map.update_connections(k2, 15);
+        assert_eq!(map.keyframes[&k1].connections.get(&k0), Some(&20));
+        assert_eq!(map.keyframes[&k2].connections.get(&k1), Some(&16));
+        assert_eq!(map.keyframes[&k1].parent, Some(k0));
+        assert_eq!(map.keyframes[&k2].parent, Some(k1));
+        map.set_bad_keyframe(k1, 15);
+        assert!(map.keyframes[&k1].bad);
+        assert!(!map.keyframes[&k0].connections.contains_key(&k1));
+        // Points seen by k0 and k2 survive, those only by k0 now (4 of them) are erased.
+        assert_eq!(map.points.len(), 16);
+        assert_eq!(map.keyframes[&k2].parent, Some(k0));
+    }
+}

@@ -1,0 +1,7 @@
+//! The SLAM data: frames, keyframes, map points and the map.
+
+pub mod frame;
+pub mod map;
+
+pub use frame::{Descriptor, Feature, Frame, KeypointGrid};
+pub use map::{KeyFrame, KfId, Map, MapPoint, MpId};

@@ -1,0 +1,283 @@
+//! Descriptor matching: by projection (motion model, local map), by brute force with a ratio test
+//! (reference keyframe, relocalisation), and the rotation-consistency histogram.
+
+use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
+
+use crate::data::{Frame, KeyFrame, Map, MpId};
+use crate::{Descriptor, SlamSettings, hamming};
+
+/// Bins of the rotation histogram (ORB-SLAM `HISTO_LENGTH`).
+const HISTO_LENGTH: usize = 30;
+
+/// Keep only matches whose orientation change falls in the three most populated bins of a
+/// 30-bin histogram (ORB-SLAM's `ComputeThreeMaxima`). `matches` holds (frame keypoint,
+/// rotation change in degrees); returns the indices into `matches` to discard.
+pub fn rotation_outliers(matches: &[(usize, f32)]) -> Vec<usize> {
+    let mut hist: Vec<Vec<usize>> = vec![Vec::new(); HISTO_LENGTH];
+    let factor = HISTO_LENGTH as f32 / 360.0;
+    for (m, &(_, rot)) in matches.iter().enumerate() {
+        let mut r = rot % 360.0;
+        if r < 0.0 {
+            r += 360.0;
+        }
+        let bin = ((r * factor).round() as usize) % HISTO_LENGTH;
+        hist[bin].push(m);
+    }
+    let mut counts: Vec<(usize, usize)> =
+        hist.iter().enumerate().map(|(i, h)| (h.len(), i)).collect();
+    counts.sort_by(|a, b| b.cmp(a));
+    let (m1, m2, m3) = (counts[0].0, counts[1].0, counts[2].0);
+    // ORB-SLAM drops the 2nd / 3rd bins when they are much smaller than the first.
+    let keep2 = m2 as f32 >= 0.1 * m1 as f32;
+    let keep3 = keep2 && m3 as f32 >= 0.1 * m1 as f32;
+    let mut keep = vec![counts[0].1];
+    if keep2 {
+        keep.push(counts[1].1);
+    }
+    if keep3 {
+        keep.push(counts[2].1);
+    }
+    let mut out = Vec::new();
+    for (bin, h) in hist.iter().enumerate() {
+        if !keep.contains(&bin) {
+            out.extend_from_slice(h);
+        }
+    }
+    out
+}
+
+/// Project the map points matched in `last` into `cur` (whose `pose_cw` holds the prediction)
+/// and match within `radius` x octave scale (ORB-SLAM `SearchByProjection(CurrentFrame,
+/// LastFrame)`). Returns the number of new matches.
+pub fn search_by_projection_last(
+    cur: &mut Frame,
+    last: &Frame,
+    map: &Map,
+    radius: f64,
+    s: &SlamSettings,
+) -> usize {
+    let Some(pose) = cur.pose_cw else {
+        return 0;
+    };
+    let scales = s.scale_factors();
+    let cam = &s.camera;
+    let mut rot = Vec::new();
+    let mut nmatches = 0;
+    for (i, mp) in last.map_points.iter().enumerate() {
+        let Some(mp) = mp else { continue };
+        if last.outliers[i] {
+            continue;
+        }
+        let Some(p) = map.points.get(mp) else {
+            continue;
+        };
+        let pc = pose * nalgebra::Point3::from(p.position);
+        let Some(uv) = cam.project_undistorted(&pc.coords) else {
+            continue;
+        };
+        if !cam.in_image(&uv, 0.0) {
+            continue;
+        }
+        let o = last.octaves[i] as i32;
+        let r = radius * scales[o as usize];
+        let cands = cur.features_in_area(uv.x, uv.y, r, o - 1, o + 1);
+        let ur_pred = uv.x - s.bf / pc.z;
+        let mut best = (u32::MAX, usize::MAX);
+        for c in cands {
+            if cur.map_points[c].is_some() {
+                continue;
+            }
+            if cur.u_right[c] > 0.0 && ((ur_pred - cur.u_right[c] as f64).abs() > r) {
+                continue;
+            }
+            let d = hamming(&p.descriptor, &cur.descriptors[c]);
+            if d < best.0 {
+                best = (d, c);
+            }
+        }
+        if best.0 <= s.th_high {
+            cur.map_points[best.1] = Some(*mp);
+            cur.outliers[best.1] = false;
+            rot.push((best.1, last.angles[i] - cur.angles[best.1]));
+            nmatches += 1;
+        }
+    }
+    for m in rotation_outliers(&rot) {
+        cur.map_points[rot[m].0] = None;
+        nmatches -= 1;
+    }
+    nmatches
+}
+
+/// A local map point prepared for projection into the current frame.
+pub struct ProjectedPoint {
+    pub id: MpId,
+    pub u: f64,
+    pub v: f64,
+    pub u_right: f64,
+    pub level: i32,
+    pub view_cos: f64,
+}
+
+/// Frustum test (ORB-SLAM `Frame::isInFrustum`): in front, in the image, within the scale-
+/// invariance distances and seen within 60 degrees of its mean viewing direction.
+pub fn project_in_frustum(
+    map: &Map,
+    mp: MpId,
+    pose_cw: &Se3,
+    center: &Vec3,
+    s: &SlamSettings,
+) -> Option<ProjectedPoint> {
+    let p = map.points.get(&mp)?;
+    if p.bad {
+        return None;
+    }
+    let cam: &PinholeCamera = &s.camera;
+    let pc = pose_cw * nalgebra::Point3::from(p.position);
+    let uv = cam.project_undistorted(&pc.coords)?;
+    if !cam.in_image(&uv, 0.0) {
+        return None;
+    }
+    let po = p.position - center;
+    let dist = po.norm();
+    if dist < 0.8 * p.min_distance || dist > 1.2 * p.max_distance {
+        return None;
+    }
+    let view_cos = po.dot(&p.normal) / dist.max(1e-12);
+    if view_cos < 0.5 {
+        return None;
+    }
+    let level = p.predict_scale(dist, s.scale_factor.ln(), s.n_levels);
+    Some(ProjectedPoint {
+        id: mp,
+        u: uv.x,
+        v: uv.y,
+        u_right: uv.x - s.bf / pc.z,
+        level,
+        view_cos,
+    })
+}
+
+/// Match projected local-map points into `cur` (ORB-SLAM `SearchByProjection(F, vpMapPoints,
+/// th)`): window th x (2.5 or 4 by viewing angle) x scale, octave in [level-1, level], ratio test.
+pub fn search_by_projection_local(
+    cur: &mut Frame,
+    projected: &[ProjectedPoint],
+    map: &Map,
+    th: f64,
+    s: &SlamSettings,
+) -> usize {
+    let scales = s.scale_factors();
+    let mut n = 0;
+    for pp in projected {
+        let Some(p) = map.points.get(&pp.id) else {
+            continue;
+        };
+        let r_view = if pp.view_cos > 0.998 { 2.5 } else { 4.0 };
+        let r = th * r_view * scales[pp.level as usize];
+        let cands = cur.features_in_area(pp.u, pp.v, r, pp.level - 1, pp.level);
+        let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
+        let mut best_level = -1;
+        let mut second_level = -1;
+        for c in cands {
+            if let Some(existing) = cur.map_points[c]
+                && map
+                    .points
+                    .get(&existing)
+                    .is_some_and(|q| !q.observations.is_empty())
+            {
+                continue;
+            }
+            if cur.u_right[c] > 0.0 && (pp.u_right - cur.u_right[c] as f64).abs() > r {
+                continue;
+            }
+            let d = hamming(&p.descriptor, &cur.descriptors[c]);
+            if d < best.0 {
+                second = best.0;
+                second_level = best_level;
+                best = (d, c);
+                best_level = cur.octaves[c] as i32;
+            } else if d < second {
+                second = d;
+                second_level = cur.octaves[c] as i32;
+            }
+        }
+        if best.0 <= s.th_high {
+            if best_level == second_level && best.0 as f32 > s.local_map_ratio * second as f32 {
+                continue;
+            }
+            cur.map_points[best.1] = Some(pp.id);
+            cur.outliers[best.1] = false;
+            n += 1;
+        }
+    }
+    n
+}
+
+/// Brute-force match the keyframe's map points against the frame's keypoints, TH_LOW and the
+/// nearest/second `ratio`, with rotation consistency. Writes matches into `cur.map_points`
+/// (replacing nothing already there); returns how many. Stands in for ORB-SLAM's BoW search.
+pub fn search_by_descriptors(
+    cur: &mut Frame,
+    kf: &KeyFrame,
+    map: &Map,
+    ratio: f32,
+    th_low: u32,
+) -> usize {
+    let mut rot = Vec::new();
+    let mut taken: Vec<Option<(u32, usize)>> = vec![None; cur.len()];
+    for (i, mp) in kf.map_points.iter().enumerate() {
+        let Some(mp) = mp else { continue };
+        if map.points.get(mp).is_none_or(|p| p.bad) {
+            continue;
+        }
+        let d_kf: &Descriptor = &kf.descriptors[i];
+        let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
+        for (c, dc) in cur.descriptors.iter().enumerate() {
+            if cur.map_points[c].is_some() {
+                continue;
+            }
+            let d = hamming(d_kf, dc);
+            if d < best.0 {
+                second = best.0;
+                best = (d, c);
+            } else if d < second {
+                second = d;
+            }
+        }
+        if best.0 <= th_low && (best.0 as f32) < ratio * second as f32 {
+            let c = best.1;
+            if taken[c].is_none_or(|(d, _)| best.0 < d) {
+                taken[c] = Some((best.0, i));
+            }
+        }
+    }
+    for (c, t) in taken.iter().enumerate() {
+        if let Some((_, i)) = t {
+            cur.map_points[c] = kf.map_points[*i];
+            cur.outliers[c] = false;
+            rot.push((c, kf.angles[*i] - cur.angles[c]));
+        }
+    }
+    let mut n = rot.len();
+    for m in rotation_outliers(&rot) {
+        cur.map_points[rot[m].0] = None;
+        n -= 1;
+    }
+    n
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rotation_histogram_drops_inconsistent_matches() {
+        let mut m: Vec<(usize, f32)> = (0..50).map(|i| (i, 10.0 + (i % 3) as f32)).collect();
+        m.push((50, 180.0));
+        m.push((51, -90.0));
+        let mut out = rotation_outliers(&m);
+        out.sort_unstable();
+        assert_eq!(out, vec![50, 51]);
+    }
+}

@@ -1,0 +1,462 @@
+//! Local mapping (ORB-SLAM3 `LocalMapping`): per new keyframe, associate its points, cull recent
+//! points, fuse duplicates with neighbours, local bundle adjustment, cull redundant keyframes.
+//!
+//! [`LocalMapper::process`] does one keyframe; [`MapperThread`] runs it in its own thread fed by
+//! a channel. The map is shared behind a mutex; bundle adjustment works on a copy so tracking is
+//! not blocked while it solves.
+
+use std::collections::BTreeSet;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::mpsc::{Receiver, Sender, channel};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use stillpoint_geometry::Vec3;
+use tracing::debug;
+
+use crate::SlamSettings;
+use crate::data::{KfId, Map, MpId};
+use crate::hamming;
+use crate::optimize::{BaObservation, BaProblem, local_bundle_adjustment};
+
+/// Local mapping state: the recently created points awaiting culling.
+pub struct LocalMapper {
+    pub s: SlamSettings,
+    recent_points: Vec<MpId>,
+    scales: Vec<f64>,
+    inv_sigma2: Vec<f64>,
+}
+
+impl LocalMapper {
+    pub fn new(s: SlamSettings) -> Self {
+        Self {
+            scales: s.scale_factors(),
+            inv_sigma2: s.inv_level_sigma2(),
+            s,
+            recent_points: Vec::new(),
+        }
+    }
+
+    /// Process one keyframe. The map lock is taken per step; the BA solve runs unlocked.
+    pub fn process(&mut self, map: &Mutex<Map>, kf: KfId) {
+        {
+            let Ok(mut m) = map.lock() else { return };
+            if m.keyframes.get(&kf).is_none_or(|k| k.bad) {
+                return;
+            }
+            self.process_new_keyframe(&mut m, kf);
+            self.cull_points(&mut m, kf);
+            self.fuse_with_neighbours(&mut m, kf);
+        }
+        self.local_ba(map, kf);
+        if let Ok(mut m) = map.lock() {
+            self.cull_keyframes(&mut m, kf);
+        }
+    }
+
+    fn process_new_keyframe(&mut self, m: &mut Map, kf: KfId) {
+        let mps: Vec<(usize, MpId)> = m.keyframes[&kf]
+            .map_points
+            .iter()
+            .enumerate()
+            .filter_map(|(i, p)| p.map(|p| (i, p)))
+            .collect();
+        for (i, mp) in mps {
+            let Some(p) = m.points.get(&mp) else {
+                if let Some(k) = m.keyframes.get_mut(&kf) {
+                    k.map_points[i] = None;
+                }
+                continue;
+            };
+            if p.observations.contains_key(&kf) {
+                if p.first_kf == kf {
+                    self.recent_points.push(mp);
+                }
+            } else {
+                m.add_observation(mp, kf, i);
+                m.update_point(mp, &self.scales);
+            }
+        }
+        m.update_connections(kf, self.s.covisibility_min_shared);
+    }
+
+    /// ORB-SLAM3 `MapPointCulling`.
+    fn cull_points(&mut self, m: &mut Map, current: KfId) {
+        let min_obs = self.s.point_min_observations;
+        let ratio = self.s.point_found_ratio;
+        let mut keep = Vec::with_capacity(self.recent_points.len());
+        for &mp in &self.recent_points {
+            let Some(p) = m.points.get(&mp) else { continue };
+            let age = current.saturating_sub(p.first_kf);
+            if p.found_ratio() < ratio
+                || (age >= 2 && p.weighted_observations(&m.keyframes) <= min_obs)
+            {
+                m.erase_point(mp);
+            } else if age < 3 {
+                keep.push(mp);
+            }
+        }
+        self.recent_points = keep;
+    }
+
+    /// ORB-SLAM3 `SearchInNeighbors`: fuse the keyframe's points into its neighbours and theirs
+    /// into it, merging duplicates.
+    fn fuse_with_neighbours(&mut self, m: &mut Map, kf: KfId) {
+        let n = self.s.local_neighbours;
+        let mut targets: BTreeSet<KfId> = BTreeSet::new();
+        for k in m.keyframes[&kf].best_covisibles(n) {
+            targets.insert(k);
+            if let Some(kk) = m.keyframes.get(&k) {
+                for k2 in kk.best_covisibles(5) {
+                    targets.insert(k2);
+                }
+            }
+        }
+        targets.remove(&kf);
+        targets.retain(|t| {
+            m.keyframes
+                .get(t)
+                .is_some_and(|k| !k.bad && k.map_epoch == m.epoch)
+        });
+        let own: Vec<MpId> = m.keyframes[&kf]
+            .map_points
+            .iter()
+            .flatten()
+            .copied()
+            .collect();
+        for &t in &targets {
+            self.fuse(m, t, &own);
+        }
+        let mut theirs = BTreeSet::new();
+        for &t in &targets {
+            theirs.extend(m.keyframes[&t].map_points.iter().flatten().copied());
+        }
+        let theirs: Vec<MpId> = theirs.into_iter().collect();
+        self.fuse(m, kf, &theirs);
+        let own: Vec<MpId> = m.keyframes[&kf]
+            .map_points
+            .iter()
+            .flatten()
+            .copied()
+            .collect();
+        for mp in own {
+            m.update_point(mp, &self.scales);
+        }
+        m.update_connections(kf, self.s.covisibility_min_shared);
+    }
+
+    /// ORB-SLAM `ORBmatcher::Fuse(pKF, vpMapPoints, th=3)`.
+    fn fuse(&self, m: &mut Map, target: KfId, points: &[MpId]) {
+        let s = &self.s;
+        let Some(k) = m.keyframes.get(&target) else {
+            return;
+        };
+        let pose = k.pose_cw;
+        let center = k.camera_center();
+        let mut actions: Vec<(MpId, usize, Option<MpId>)> = Vec::new();
+        for &mp in points {
+            let Some(p) = m.points.get(&mp) else { continue };
+            let k = &m.keyframes[&target];
+            if p.bad || p.observations.contains_key(&target) {
+                continue;
+            }
+            let pc = (pose * nalgebra::Point3::from(p.position)).coords;
+            let Some(uv) = s.camera.project_undistorted(&pc) else {
+                continue;
+            };
+            if !s.camera.in_image(&uv, 0.0) {
+                continue;
+            }
+            let po: Vec3 = p.position - center;
+            let dist = po.norm();
+            if dist < 0.8 * p.min_distance || dist > 1.2 * p.max_distance {
+                continue;
+            }
+            if po.dot(&p.normal) < 0.5 * dist {
+                continue;
+            }
+            let level = p.predict_scale(dist, s.scale_factor.ln(), s.n_levels);
+            let r = 3.0 * self.scales[level as usize];
+            let ur = uv.x - s.bf / pc.z;
+            let mut best = (u32::MAX, usize::MAX);
+            for c in k.features_in_area(uv.x, uv.y, r, level - 1, level) {
+                let kp = k.points[c];
+                let inv = self.inv_sigma2[k.octaves[c] as usize];
+                let mut e2 = (uv.x - kp.x).powi(2) + (uv.y - kp.y).powi(2);
+                let chi_th = if k.u_right[c] > 0.0 {
+                    e2 += (ur - k.u_right[c] as f64).powi(2);
+                    7.8
+                } else {
+                    5.99
+                };
+                if e2 * inv > chi_th {
+                    continue;
+                }
+                let d = hamming(&p.descriptor, &k.descriptors[c]);
+                if d < best.0 {
+                    best = (d, c);
+                }
+            }
+            if best.0 <= s.th_low {
+                actions.push((mp, best.1, k.map_points[best.1]));
+            }
+        }
+        for (mp, idx, existing) in actions {
+            if !m.points.contains_key(&mp) {
+                continue;
+            }
+            match existing.filter(|e| m.points.contains_key(e)) {
+                Some(e) if e == mp => {}
+                Some(e) => {
+                    let (ne, nm) = (
+                        m.points[&e].observations.len(),
+                        m.points[&mp].observations.len(),
+                    );
+                    if ne > nm {
+                        m.replace_point(mp, e)
+                    } else {
+                        m.replace_point(e, mp)
+                    }
+                }
+                None => {
+                    if m.keyframes[&target].map_points[idx].is_none()
+                        && !m.points[&mp].observations.contains_key(&target)
+                    {
+                        m.add_observation(mp, target, idx);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Local BA over the keyframe and its covisible keyframes; keyframes that see those points
+    /// but are not covisible are fixed, as is the map's first keyframe.
+    fn local_ba(&mut self, map: &Mutex<Map>, kf: KfId) {
+        let (mut problem, kf_ids, pt_ids) = {
+            let Ok(m) = map.lock() else { return };
+            let Some(k) = m.keyframes.get(&kf) else {
+                return;
+            };
+            let mut local: Vec<KfId> = vec![kf];
+            local.extend(k.connections.keys().filter(|o| {
+                m.keyframes
+                    .get(o)
+                    .is_some_and(|x| !x.bad && x.map_epoch == m.epoch)
+            }));
+            let local_set: BTreeSet<KfId> = local.iter().copied().collect();
+            let mut pts: BTreeSet<MpId> = BTreeSet::new();
+            for l in &local {
+                pts.extend(
+                    m.keyframes[l]
+                        .map_points
+                        .iter()
+                        .flatten()
+                        .filter(|p| m.points.contains_key(p)),
+                );
+            }
+            let mut fixed: BTreeSet<KfId> = BTreeSet::new();
+            for p in &pts {
+                for o in m.points[p].observations.keys() {
+                    if !local_set.contains(o) && m.keyframes.get(o).is_some_and(|x| !x.bad) {
+                        fixed.insert(*o);
+                    }
+                }
+            }
+            let mut kf_ids: Vec<KfId> = local.clone();
+            kf_ids.extend(fixed.iter().copied());
+            let mut is_fixed: Vec<bool> = kf_ids
+                .iter()
+                .map(|id| fixed.contains(id) || Some(*id) == m.origin_kf)
+                .collect();
+            if !is_fixed.iter().any(|&f| f) {
+                // No gauge anchor: fix the oldest local keyframe.
+                let oldest = (0..kf_ids.len()).min_by_key(|&i| kf_ids[i]).unwrap_or(0);
+                is_fixed[oldest] = true;
+            }
+            let kf_index: std::collections::BTreeMap<KfId, usize> =
+                kf_ids.iter().enumerate().map(|(i, k)| (*k, i)).collect();
+            let pt_ids: Vec<MpId> = pts.into_iter().collect();
+            let mut problem = BaProblem {
+                poses: kf_ids.iter().map(|k| m.keyframes[k].pose_cw).collect(),
+                fixed: is_fixed,
+                points: pt_ids.iter().map(|p| m.points[p].position).collect(),
+                observations: Vec::new(),
+            };
+            for (pi, p) in pt_ids.iter().enumerate() {
+                for (ok, &idx) in &m.points[p].observations {
+                    let Some(&ci) = kf_index.get(ok) else {
+                        continue;
+                    };
+                    let k = &m.keyframes[ok];
+                    let Some(px) = k.points.get(idx) else {
+                        continue;
+                    };
+                    problem.observations.push(BaObservation {
+                        camera: ci,
+                        point: pi,
+                        u: px.x,
+                        v: px.y,
+                        u_right: (k.u_right[idx] > 0.0).then_some(k.u_right[idx] as f64),
+                        inv_sigma2: self.inv_sigma2[k.octaves[idx] as usize],
+                    });
+                }
+            }
+            (problem, kf_ids, pt_ids)
+        };
+        let t0 = Instant::now();
+        let outliers = local_bundle_adjustment(&mut problem, &self.s);
+        debug!(
+            keyframes = kf_ids.len(),
+            points = pt_ids.len(),
+            ms = t0.elapsed().as_secs_f64() * 1e3,
+            "local BA"
+        );
+        let Ok(mut m) = map.lock() else { return };
+        for (i, id) in kf_ids.iter().enumerate() {
+            if !problem.fixed[i]
+                && let Some(k) = m.keyframes.get_mut(id)
+                && !k.bad
+            {
+                k.pose_cw = problem.poses[i];
+            }
+        }
+        for (i, id) in pt_ids.iter().enumerate() {
+            if let Some(p) = m.points.get_mut(id) {
+                p.position = problem.points[i];
+            }
+        }
+        for (o, out) in problem.observations.iter().zip(outliers) {
+            if out {
+                m.erase_observation(pt_ids[o.point], kf_ids[o.camera]);
+            }
+        }
+        for id in &pt_ids {
+            m.update_point(*id, &self.scales);
+        }
+    }
+
+    /// ORB-SLAM3 `KeyFrameCulling`: drop covisible keyframes whose close points are 90 % seen by
+    /// at least 3 other keyframes at the same or finer scale.
+    fn cull_keyframes(&mut self, m: &mut Map, kf: KfId) {
+        let Some(k) = m.keyframes.get(&kf) else {
+            return;
+        };
+        let close = self.s.close_depth() as f32;
+        let th_obs = 3;
+        let candidates: Vec<KfId> = k.connections.keys().copied().collect();
+        for c in candidates {
+            if Some(c) == m.origin_kf {
+                continue;
+            }
+            let Some(ck) = m.keyframes.get(&c) else {
+                continue;
+            };
+            if ck.bad {
+                continue;
+            }
+            let (mut n_mps, mut redundant) = (0usize, 0usize);
+            for (i, mp) in ck.map_points.iter().enumerate() {
+                let Some(p) = mp.and_then(|mp| m.points.get(&mp)) else {
+                    continue;
+                };
+                let z = ck.depth[i];
+                if !(z > 0.0 && z < close) {
+                    continue;
+                }
+                n_mps += 1;
+                if p.observations.len() > th_obs {
+                    let level = ck.octaves[i] as i32;
+                    let n_obs = p
+                        .observations
+                        .iter()
+                        .filter(|(o, _)| **o != c)
+                        .filter(|(o, idx)| {
+                            m.keyframes
+                                .get(o)
+                                .is_some_and(|ok| (ok.octaves[**idx] as i32) <= level + 1)
+                        })
+                        .count();
+                    if n_obs >= th_obs {
+                        redundant += 1;
+                    }
+                }
+            }
+            if n_mps > 0 && redundant as f64 > self.s.kf_redundancy * n_mps as f64 {
+                debug!(keyframe = c, "redundant keyframe culled");
+                m.set_bad_keyframe(c, self.s.covisibility_min_shared);
+            }
+        }
+    }
+}
+
+/// Messages to the local-mapping thread.
+enum Msg {
+    KeyFrame(KfId),
+    Stop,
+}
+
+/// Local mapping in its own thread; keyframes arrive through a channel.
+pub struct MapperThread {
+    tx: Sender<Msg>,
+    handle: Option<std::thread::JoinHandle<()>>,
+    pub idle: Arc<AtomicBool>,
+    pub queued: Arc<AtomicUsize>,
+    pub times_ms: Arc<Mutex<Vec<f64>>>,
+}
+
+impl MapperThread {
+    pub fn spawn(
+        mapper: LocalMapper,
+        map: Arc<Mutex<Map>>,
+        times_ms: Arc<Mutex<Vec<f64>>>,
+    ) -> std::io::Result<Self> {
+        let (tx, rx): (Sender<Msg>, Receiver<Msg>) = channel();
+        let idle = Arc::new(AtomicBool::new(true));
+        let queued = Arc::new(AtomicUsize::new(0));
+        let (idle2, queued2, times2) = (idle.clone(), queued.clone(), times_ms.clone());
+        let handle = std::thread::Builder::new()
+            .name("local-mapping".into())
+            .spawn(move || {
+                let mut mapper = mapper;
+                while let Ok(Msg::KeyFrame(kf)) = rx.recv() {
+                    idle2.store(false, Ordering::SeqCst);
+                    let t0 = Instant::now();
+                    mapper.process(&map, kf);
+                    if let Ok(mut t) = times2.lock() {
+                        t.push(t0.elapsed().as_secs_f64() * 1e3);
+                    }
+                    queued2.fetch_sub(1, Ordering::SeqCst);
+                    idle2.store(queued2.load(Ordering::SeqCst) == 0, Ordering::SeqCst);
+                }
+            })?;
+        Ok(Self {
+            tx,
+            handle: Some(handle),
+            idle,
+            queued,
+            times_ms,
+        })
+    }
+
+    pub fn send(&self, kf: KfId) -> bool {
+        self.queued.fetch_add(1, Ordering::SeqCst);
+        self.idle.store(false, Ordering::SeqCst);
+        self.tx.send(Msg::KeyFrame(kf)).is_ok()
+    }
+
+    /// Finish the queued keyframes and stop the thread.
+    pub fn finish(&mut self) -> Result<(), crate::SlamError> {
+        let _ = self.tx.send(Msg::Stop);
+        if let Some(h) = self.handle.take() {
+            h.join()
+                .map_err(|_| crate::SlamError::LocalMapping("the thread panicked".into()))?;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for MapperThread {
+    fn drop(&mut self) {
+        let _ = self.finish();
+    }
+}

@@ -1,0 +1,611 @@
+//! Tracking (ORB-SLAM3 `Tracking` for RGB-D): initialisation from depth, constant-velocity motion
+//! model, reference-keyframe fallback, local-map tracking, keyframe decision, relocalisation and
+//! a new map when relocalisation keeps failing.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use stillpoint_geometry::Se3;
+use tracing::{debug, info, warn};
+
+use crate::SlamSettings;
+use crate::data::{Frame, KfId, Map, MpId};
+use crate::matching::{
+    project_in_frustum, search_by_descriptors, search_by_projection_last,
+    search_by_projection_local,
+};
+use crate::optimize::{PoseObservation, optimize_pose};
+use crate::solve::{Correspondence, RansacParams, ransac_pose};
+
+/// Where tracking stands after a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackingState {
+    /// Waiting for a frame with enough keypoints with depth.
+    NotInitialized,
+    Ok,
+    /// The last frame(s) could not be tracked; relocalising.
+    Lost,
+}
+
+/// What happened to one frame.
+#[derive(Clone, Debug, Default)]
+pub struct TrackOutcome {
+    /// Camera-to-world pose when tracked.
+    pub pose_wc: Option<Se3>,
+    pub inliers: usize,
+    pub new_keyframe: Option<KfId>,
+    pub initialised: bool,
+    pub relocalised: bool,
+    pub new_map: bool,
+}
+
+/// The tracking state machine.
+pub struct Tracker {
+    pub s: SlamSettings,
+    pub state: TrackingState,
+    last_frame: Option<Frame>,
+    /// T_cw(current) * T_wc(last): the constant-velocity model.
+    velocity: Option<Se3>,
+    reference_kf: Option<KfId>,
+    last_kf_frame: usize,
+    last_reloc_frame: Option<usize>,
+    /// Last successfully tracked world-to-camera pose (seeds a new map).
+    last_good_pose: Option<Se3>,
+    lost_frames: usize,
+    inv_sigma2: Vec<f64>,
+}
+
+impl Tracker {
+    pub fn new(s: SlamSettings) -> Self {
+        let inv_sigma2 = s.inv_level_sigma2();
+        Self {
+            s,
+            state: TrackingState::NotInitialized,
+            last_frame: None,
+            velocity: None,
+            reference_kf: None,
+            last_kf_frame: 0,
+            last_reloc_frame: None,
+            last_good_pose: None,
+            lost_frames: 0,
+            inv_sigma2,
+        }
+    }
+
+    /// Track one frame against the map. `mapper_idle` and `mapper_queue` come from local mapping
+    /// (keyframe decision).
+    pub fn track(
+        &mut self,
+        mut frame: Frame,
+        map: &mut Map,
+        mapper_idle: bool,
+        mapper_queue: usize,
+    ) -> TrackOutcome {
+        let mut out = TrackOutcome::default();
+        let ok = match self.state {
+            TrackingState::NotInitialized => {
+                let origin = self.last_good_pose.unwrap_or_else(Se3::identity);
+                if let Some(kf) = self.initialise(&mut frame, map, origin) {
+                    out.initialised = true;
+                    out.new_keyframe = Some(kf);
+                    out.pose_wc = frame.pose_cw.map(|p| p.inverse());
+                    out.inliers = frame.map_points.iter().flatten().count();
+                    self.finish_frame(frame, true);
+                    return out;
+                }
+                false
+            }
+            TrackingState::Ok => {
+                let mut ok = false;
+                if self.velocity.is_some() && self.last_frame.is_some() {
+                    ok = self.track_motion_model(&mut frame, map);
+                }
+                if !ok {
+                    ok = self.track_reference_keyframe(&mut frame, map);
+                }
+                ok && {
+                    let n = self.track_local_map(&mut frame, map);
+                    out.inliers = n;
+                    self.local_map_ok(&frame, n)
+                }
+            }
+            TrackingState::Lost => {
+                let mut ok = self.relocalise(&mut frame, map);
+                if ok {
+                    let n = self.track_local_map(&mut frame, map);
+                    out.inliers = n;
+                    ok = self.local_map_ok(&frame, n);
+                    if ok {
+                        info!(frame = frame.index, inliers = n, "relocalised");
+                        out.relocalised = true;
+                        self.last_reloc_frame = Some(frame.index);
+                    }
+                }
+                ok
+            }
+        };
+        if ok {
+            self.state = TrackingState::Ok;
+            self.lost_frames = 0;
+            if let (Some(cur), Some(last)) = (
+                frame.pose_cw,
+                self.last_frame.as_ref().and_then(|l| l.pose_cw),
+            ) {
+                let mut v = cur * last.inverse();
+                v.rotation.renormalize();
+                self.velocity = Some(v);
+            }
+            if self.need_new_keyframe(&frame, map, out.inliers, mapper_idle, mapper_queue) {
+                out.new_keyframe = self.create_keyframe(&mut frame, map);
+            }
+            out.pose_wc = frame.pose_cw.map(|p| p.inverse());
+        } else if self.state != TrackingState::NotInitialized {
+            if self.state == TrackingState::Ok {
+                warn!(frame = frame.index, "tracking lost; relocalising");
+            }
+            self.state = TrackingState::Lost;
+            self.velocity = None;
+            self.lost_frames += 1;
+            if self.lost_frames > self.s.new_map_after_lost_frames {
+                let origin = self.last_good_pose.unwrap_or_else(Se3::identity);
+                frame.map_points.iter_mut().for_each(|m| *m = None);
+                if frame.with_depth() > self.s.init_min_keypoints {
+                    map.start_new_map();
+                    if let Some(kf) = self.initialise(&mut frame, map, origin) {
+                        warn!(
+                            frame = frame.index,
+                            epoch = map.epoch,
+                            "relocalisation kept failing: started a new map at the last known pose"
+                        );
+                        out.new_map = true;
+                        out.new_keyframe = Some(kf);
+                        out.pose_wc = frame.pose_cw.map(|p| p.inverse());
+                        self.finish_frame(frame, true);
+                        return out;
+                    }
+                }
+            }
+        }
+        self.finish_frame(frame, ok);
+        out
+    }
+
+    fn finish_frame(&mut self, mut frame: Frame, ok: bool) {
+        if ok {
+            self.last_good_pose = frame.pose_cw;
+            for (m, o) in frame.map_points.iter_mut().zip(&frame.outliers) {
+                if *o {
+                    *m = None;
+                }
+            }
+            self.last_frame = Some(frame);
+        } else {
+            frame.pose_cw = None;
+            self.last_frame = None;
+        }
+    }
+
+    /// RGB-D initialisation: every keypoint with depth becomes a map point of the first keyframe.
+    fn initialise(&mut self, frame: &mut Frame, map: &mut Map, origin_cw: Se3) -> Option<KfId> {
+        if frame.with_depth() <= self.s.init_min_keypoints {
+            debug!(
+                frame = frame.index,
+                with_depth = frame.with_depth(),
+                "not enough keypoints with depth to initialise"
+            );
+            return None;
+        }
+        frame.pose_cw = Some(origin_cw);
+        let kf = map.add_keyframe(frame)?;
+        let scales = self.s.scale_factors();
+        for i in 0..frame.len() {
+            if let Some(pw) = frame.unproject_world(i, &self.s.camera)
+                && let Some(mp) = map.add_point(pw, kf, i)
+            {
+                map.update_point(mp, &scales);
+                frame.map_points[i] = Some(mp);
+            }
+        }
+        info!(
+            frame = frame.index,
+            points = map.points.len(),
+            epoch = map.epoch,
+            "map initialised"
+        );
+        self.state = TrackingState::Ok;
+        self.reference_kf = Some(kf);
+        self.last_kf_frame = frame.index;
+        self.velocity = None;
+        self.lost_frames = 0;
+        Some(kf)
+    }
+
+    /// Pose optimisation over the frame's matches; marks outliers, returns the inlier count.
+    fn optimize_frame(&self, frame: &mut Frame, map: &Map) -> usize {
+        let Some(mut pose) = frame.pose_cw else {
+            return 0;
+        };
+        let mut idx = Vec::new();
+        let mut obs = Vec::new();
+        for (i, mp) in frame.map_points.iter().enumerate() {
+            let Some(p) = mp.and_then(|m| map.points.get(&m)) else {
+                continue;
+            };
+            idx.push(i);
+            obs.push(PoseObservation {
+                world: p.position,
+                u: frame.points[i].x,
+                v: frame.points[i].y,
+                u_right: (frame.u_right[i] > 0.0).then_some(frame.u_right[i] as f64),
+                inv_sigma2: self.inv_sigma2[frame.octaves[i] as usize],
+            });
+        }
+        if obs.len() < 3 {
+            return 0;
+        }
+        let outliers = optimize_pose(&mut pose, &obs, &self.s);
+        frame.pose_cw = Some(pose);
+        let mut inliers = 0;
+        for (k, &i) in idx.iter().enumerate() {
+            frame.outliers[i] = outliers[k];
+            if !outliers[k] {
+                inliers += 1;
+            }
+        }
+        inliers
+    }
+
+    /// Drop outlier matches; count matches to points that are in the map.
+    fn discard_outliers(frame: &mut Frame, map: &Map) -> usize {
+        let mut n = 0;
+        for i in 0..frame.len() {
+            if frame.outliers[i] {
+                frame.map_points[i] = None;
+                frame.outliers[i] = false;
+            } else if frame.map_points[i].is_some_and(|m| map.points.contains_key(&m)) {
+                n += 1;
+            }
+        }
+        n
+    }
+
+    fn track_motion_model(&mut self, frame: &mut Frame, map: &Map) -> bool {
+        let (Some(last), Some(v)) = (self.last_frame.as_ref(), self.velocity) else {
+            return false;
+        };
+        let Some(last_pose) = last.pose_cw else {
+            return false;
+        };
+        frame.pose_cw = Some(v * last_pose);
+        frame.map_points.iter_mut().for_each(|m| *m = None);
+        let r = self.s.motion_search_radius;
+        let mut n = search_by_projection_last(frame, last, map, r, &self.s);
+        if n < self.s.motion_min_matches {
+            frame.map_points.iter_mut().for_each(|m| *m = None);
+            n = search_by_projection_last(frame, last, map, 2.0 * r, &self.s);
+        }
+        if n < self.s.motion_min_matches {
+            debug!(
+                frame = frame.index,
+                matches = n,
+                "motion model: too few matches"
+            );
+            return false;
+        }
+        self.optimize_frame(frame, map);
+        Self::discard_outliers(frame, map) >= 10
+    }
+
+    fn track_reference_keyframe(&mut self, frame: &mut Frame, map: &Map) -> bool {
+        let Some(kf) = self.valid_reference(map) else {
+            return false;
+        };
+        frame.pose_cw = self
+            .last_frame
+            .as_ref()
+            .and_then(|l| l.pose_cw)
+            .or(Some(map.keyframes[&kf].pose_cw));
+        frame.map_points.iter_mut().for_each(|m| *m = None);
+        let n = search_by_descriptors(
+            frame,
+            &map.keyframes[&kf],
+            map,
+            self.s.ref_kf_ratio,
+            self.s.th_low,
+        );
+        if n < 15 {
+            debug!(
+                frame = frame.index,
+                matches = n,
+                "reference keyframe: too few matches"
+            );
+            return false;
+        }
+        self.optimize_frame(frame, map);
+        Self::discard_outliers(frame, map) >= 10
+    }
+
+    /// The reference keyframe, or the newest good keyframe of the current map when it was culled.
+    fn valid_reference(&mut self, map: &Map) -> Option<KfId> {
+        if let Some(k) = self.reference_kf
+            && map
+                .keyframes
+                .get(&k)
+                .is_some_and(|k| !k.bad && k.map_epoch == map.epoch)
+        {
+            return Some(k);
+        }
+        self.reference_kf = map.current_keyframes().last().map(|k| k.id);
+        self.reference_kf
+    }
+
+    /// Local keyframes (those seeing the frame's points, their best covisibles, parents and
+    /// children) and their points, projected and matched; then pose optimisation.
+    fn track_local_map(&mut self, frame: &mut Frame, map: &mut Map) -> usize {
+        let mut counts: BTreeMap<KfId, usize> = BTreeMap::new();
+        for mp in frame.map_points.iter().flatten() {
+            if let Some(p) = map.points.get(mp) {
+                for &k in p.observations.keys() {
+                    *counts.entry(k).or_default() += 1;
+                }
+            }
+        }
+        counts.retain(|k, _| map.keyframes.get(k).is_some_and(|k| !k.bad));
+        if let Some((&best, _)) = counts.iter().max_by_key(|(_, c)| **c) {
+            self.reference_kf = Some(best);
+        }
+        let mut local: BTreeSet<KfId> = counts.keys().copied().collect();
+        let first: Vec<KfId> = local.iter().copied().collect();
+        for k in first {
+            if local.len() >= 80 {
+                break;
+            }
+            let Some(kf) = map.keyframes.get(&k) else {
+                continue;
+            };
+            for n in kf.best_covisibles(self.s.local_neighbours) {
+                local.insert(n);
+            }
+            local.extend(kf.children.iter().copied());
+            if let Some(p) = kf.parent {
+                local.insert(p);
+            }
+        }
+        let mut in_frame: BTreeSet<MpId> = BTreeSet::new();
+        for mp in frame.map_points.iter().flatten() {
+            in_frame.insert(*mp);
+            if let Some(p) = map.points.get_mut(mp) {
+                p.visible += 1;
+            }
+        }
+        let Some(pose) = frame.pose_cw else {
+            return 0;
+        };
+        let center = pose.inverse().translation.vector;
+        let mut seen: BTreeSet<MpId> = BTreeSet::new();
+        let mut projected = Vec::new();
+        for k in &local {
+            let Some(kf) = map.keyframes.get(k) else {
+                continue;
+            };
+            if kf.bad || kf.map_epoch != map.epoch {
+                continue;
+            }
+            for mp in kf.map_points.iter().flatten() {
+                if in_frame.contains(mp) || !seen.insert(*mp) {
+                    continue;
+                }
+                if let Some(pp) = project_in_frustum(map, *mp, &pose, &center, &self.s) {
+                    projected.push(pp);
+                }
+            }
+        }
+        for pp in &projected {
+            if let Some(p) = map.points.get_mut(&pp.id) {
+                p.visible += 1;
+            }
+        }
+        let recently_relocalised = self.last_reloc_frame.is_some_and(|r| frame.index < r + 2);
+        let th = if recently_relocalised {
+            5.0
+        } else {
+            self.s.local_map_search_th
+        };
+        search_by_projection_local(frame, &projected, map, th, &self.s);
+        self.optimize_frame(frame, map);
+        let mut inliers = 0;
+        for i in 0..frame.len() {
+            let Some(mp) = frame.map_points[i] else {
+                continue;
+            };
+            if frame.outliers[i] {
+                continue;
+            }
+            if let Some(p) = map.points.get_mut(&mp) {
+                p.found += 1;
+                if !p.observations.is_empty() {
+                    inliers += 1;
+                }
+            }
+        }
+        inliers
+    }
+
+    fn local_map_ok(&self, frame: &Frame, inliers: usize) -> bool {
+        let max_frames = self.s.fps.max(1.0) as usize;
+        if self
+            .last_reloc_frame
+            .is_some_and(|r| frame.index < r + max_frames)
+            && inliers < self.s.reloc_min_inliers
+        {
+            return false;
+        }
+        inliers >= self.s.min_tracked_inliers
+    }
+
+    /// ORB-SLAM3 `NeedNewKeyFrame` for RGB-D (close-points rule included).
+    fn need_new_keyframe(
+        &mut self,
+        frame: &Frame,
+        map: &Map,
+        inliers: usize,
+        mapper_idle: bool,
+        mapper_queue: usize,
+    ) -> bool {
+        let max_frames = self.s.fps.max(1.0) as usize;
+        let n_kfs = map.current_keyframes().count();
+        if self
+            .last_reloc_frame
+            .is_some_and(|r| frame.index < r + max_frames)
+            && n_kfs > max_frames
+        {
+            return false;
+        }
+        let min_obs = if n_kfs <= 2 { 2 } else { 3 };
+        let ref_matches = self
+            .valid_reference(map)
+            .and_then(|k| map.keyframes.get(&k))
+            .map_or(0, |kf| {
+                kf.map_points
+                    .iter()
+                    .flatten()
+                    .filter(|m| {
+                        map.points
+                            .get(m)
+                            .is_some_and(|p| p.observations.len() >= min_obs)
+                    })
+                    .count()
+            });
+        let close = self.s.close_depth() as f32;
+        let (mut tracked_close, mut untracked_close) = (0, 0);
+        for i in 0..frame.len() {
+            let z = frame.depth[i];
+            if z > 0.0 && z < close {
+                if frame.map_points[i].is_some() && !frame.outliers[i] {
+                    tracked_close += 1;
+                } else {
+                    untracked_close += 1;
+                }
+            }
+        }
+        let need_close = tracked_close < self.s.kf_close_tracked_max
+            && untracked_close > self.s.kf_close_untracked_min;
+        let th_ref = if n_kfs < 2 { 0.4 } else { self.s.kf_ref_ratio };
+        let c1a = frame.index >= self.last_kf_frame + max_frames;
+        let c1b = mapper_idle;
+        let c1c = (inliers as f64) < ref_matches as f64 * 0.25 || need_close;
+        let c2 = ((inliers as f64) < ref_matches as f64 * th_ref || need_close) && inliers > 15;
+        if (c1a || c1b || c1c) && c2 {
+            mapper_idle || mapper_queue < 3
+        } else {
+            false
+        }
+    }
+
+    /// ORB-SLAM3 `CreateNewKeyFrame` for RGB-D: the keyframe, plus map points from depth for the
+    /// closest unmatched keypoints (all close ones, at least `kf_new_points_min`).
+    fn create_keyframe(&mut self, frame: &mut Frame, map: &mut Map) -> Option<KfId> {
+        for i in 0..frame.len() {
+            if frame.outliers[i] {
+                frame.map_points[i] = None;
+                frame.outliers[i] = false;
+            }
+            if frame.map_points[i].is_some_and(|m| !map.points.contains_key(&m)) {
+                frame.map_points[i] = None;
+            }
+        }
+        let kf = map.add_keyframe(frame)?;
+        let mut by_depth: Vec<(f32, usize)> = (0..frame.len())
+            .filter(|&i| frame.depth[i] > 0.0)
+            .map(|i| (frame.depth[i], i))
+            .collect();
+        by_depth.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let close = self.s.close_depth() as f32;
+        let scales = self.s.scale_factors();
+        let mut n_points = 0;
+        for (z, i) in by_depth {
+            if frame.map_points[i].is_none()
+                && let Some(pw) = frame.unproject_world(i, &self.s.camera)
+                && let Some(mp) = map.add_point(pw, kf, i)
+            {
+                map.update_point(mp, &scales);
+                frame.map_points[i] = Some(mp);
+            }
+            n_points += 1;
+            if z > close && n_points > self.s.kf_new_points_min {
+                break;
+            }
+        }
+        self.reference_kf = Some(kf);
+        self.last_kf_frame = frame.index;
+        Some(kf)
+    }
+
+    /// Match against candidate keyframes (nearest to the last known pose, then newest), robust
+    /// pose by RANSAC, then pose optimisation; needs `reloc_min_inliers`.
+    fn relocalise(&mut self, frame: &mut Frame, map: &Map) -> bool {
+        if frame.with_depth() < 3 {
+            return false;
+        }
+        let last_center = self.last_good_pose.map(|p| p.inverse().translation.vector);
+        let mut cands: Vec<(f64, KfId)> = map
+            .current_keyframes()
+            .map(|k| {
+                let d = last_center.map_or(-(k.id as f64), |c| (k.camera_center() - c).norm());
+                (d, k.id)
+            })
+            .collect();
+        cands.sort_by(|a, b| a.0.total_cmp(&b.0));
+        cands.truncate(self.s.reloc_candidates);
+        for (_, kid) in cands {
+            let kf = &map.keyframes[&kid];
+            frame.map_points.iter_mut().for_each(|m| *m = None);
+            frame.outliers.iter_mut().for_each(|o| *o = false);
+            let n = search_by_descriptors(frame, kf, map, 0.75, self.s.th_low);
+            if n < 15 {
+                continue;
+            }
+            let mut idx = Vec::new();
+            let mut corr = Vec::new();
+            for i in 0..frame.len() {
+                let Some(p) = frame.map_points[i].and_then(|m| map.points.get(&m)) else {
+                    continue;
+                };
+                idx.push(i);
+                corr.push(Correspondence {
+                    world: p.position,
+                    camera: frame.unproject_camera(i, &self.s.camera),
+                    u: frame.points[i].x,
+                    v: frame.points[i].y,
+                    inv_sigma2: self.inv_sigma2[frame.octaves[i] as usize],
+                });
+            }
+            let Some((pose, flags)) = ransac_pose(&corr, &self.s.camera, &RansacParams::default())
+            else {
+                continue;
+            };
+            if flags.iter().filter(|&&f| f).count() < 10 {
+                continue;
+            }
+            for (k, &i) in idx.iter().enumerate() {
+                if !flags[k] {
+                    frame.map_points[i] = None;
+                }
+            }
+            frame.pose_cw = Some(pose);
+            let inl = self.optimize_frame(frame, map);
+            if inl >= self.s.reloc_min_inliers.min(idx.len()) && inl >= 10 {
+                Self::discard_outliers(frame, map);
+                self.reference_kf = Some(kid);
+                return true;
+            }
+        }
+        frame.map_points.iter_mut().for_each(|m| *m = None);
+        frame.pose_cw = None;
+        false
+    }
+
+    pub fn reference_keyframe(&self) -> Option<KfId> {
+        self.reference_kf
+    }
+}

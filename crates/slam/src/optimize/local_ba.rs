@@ -1,0 +1,358 @@
+//! Local bundle adjustment (ORB-SLAM `Optimizer::LocalBundleAdjustment`) by Levenberg-Marquardt
+//! with the Schur complement: points are eliminated per point (3x3 blocks), the reduced camera
+//! system (6 per free keyframe) is solved densely — local windows hold tens of keyframes.
+
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Matrix6x3, Vector3, Vector6};
+use stillpoint_geometry::{Se3, Vec3};
+
+use super::{dpc_dpose, huber_weight, project_with_jacobian, retract};
+use crate::SlamSettings;
+
+/// One observation of point `point` by camera `camera`.
+#[derive(Clone, Copy, Debug)]
+pub struct BaObservation {
+    pub camera: usize,
+    pub point: usize,
+    pub u: f64,
+    pub v: f64,
+    /// Virtual right coordinate when the keypoint has depth.
+    pub u_right: Option<f64>,
+    pub inv_sigma2: f64,
+}
+
+/// Cameras (world-to-camera, some fixed), points and observations.
+#[derive(Clone, Debug, Default)]
+pub struct BaProblem {
+    pub poses: Vec<Se3>,
+    pub fixed: Vec<bool>,
+    pub points: Vec<Vec3>,
+    pub observations: Vec<BaObservation>,
+}
+
+struct Linearised {
+    rows: usize,
+    e: Vector3<f64>,
+    jc: nalgebra::Matrix3x6<f64>,
+    jp: Matrix3<f64>,
+    chi2: f64,
+}
+
+fn linearise(p: &BaProblem, o: &BaObservation, s: &SlamSettings) -> Option<Linearised> {
+    let pose = &p.poses[o.camera];
+    let pc = (pose * nalgebra::Point3::from(p.points[o.point])).coords;
+    let (pred, jpc) = project_with_jacobian(&s.camera, s.bf, &pc)?;
+    let rows = if o.u_right.is_some() { 3 } else { 2 };
+    let e = Vector3::new(
+        o.u - pred.x,
+        o.v - pred.y,
+        o.u_right.map_or(0.0, |ur| ur - pred.z),
+    );
+    let mut jc = jpc * dpc_dpose(&pc);
+    let mut jp = jpc * pose.rotation.to_rotation_matrix().matrix();
+    if rows == 2 {
+        jc.row_mut(2).fill(0.0);
+        jp.row_mut(2).fill(0.0);
+    }
+    let chi2 = e.rows(0, rows).norm_squared() * o.inv_sigma2;
+    Some(Linearised {
+        rows,
+        e,
+        jc,
+        jp,
+        chi2,
+    })
+}
+
+fn robust_cost(chi2: f64, delta: f64, robust: bool) -> f64 {
+    if !robust || chi2 <= delta * delta {
+        chi2
+    } else {
+        2.0 * delta * chi2.sqrt() - delta * delta
+    }
+}
+
+fn total_cost(p: &BaProblem, active: &[bool], s: &SlamSettings, robust: bool) -> f64 {
+    let mut c = 0.0;
+    for (o, a) in p.observations.iter().zip(active) {
+        if !a {
+            continue;
+        }
+        match linearise(p, o, s) {
+            Some(l) => {
+                let d = if l.rows == 3 {
+                    s.chi2_stereo
+                } else {
+                    s.chi2_mono
+                }
+                .sqrt();
+                c += robust_cost(l.chi2, d, robust);
+            }
+            None => c += 1e6,
+        }
+    }
+    c
+}
+
+/// Run LM iterations on the active observations.
+fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &SlamSettings) {
+    let free: Vec<Option<usize>> = {
+        let mut k = 0;
+        p.fixed
+            .iter()
+            .map(|&f| {
+                (!f).then(|| {
+                    k += 1;
+                    k - 1
+                })
+            })
+            .collect()
+    };
+    let n_free = free.iter().flatten().count();
+    let mut by_point: Vec<Vec<usize>> = vec![Vec::new(); p.points.len()];
+    for (i, o) in p.observations.iter().enumerate() {
+        if active[i] {
+            by_point[o.point].push(i);
+        }
+    }
+    let mut lambda = 1e-4;
+    let mut cost = total_cost(p, active, s, robust);
+    for _ in 0..iterations {
+        let mut u = vec![Matrix6::<f64>::zeros(); n_free];
+        let mut bc = vec![Vector6::<f64>::zeros(); n_free];
+        let mut v = vec![Matrix3::<f64>::zeros(); p.points.len()];
+        let mut bp = vec![Vector3::<f64>::zeros(); p.points.len()];
+        let mut w = vec![Matrix6x3::<f64>::zeros(); p.observations.len()];
+        for (i, o) in p.observations.iter().enumerate() {
+            if !active[i] {
+                continue;
+            }
+            let Some(l) = linearise(p, o, s) else {
+                continue;
+            };
+            let d = if l.rows == 3 {
+                s.chi2_stereo
+            } else {
+                s.chi2_mono
+            }
+            .sqrt();
+            let wt = if robust { huber_weight(l.chi2, d) } else { 1.0 } * o.inv_sigma2;
+            v[o.point] += l.jp.transpose() * l.jp * wt;
+            bp[o.point] += l.jp.transpose() * l.e * wt;
+            if let Some(c) = free[o.camera] {
+                u[c] += l.jc.transpose() * l.jc * wt;
+                bc[c] += l.jc.transpose() * l.e * wt;
+                w[i] = l.jc.transpose() * l.jp * wt;
+            }
+        }
+        // Damped point blocks and their inverses.
+        let v_inv: Vec<Matrix3<f64>> = v
+            .iter()
+            .map(|m| {
+                let mut d = *m;
+                for k in 0..3 {
+                    d[(k, k)] = d[(k, k)] * (1.0 + lambda) + 1e-9;
+                }
+                d.try_inverse().unwrap_or_else(Matrix3::zeros)
+            })
+            .collect();
+        let mut sm = DMatrix::<f64>::zeros(6 * n_free, 6 * n_free);
+        let mut rhs = DVector::<f64>::zeros(6 * n_free);
+        for c in 0..n_free {
+            let mut d = u[c];
+            for k in 0..6 {
+                d[(k, k)] = d[(k, k)] * (1.0 + lambda) + 1e-9;
+            }
+            sm.fixed_view_mut::<6, 6>(6 * c, 6 * c).copy_from(&d);
+            rhs.fixed_rows_mut::<6>(6 * c).copy_from(&bc[c]);
+        }
+        for (pt, obs) in by_point.iter().enumerate() {
+            let vi = &v_inv[pt];
+            for &a in obs {
+                let Some(ca) = free[p.observations[a].camera] else {
+                    continue;
+                };
+                let wv = w[a] * vi;
+                rhs.fixed_rows_mut::<6>(6 * ca).add_assign(&(-wv * bp[pt]));
+                for &b in obs {
+                    let Some(cb) = free[p.observations[b].camera] else {
+                        continue;
+                    };
+                    let blk = wv * w[b].transpose();
+                    let mut view = sm.fixed_view_mut::<6, 6>(6 * ca, 6 * cb);
+                    view -= blk;
+                }
+            }
+        }
+        let dc = if n_free > 0 {
+            match sm.cholesky() {
+                Some(ch) => ch.solve(&rhs),
+                None => {
+                    lambda *= 10.0;
+                    continue;
+                }
+            }
+        } else {
+            DVector::zeros(0)
+        };
+        if !dc.iter().all(|x| x.is_finite()) {
+            lambda *= 10.0;
+            continue;
+        }
+        let old_poses = p.poses.clone();
+        let old_points = p.points.clone();
+        for (ci, f) in free.iter().enumerate() {
+            if let Some(c) = f {
+                let d: Vector6<f64> = dc.fixed_rows::<6>(6 * c).into();
+                p.poses[ci] = retract(&p.poses[ci], &d);
+            }
+        }
+        for (pt, obs) in by_point.iter().enumerate() {
+            if obs.is_empty() {
+                continue;
+            }
+            let mut r = bp[pt];
+            for &a in obs {
+                if let Some(ca) = free[p.observations[a].camera] {
+                    let d: Vector6<f64> = dc.fixed_rows::<6>(6 * ca).into();
+                    r -= w[a].transpose() * d;
+                }
+            }
+            p.points[pt] += v_inv[pt] * r;
+        }
+        let new_cost = total_cost(p, active, s, robust);
+        if new_cost.is_finite() && new_cost < cost {
+            let converged = (cost - new_cost) < 1e-6 * cost;
+            cost = new_cost;
+            lambda = (lambda / 3.0).max(1e-9);
+            if converged {
+                break;
+            }
+        } else {
+            p.poses = old_poses;
+            p.points = old_points;
+            lambda *= 4.0;
+            if lambda > 1e8 {
+                break;
+            }
+        }
+    }
+}
+
+/// Optimise the problem in place: `ba_iterations[0]` robust iterations, then observations above
+/// the chi-square threshold (or behind the camera) are dropped and `ba_iterations[1]` more run
+/// without the robust kernel. Returns the final outlier flag per observation.
+pub fn local_bundle_adjustment(p: &mut BaProblem, s: &SlamSettings) -> Vec<bool> {
+    let n = p.observations.len();
+    if n == 0 || p.poses.len() != p.fixed.len() {
+        return vec![false; n];
+    }
+    let mut active = vec![true; n];
+    lm(p, &active, s.ba_iterations[0], true, s);
+    let classify = |p: &BaProblem, o: &BaObservation| {
+        linearise(p, o, s).is_none_or(|l| {
+            l.chi2
+                > if l.rows == 3 {
+                    s.chi2_stereo
+                } else {
+                    s.chi2_mono
+                }
+        })
+    };
+    for (i, o) in p.observations.iter().enumerate() {
+        active[i] = !classify(p, o);
+    }
+    lm(p, &active, s.ba_iterations[1], false, s);
+    p.observations.iter().map(|o| classify(p, o)).collect()
+}
+
+use std::ops::AddAssign;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use stillpoint_geometry::PinholeCamera;
+
+    #[test]
+    fn schur_ba_recovers_perturbed_cameras_and_points() {
+        let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
+        let s = SlamSettings::rgbd(cam, 40.0, 30.0);
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        let truth_poses: Vec<Se3> = (0..5)
+            .map(|i| {
+                Se3::new(
+                    nalgebra::Vector3::new(-0.1 * i as f64, 0.02 * i as f64, 0.0),
+                    nalgebra::Vector3::new(0.0, 0.03 * i as f64, 0.0),
+                )
+            })
+            .collect();
+        let truth_points: Vec<Vec3> = (0..300)
+            .map(|_| {
+                Vec3::new(
+                    rng.random_range(-2.0..2.0),
+                    rng.random_range(-1.5..1.5),
+                    rng.random_range(2.0..6.0),
+                )
+            })
+            .collect();
+        let mut p = BaProblem {
+            poses: truth_poses.clone(),
+            fixed: vec![true, true, false, false, false],
+            points: truth_points.clone(),
+            observations: Vec::new(),
+        };
+        for (ci, pose) in truth_poses.iter().enumerate() {
+            for (pi, pw) in truth_points.iter().enumerate() {
+                let pc = (pose * nalgebra::Point3::from(*pw)).coords;
+                let Some(px) = cam.project_undistorted(&pc) else {
+                    continue;
+                };
+                if !cam.in_image(&px, 0.0) {
+                    continue;
+                }
+                let bad = pi % 50 == 0 && ci == 3;
+                p.observations.push(BaObservation {
+                    camera: ci,
+                    point: pi,
+                    u: px.x
+                        + if bad {
+                            30.0
+                        } else {
+                            rng.random_range(-0.3..0.3)
+                        },
+                    v: px.y + rng.random_range(-0.3..0.3),
+                    u_right: (pi % 3 != 0).then(|| px.x - s.bf / pc.z),
+                    inv_sigma2: 1.0,
+                });
+            }
+        }
+        for (i, pose) in p.poses.iter_mut().enumerate().skip(2) {
+            *pose = Se3::new(
+                nalgebra::Vector3::new(0.01 * i as f64, -0.01, 0.02),
+                nalgebra::Vector3::new(0.004, -0.003, 0.002),
+            ) * *pose;
+        }
+        for pt in p.points.iter_mut() {
+            *pt += Vec3::new(0.02, -0.01, 0.03);
+        }
+        let outliers = local_bundle_adjustment(&mut p, &s);
+        for (est, truth) in p.poses.iter().zip(&truth_poses) {
+            let e = truth.inverse() * est;
+            assert!(e.translation.vector.norm() < 5e-3, "{e:?}");
+            assert!(e.rotation.angle() < 2e-3);
+        }
+        let flagged: Vec<usize> = outliers
+            .iter()
+            .enumerate()
+            .filter(|(_, o)| **o)
+            .map(|(i, _)| i)
+            .collect();
+        assert!(
+            flagged
+                .iter()
+                .all(|&i| p.observations[i].camera == 3
+                    && p.observations[i].point.is_multiple_of(50))
+        );
+        assert!(!flagged.is_empty());
+    }
+}

@@ -1,0 +1,96 @@
+//! Optimisers: pose-only (tracking) and local bundle adjustment (local mapping), both on the
+//! stereo/RGB-D residual (u, v, u_r) or the monocular (u, v), weighted by the keypoint octave.
+
+pub mod local_ba;
+pub mod pose;
+
+pub use local_ba::{BaObservation, BaProblem, local_bundle_adjustment};
+pub use pose::{PoseObservation, optimize_pose};
+
+use nalgebra::{Matrix3, Matrix3x6, Vector3};
+use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
+
+/// Left-multiplicative update exp(δ) T with δ = (ω, υ): rotation by the axis-angle ω, then
+/// translation υ (a retraction whose derivative at 0 is the SE3 one).
+pub fn retract(t: &Se3, delta: &nalgebra::Vector6<f64>) -> Se3 {
+    let d = Se3::new(
+        Vector3::new(delta[3], delta[4], delta[5]),
+        Vector3::new(delta[0], delta[1], delta[2]),
+    );
+    let mut out = d * t;
+    out.rotation.renormalize();
+    out
+}
+
+/// Residual (observed - predicted) and Jacobians of the prediction w.r.t. the camera camera-frame
+/// point for one observation. Returns (error, d pred / d Pc (3x3; the u_r row unused in mono)).
+fn project_with_jacobian(
+    cam: &PinholeCamera,
+    bf: f64,
+    pc: &Vec3,
+) -> Option<(Vector3<f64>, Matrix3<f64>)> {
+    if pc.z.is_nan() || pc.z <= 1e-6 {
+        return None;
+    }
+    let iz = 1.0 / pc.z;
+    let iz2 = iz * iz;
+    let u = cam.fx * pc.x * iz + cam.cx;
+    let v = cam.fy * pc.y * iz + cam.cy;
+    let ur = u - bf * iz;
+    let j = Matrix3::new(
+        cam.fx * iz,
+        0.0,
+        -cam.fx * pc.x * iz2,
+        0.0,
+        cam.fy * iz,
+        -cam.fy * pc.y * iz2,
+        cam.fx * iz,
+        0.0,
+        -cam.fx * pc.x * iz2 + bf * iz2,
+    );
+    Some((Vector3::new(u, v, ur), j))
+}
+
+/// d Pc / d δ for a left perturbation of T_cw: [-[Pc]x | I].
+fn dpc_dpose(pc: &Vec3) -> Matrix3x6<f64> {
+    let mut m = Matrix3x6::zeros();
+    m.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(-stillpoint_geometry::skew(pc)));
+    m.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&Matrix3::identity());
+    m
+}
+
+/// Huber weight for a squared error `chi2` with threshold `delta` (on the square root).
+fn huber_weight(chi2: f64, delta: f64) -> f64 {
+    let e = chi2.sqrt();
+    if e <= delta { 1.0 } else { delta / e }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn jacobians_match_finite_differences() {
+        let cam = PinholeCamera::new(525.0, 520.0, 319.5, 239.5, 640, 480);
+        let bf = 40.0;
+        let pose = Se3::new(Vector3::new(0.6, 0.05, 0.2), Vector3::new(0.02, 0.4, 0.01));
+        let pw = Vec3::new(1.5, -0.3, 3.0);
+        let pc = (pose * nalgebra::Point3::from(pw)).coords;
+        let (pred, jp) = project_with_jacobian(&cam, bf, &pc).unwrap();
+        let j = jp * dpc_dpose(&pc);
+        for k in 0..6 {
+            let mut d = nalgebra::Vector6::zeros();
+            d[k] = 1e-6;
+            let pc2 = (retract(&pose, &d) * nalgebra::Point3::from(pw)).coords;
+            let (pred2, _) = project_with_jacobian(&cam, bf, &pc2).unwrap();
+            let fd = (pred2 - pred) / 1e-6;
+            assert!(
+                (fd - j.column(k)).norm() < 1e-3 * (1.0 + fd.norm()),
+                "column {k}: {fd} vs {}",
+                j.column(k)
+            );
+        }
+    }
+}

@@ -1,0 +1,175 @@
+//! Pose-only optimisation (ORB-SLAM `Optimizer::PoseOptimization`): Gauss-Newton on SE3 with a
+//! Huber kernel, 4 rounds of 10 iterations; after each round observations above the chi-square
+//! threshold are set aside as outliers and the rest re-included; the last two rounds drop the
+//! robust kernel.
+
+use nalgebra::{Matrix6, Vector6};
+use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
+
+use super::{dpc_dpose, huber_weight, project_with_jacobian, retract};
+use crate::SlamSettings;
+
+/// One 3D-2D(+u_r) correspondence.
+#[derive(Clone, Copy, Debug)]
+pub struct PoseObservation {
+    pub world: Vec3,
+    /// Observed undistorted pixel.
+    pub u: f64,
+    pub v: f64,
+    /// Observed virtual right coordinate; `None` for a monocular observation (no depth).
+    pub u_right: Option<f64>,
+    /// 1 / sigma² of the keypoint's octave.
+    pub inv_sigma2: f64,
+}
+
+fn chi2_of(obs: &PoseObservation, pose: &Se3, cam: &PinholeCamera, bf: f64) -> Option<f64> {
+    let pc = pose * nalgebra::Point3::from(obs.world);
+    let (pred, _) = project_with_jacobian(cam, bf, &pc.coords)?;
+    let mut e2 = (obs.u - pred.x).powi(2) + (obs.v - pred.y).powi(2);
+    if let Some(ur) = obs.u_right {
+        e2 += (ur - pred.z).powi(2);
+    }
+    Some(e2 * obs.inv_sigma2)
+}
+
+/// Optimise `pose_cw` in place. Returns the outlier flag of each observation (behind-camera
+/// observations count as outliers). With fewer than 3 observations the pose is left alone and
+/// every observation is an outlier.
+pub fn optimize_pose(pose_cw: &mut Se3, obs: &[PoseObservation], s: &SlamSettings) -> Vec<bool> {
+    let mut outlier = vec![false; obs.len()];
+    if obs.len() < 3 {
+        return vec![true; obs.len()];
+    }
+    let cam = &s.camera;
+    let (d_stereo, d_mono) = (s.chi2_stereo.sqrt(), s.chi2_mono.sqrt());
+    for round in 0..s.pose_rounds {
+        let robust = round < 2;
+        for _ in 0..s.pose_iterations {
+            let mut h = Matrix6::<f64>::zeros();
+            let mut b = Vector6::<f64>::zeros();
+            let mut used = 0;
+            for (o, out) in obs.iter().zip(&outlier) {
+                if *out {
+                    continue;
+                }
+                let pc = (*pose_cw * nalgebra::Point3::from(o.world)).coords;
+                let Some((pred, jp)) = project_with_jacobian(cam, s.bf, &pc) else {
+                    continue;
+                };
+                let j = jp * dpc_dpose(&pc);
+                let rows = if o.u_right.is_some() { 3 } else { 2 };
+                let e = nalgebra::Vector3::new(
+                    o.u - pred.x,
+                    o.v - pred.y,
+                    o.u_right.map_or(0.0, |ur| ur - pred.z),
+                );
+                let chi2 = e.rows(0, rows).norm_squared() * o.inv_sigma2;
+                let w = if robust {
+                    huber_weight(chi2, if rows == 3 { d_stereo } else { d_mono })
+                } else {
+                    1.0
+                } * o.inv_sigma2;
+                let jr = j.rows(0, rows);
+                h += jr.transpose() * jr * w;
+                b += jr.transpose() * e.rows(0, rows) * w;
+                used += 1;
+            }
+            if used < 3 {
+                break;
+            }
+            // A touch of damping keeps degenerate configurations finite.
+            for k in 0..6 {
+                h[(k, k)] += 1e-9;
+            }
+            let Some(delta) = h.cholesky().map(|c| c.solve(&b)) else {
+                break;
+            };
+            if !delta.iter().all(|x| x.is_finite()) {
+                break;
+            }
+            *pose_cw = retract(pose_cw, &delta);
+            if delta.norm() < 1e-10 {
+                break;
+            }
+        }
+        // Re-classify every observation, outliers included (they may come back).
+        for (o, out) in obs.iter().zip(outlier.iter_mut()) {
+            let th = if o.u_right.is_some() {
+                s.chi2_stereo
+            } else {
+                s.chi2_mono
+            };
+            *out = chi2_of(o, pose_cw, cam, s.bf).is_none_or(|c| c > th);
+        }
+    }
+    outlier
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    pub(crate) fn synthetic(
+        pose: &Se3,
+        s: &SlamSettings,
+        n: usize,
+        noise: f64,
+        seed: u64,
+    ) -> Vec<PoseObservation> {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+        let twc = pose.inverse();
+        let mut out = Vec::new();
+        while out.len() < n {
+            let pc = Vec3::new(
+                rng.random_range(-2.0..2.0),
+                rng.random_range(-1.5..1.5),
+                rng.random_range(1.0..5.0),
+            );
+            let Some(px) = s.camera.project_undistorted(&pc) else {
+                continue;
+            };
+            if !s.camera.in_image(&px, 0.0) {
+                continue;
+            }
+            let world = (twc * nalgebra::Point3::from(pc)).coords;
+            let mono = out.len() % 4 == 0;
+            out.push(PoseObservation {
+                world,
+                u: px.x + rng.random_range(-noise..noise),
+                v: px.y + rng.random_range(-noise..noise),
+                u_right: (!mono).then(|| px.x - s.bf / pc.z + rng.random_range(-noise..noise)),
+                inv_sigma2: 1.0,
+            });
+        }
+        out
+    }
+
+    #[test]
+    fn recovers_pose_and_flags_outliers() {
+        let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
+        let s = SlamSettings::rgbd(cam, 40.0, 30.0);
+        let truth = Se3::new(
+            nalgebra::Vector3::new(0.1, -0.2, 0.3),
+            nalgebra::Vector3::new(0.05, -0.1, 0.02),
+        );
+        let mut obs = synthetic(&truth, &s, 200, 0.5, 1);
+        for o in obs.iter_mut().take(40) {
+            o.u += 40.0; // gross outliers, 20 %
+        }
+        let mut pose = Se3::new(
+            nalgebra::Vector3::new(0.12, -0.17, 0.33),
+            nalgebra::Vector3::new(0.06, -0.12, 0.03),
+        );
+        let out = optimize_pose(&mut pose, &obs, &s);
+        let err = truth.inverse() * pose;
+        assert!(err.translation.vector.norm() < 3e-3, "{err:?}");
+        assert!(err.rotation.angle() < 1e-3);
+        assert!(out[..40].iter().all(|&o| o));
+        assert!(out[40..].iter().filter(|&&o| o).count() < 10);
+        // Too few observations: untouched, all outliers.
+        let mut p2 = Se3::identity();
+        assert_eq!(optimize_pose(&mut p2, &obs[..2], &s), vec![true, true]);
+        assert_eq!(p2, Se3::identity());
+    }
+}

@@ -1,0 +1,140 @@
+//! Every tunable of the SLAM core, with ORB-SLAM3's defaults and where each comes from.
+
+use serde::{Deserialize, Serialize};
+use stillpoint_geometry::PinholeCamera;
+
+/// Settings of tracking, local mapping and the optimisers.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SlamSettings {
+    /// Camera of the (left / RGB) image, distortion included.
+    pub camera: PinholeCamera,
+    /// Baseline x fx in pixel-metres (`Camera.bf`): RGB-D uses it for the virtual right coordinate
+    /// u_r = u - bf / z. ORB-SLAM TUM files use 40.
+    pub bf: f64,
+    /// Close/far split in baselines (`ThDepth`, ORB-SLAM TUM files: 40).
+    pub th_depth: f64,
+    /// Frames per second (`Camera.fps`): max frames between keyframes.
+    pub fps: f64,
+    /// ORB pyramid scale factor (`ORBextractor.scaleFactor`, 1.2).
+    pub scale_factor: f64,
+    /// ORB pyramid levels (`ORBextractor.nLevels`, 8).
+    pub n_levels: usize,
+    /// Keypoints with depth needed to initialise an RGB-D map (ORB-SLAM: > 500).
+    pub init_min_keypoints: usize,
+    /// Hamming threshold for accepted matches (ORB-SLAM `ORBmatcher::TH_HIGH`).
+    pub th_high: u32,
+    /// Stricter Hamming threshold for BoW / brute-force matches (`ORBmatcher::TH_LOW`).
+    pub th_low: u32,
+    /// Motion-model search radius in pixels at octave 0 (ORB-SLAM3 RGB-D/stereo: 7; mono 15).
+    pub motion_search_radius: f64,
+    /// Fewer matches than this with the motion model doubles the radius (ORB-SLAM3: 20).
+    pub motion_min_matches: usize,
+    /// Local-map projection search window factor (ORB-SLAM3 `SearchLocalPoints`, RGB-D: 3).
+    pub local_map_search_th: f64,
+    /// Nearest / second ratio in local-map search (ORB-SLAM3 `ORBmatcher(0.8)`).
+    pub local_map_ratio: f32,
+    /// Nearest / second ratio for reference-keyframe and relocalisation matching (ORB-SLAM3: 0.7).
+    pub ref_kf_ratio: f32,
+    /// Inliers after local-map tracking needed to call the frame tracked (ORB-SLAM3: 30).
+    pub min_tracked_inliers: usize,
+    /// Inliers needed to accept a relocalisation (ORB-SLAM3: 50).
+    pub reloc_min_inliers: usize,
+    /// Chi-square threshold, 3 DoF (u, v, u_r) residuals, 95 % (ORB-SLAM3: 7.815).
+    pub chi2_stereo: f64,
+    /// Chi-square threshold, 2 DoF (u, v) residuals, 95 % (ORB-SLAM3: 5.991).
+    pub chi2_mono: f64,
+    /// Pose optimisation rounds x iterations (ORB-SLAM3: 4 x 10).
+    pub pose_rounds: usize,
+    pub pose_iterations: usize,
+    /// Keyframe ratio threshold vs the reference keyframe's tracked points (ORB-SLAM3 RGB-D: 0.75).
+    pub kf_ref_ratio: f64,
+    /// Close points tracked below this and ...
+    pub kf_close_tracked_max: usize,
+    /// ... untracked close points above this force a keyframe (ORB-SLAM3: 100 / 70).
+    pub kf_close_untracked_min: usize,
+    /// New RGB-D keyframes create map points from depth for at least this many closest keypoints
+    /// (ORB-SLAM3 `CreateNewKeyFrame`: 100).
+    pub kf_new_points_min: usize,
+    /// Covisibility edge weight: shared points needed for an edge (ORB-SLAM3: 15).
+    pub covisibility_min_shared: usize,
+    /// Neighbours taken into the local map / local BA (ORB-SLAM3 tracking: 10 per keyframe; local
+    /// mapping fuses with 10 for stereo/RGB-D).
+    pub local_neighbours: usize,
+    /// Map points whose found/visible ratio falls below this are culled (ORB-SLAM3: 0.25).
+    pub point_found_ratio: f64,
+    /// Map points with at most this many observations 2 keyframes after creation are culled;
+    /// an observation with depth counts 2, as in ORB-SLAM3 (`cnThObs`: 3 stereo/RGB-D, 2 mono),
+    /// so an RGB-D point must be seen with depth by 2 keyframes.
+    pub point_min_observations: usize,
+    /// Keyframe culling redundancy (ORB-SLAM3: 0.9).
+    pub kf_redundancy: f64,
+    /// Local BA iterations before and after outlier removal (ORB-SLAM3: 5 + 10).
+    pub ba_iterations: [usize; 2],
+    /// Run local mapping in its own thread (ORB-SLAM3 does). `false` runs it inline after each
+    /// keyframe: deterministic, used by tests and the demo.
+    pub local_mapping_thread: bool,
+    /// Frames of failed relocalisation after which a new map is started (ORB-SLAM3 Atlas starts a
+    /// new map when relocalisation keeps failing; 1 s of frames here).
+    pub new_map_after_lost_frames: usize,
+    /// Keyframes tried per relocalisation attempt (ORB-SLAM3 uses BoW candidates; we take the most
+    /// recent and the closest to the last pose).
+    pub reloc_candidates: usize,
+}
+
+impl SlamSettings {
+    /// RGB-D settings with ORB-SLAM3's defaults for a camera, `bf` and frame rate.
+    pub fn rgbd(camera: PinholeCamera, bf: f64, fps: f64) -> Self {
+        Self {
+            camera,
+            bf,
+            th_depth: 40.0,
+            fps,
+            scale_factor: 1.2,
+            n_levels: 8,
+            init_min_keypoints: 500,
+            th_high: 100,
+            th_low: 50,
+            motion_search_radius: 7.0,
+            motion_min_matches: 20,
+            local_map_search_th: 3.0,
+            local_map_ratio: 0.8,
+            ref_kf_ratio: 0.7,
+            min_tracked_inliers: 30,
+            reloc_min_inliers: 50,
+            chi2_stereo: 7.815,
+            chi2_mono: 5.991,
+            pose_rounds: 4,
+            pose_iterations: 10,
+            kf_ref_ratio: 0.75,
+            kf_close_tracked_max: 100,
+            kf_close_untracked_min: 70,
+            kf_new_points_min: 100,
+            covisibility_min_shared: 15,
+            local_neighbours: 10,
+            point_found_ratio: 0.25,
+            point_min_observations: 3,
+            kf_redundancy: 0.9,
+            ba_iterations: [5, 10],
+            local_mapping_thread: true,
+            new_map_after_lost_frames: fps.max(1.0).round() as usize,
+            reloc_candidates: 20,
+        }
+    }
+
+    /// Depth below which a point is "close": ThDepth baselines.
+    pub fn close_depth(&self) -> f64 {
+        self.th_depth * self.bf / self.camera.fx
+    }
+
+    /// Scale of each pyramid level (1, 1.2, 1.44, ...).
+    pub fn scale_factors(&self) -> Vec<f64> {
+        (0..self.n_levels)
+            .map(|l| self.scale_factor.powi(l as i32))
+            .collect()
+    }
+
+    /// Inverse squared scale per level: the information weight of an observation at that octave.
+    pub fn inv_level_sigma2(&self) -> Vec<f64> {
+        self.scale_factors().iter().map(|s| 1.0 / (s * s)).collect()
+    }
+}

@@ -1,0 +1,204 @@
+//! [`System`]: tracking plus local mapping (threaded or inline) over a shared map.
+
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use stillpoint_geometry::Se3;
+use stillpoint_image::DepthMetres;
+
+use crate::data::{KfId, Map};
+use crate::module::local_mapping::{LocalMapper, MapperThread};
+use crate::module::tracking::Tracker;
+use crate::{Descriptor, Feature, Frame, SlamError, SlamSettings, TrackingState};
+
+/// What the system did with one frame.
+#[derive(Clone, Debug)]
+pub struct FrameReport {
+    pub index: usize,
+    pub timestamp: f64,
+    pub state: TrackingState,
+    /// Camera-to-world pose when tracked (TUM convention).
+    pub pose_wc: Option<Se3>,
+    pub keypoints: usize,
+    pub inliers: usize,
+    pub new_keyframe: bool,
+    pub relocalised: bool,
+    pub new_map: bool,
+    /// Tracking time (ms), frame building included.
+    pub tracking_ms: f64,
+}
+
+enum Mapping {
+    Inline(Box<LocalMapper>),
+    Thread(MapperThread),
+}
+
+/// The SLAM system for RGB-D input.
+pub struct System {
+    pub settings: SlamSettings,
+    map: Arc<Mutex<Map>>,
+    tracker: Tracker,
+    mapping: Mapping,
+    mapping_ms: Arc<Mutex<Vec<f64>>>,
+}
+
+impl System {
+    /// A system; local mapping gets its own thread when `settings.local_mapping_thread` (falls
+    /// back to inline if the thread cannot be spawned).
+    pub fn new(settings: SlamSettings) -> Self {
+        let map = Arc::new(Mutex::new(Map::new()));
+        let mapping_ms = Arc::new(Mutex::new(Vec::new()));
+        let mapper = LocalMapper::new(settings.clone());
+        let mapping = if settings.local_mapping_thread {
+            match MapperThread::spawn(
+                LocalMapper::new(settings.clone()),
+                map.clone(),
+                mapping_ms.clone(),
+            ) {
+                Ok(t) => Mapping::Thread(t),
+                Err(e) => {
+                    tracing::warn!("cannot start the local mapping thread ({e}); mapping inline");
+                    Mapping::Inline(Box::new(mapper))
+                }
+            }
+        } else {
+            Mapping::Inline(Box::new(mapper))
+        };
+        Self {
+            tracker: Tracker::new(settings.clone()),
+            settings,
+            map,
+            mapping,
+            mapping_ms,
+        }
+    }
+
+    /// Track one RGB-D frame given its (already filtered) features.
+    pub fn track_rgbd(
+        &mut self,
+        index: usize,
+        timestamp: f64,
+        features: &[Feature],
+        descriptors: &[Descriptor],
+        depth: Option<&DepthMetres>,
+    ) -> Result<FrameReport, SlamError> {
+        let t0 = Instant::now();
+        if !timestamp.is_finite() {
+            return Err(SlamError::BadInput {
+                index,
+                msg: "timestamp is not finite".into(),
+            });
+        }
+        let frame = Frame::new(
+            index,
+            timestamp,
+            features,
+            descriptors,
+            depth,
+            &self.settings,
+        )?;
+        let keypoints = frame.len();
+        let (idle, queued) = match &self.mapping {
+            Mapping::Inline(_) => (true, 0),
+            Mapping::Thread(t) => (
+                t.idle.load(Ordering::SeqCst),
+                t.queued.load(Ordering::SeqCst),
+            ),
+        };
+        let outcome = {
+            let mut map = self
+                .map
+                .lock()
+                .map_err(|_| SlamError::LocalMapping("map lock poisoned".into()))?;
+            self.tracker.track(frame, &mut map, idle, queued)
+        };
+        let tracking_ms = t0.elapsed().as_secs_f64() * 1e3;
+        if let Some(kf) = outcome.new_keyframe {
+            self.insert_keyframe(kf)?;
+        }
+        Ok(FrameReport {
+            index,
+            timestamp,
+            state: self.tracker.state,
+            pose_wc: outcome.pose_wc,
+            keypoints,
+            inliers: outcome.inliers,
+            new_keyframe: outcome.new_keyframe.is_some(),
+            relocalised: outcome.relocalised,
+            new_map: outcome.new_map,
+            tracking_ms,
+        })
+    }
+
+    fn insert_keyframe(&mut self, kf: KfId) -> Result<(), SlamError> {
+        match &mut self.mapping {
+            Mapping::Inline(m) => {
+                let t0 = Instant::now();
+                m.process(&self.map, kf);
+                if let Ok(mut t) = self.mapping_ms.lock() {
+                    t.push(t0.elapsed().as_secs_f64() * 1e3);
+                }
+                Ok(())
+            }
+            Mapping::Thread(t) => {
+                if t.send(kf) {
+                    Ok(())
+                } else {
+                    Err(SlamError::LocalMapping("the thread is gone".into()))
+                }
+            }
+        }
+    }
+
+    /// Wait for local mapping to finish its queue.
+    pub fn shutdown(&mut self) -> Result<(), SlamError> {
+        if let Mapping::Thread(t) = &mut self.mapping {
+            t.finish()?;
+        }
+        Ok(())
+    }
+
+    pub fn state(&self) -> TrackingState {
+        self.tracker.state
+    }
+
+    /// Good keyframes, all maps.
+    pub fn keyframe_count(&self) -> usize {
+        self.map
+            .lock()
+            .map(|m| m.keyframes.values().filter(|k| !k.bad).count())
+            .unwrap_or(0)
+    }
+
+    pub fn map_point_count(&self) -> usize {
+        self.map.lock().map(|m| m.points.len()).unwrap_or(0)
+    }
+
+    /// (timestamp, camera-to-world) of every good keyframe, in order.
+    pub fn keyframe_trajectory(&self) -> Vec<(f64, Se3)> {
+        self.map
+            .lock()
+            .map(|m| {
+                m.keyframes
+                    .values()
+                    .filter(|k| !k.bad)
+                    .map(|k| (k.timestamp, k.pose_cw.inverse()))
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// Local mapping time per keyframe (ms).
+    pub fn mapping_times_ms(&self) -> Vec<f64> {
+        self.mapping_ms
+            .lock()
+            .map(|t| t.clone())
+            .unwrap_or_default()
+    }
+
+    /// Shared map (read it under the lock).
+    pub fn map(&self) -> Arc<Mutex<Map>> {
+        self.map.clone()
+    }
+}
