@@ -31,6 +31,11 @@ pub struct Args {
     /// Radius in pixels of the detection-free baseline's dilation around outliers.
     #[arg(long, default_value_t = 20.0)]
     radius: f32,
+    /// Count a keypoint as truly dynamic when a moving mask pixel lies within this many pixels
+    /// (0: the keypoint's own pixel only). A keypoint on a silhouette edge describes a patch
+    /// that is partly the mover.
+    #[arg(long, default_value_t = 0)]
+    gt_radius: usize,
     /// Use at most this many frames (0: all).
     #[arg(long, default_value_t = 0)]
     max_frames: usize,
@@ -219,8 +224,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let truth: Vec<bool> = kps
             .iter()
             .map(|&[x, y]| {
-                let (x, y) = (x.round() as usize, y.round() as usize);
-                x < mask.width && y < mask.height && mask.get(x, y) > 0
+                let (x, y) = (x.round() as isize, y.round() as isize);
+                let r = args.gt_radius as isize;
+                (-r..=r).any(|dy| {
+                    (-r..=r).any(|dx| mask.get_checked(x + dx, y + dy).is_some_and(|m| m > 0))
+                })
             })
             .collect();
 
