@@ -109,7 +109,16 @@ pub fn judge_boxes(dets: &[Detection], pts: &[TrackedPoint], p: &JudgeParams) ->
                 });
             }
         } else {
-            let (tracked, outliers) = count_inside(&det.bbox, pts);
+            let (tracked, outliers) = if p.ata_ignores_person_points {
+                let own: Vec<TrackedPoint> = pts
+                    .iter()
+                    .filter(|t| !in_person_box(dets, t.cur, p.person_class))
+                    .copied()
+                    .collect();
+                count_inside(&det.bbox, &own)
+            } else {
+                count_inside(&det.bbox, pts)
+            };
             states.push(BoxState {
                 bbox: det.bbox,
                 class_id: det.class_id,
@@ -164,6 +173,11 @@ fn ata_verdict(tracked: usize, outliers: usize, p: &JudgeParams) -> Verdict {
     } else {
         Verdict::Static
     }
+}
+
+fn in_person_box(dets: &[Detection], at: [f32; 2], person_class: u16) -> bool {
+    dets.iter()
+        .any(|d| d.class_id == person_class && d.bbox.contains_strict(at[0], at[1]))
 }
 
 /// (tracked, outliers) strictly inside the box, by current-frame position.

@@ -101,6 +101,10 @@ pub struct JudgeParams {
     /// is [`crate::Verdict::StaticUnknown`] (ours: the authors divide by zero and get NaN, which
     /// compares as static). 1 keeps the paper's behaviour for every non-empty box.
     pub min_tracked: usize,
+    /// ATA ignores tracked points that lie inside a person box (ours, off by default = paper):
+    /// those belong to the person NHBC judges, and a walker passing in front of a table would
+    /// otherwise make the table "dynamic" by its outliers.
+    pub ata_ignores_person_points: bool,
 }
 
 impl Default for JudgeParams {
@@ -112,6 +116,7 @@ impl Default for JudgeParams {
             person_min_outliers: 1,
             ata_ratio: 0.4,
             min_tracked: 1,
+            ata_ignores_person_points: false,
         }
     }
 }

@@ -79,10 +79,11 @@ impl Counts {
     }
 }
 
-const METHODS: [&str; 5] = [
+const METHODS: [&str; 6] = [
     "ours",
     "ours+unknown",
     "ours_no_protect",
+    "ours_ata_own_points",
     "person_boxes",
     "outliers_only",
 ];
@@ -200,7 +201,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let mut orb = OrbExtractor::new(OrbParams::default());
 
-    let mut totals = [Counts::default(); 5];
+    let mut totals = [Counts::default(); 6];
     let mut per_frame = Vec::new();
     let (mut geometry_ms, mut orb_ms) = (Vec::new(), Vec::new());
     let mut stages = [0.0f64; 4];
@@ -254,10 +255,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("frame {index}: detector"))?;
         let states = judge_boxes(&dets, &check.points, &settings.judge);
         let person = settings.judge.person_class;
+        let own_judge = stillpoint_dynamic::JudgeParams {
+            ata_ignores_person_points: true,
+            ..settings.judge.clone()
+        };
+        let own_states = judge_boxes(&dets, &check.points, &own_judge);
         let predictions = [
             cull_with(&kps, &states, &check.points, &settings.cull),
             cull_with(&kps, &states, &check.points, &unknown),
             cull_with(&kps, &states, &check.points, &no_protect),
+            cull_with(&kps, &own_states, &check.points, &settings.cull),
             kps.iter()
                 .map(|&[x, y]| {
                     dets.iter()
@@ -266,7 +273,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .collect(),
             near_outliers(&kps, &check.points, args.radius, 1),
         ];
-        let mut counts = [Counts::default(); 5];
+        let mut counts = [Counts::default(); 6];
         for ((c, total), p) in counts.iter_mut().zip(&mut totals).zip(&predictions) {
             c.add(p, &truth);
             total.add(p, &truth);
@@ -336,12 +343,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         report.dataset, report.frames, report.detector
     );
     println!(
-        "{:<14} {:>9} {:>9} {:>7} {:>7} {:>7}",
+        "{:<20} {:>9} {:>9} {:>7} {:>7} {:>7}",
         "method", "precision", "recall", "tp", "fp", "fn"
     );
     for m in &report.methods {
         println!(
-            "{:<14} {:>9} {:>9} {:>7} {:>7} {:>7}",
+            "{:<20} {:>9} {:>9} {:>7} {:>7} {:>7}",
             m.method,
             fmt_opt(m.precision),
             fmt_opt(m.recall),
