@@ -240,3 +240,20 @@ fn unknown_dynamic_objects_option() {
         vec![true, true, true, false]
     );
 }
+
+#[test]
+fn ata_on_own_points_keeps_a_table_behind_a_walker_static() {
+    let table = det(60, 0.0, 200.0, 400.0, 300.0);
+    let walker = det(PERSON, 150.0, 50.0, 210.0, 380.0);
+    let mut pts = static_grid(0.0, 200.0, 100.0, 300.0, 2); // 4 table points left of the walker
+    pts.extend((0..6).map(|i| pt(160.0 + 8.0 * i as f32, 250.0, true))); // the walker's legs
+    let paper = judge_boxes(&[table, walker], &pts, &JudgeParams::default());
+    assert_eq!((paper[0].verdict, paper[0].outliers), (Verdict::Dynamic, 6)); // 6 / 10 > 0.4
+    let own = JudgeParams {
+        ata_ignores_person_points: true,
+        ..JudgeParams::default()
+    };
+    let states = judge_boxes(&[table, walker], &pts, &own);
+    assert_eq!((states[0].verdict, states[0].tracked), (Verdict::Static, 4));
+    assert_eq!(states[1].verdict, Verdict::Dynamic);
+}
