@@ -1,8 +1,123 @@
-//! Not built yet: see the open issue for this command.
+//! `stillpoint demo`: render a synthetic walking sequence into a temporary folder, run SLAM with
+//! the dynamic front-end off and on, and print both ATEs, the improvement and the timings. Needs
+//! nothing but the binary (the gt detector reads the boxes the generator wrote).
+
+use anyhow::Context;
+use stillpoint_synth::{Preset, SynthConfig, WriteOptions};
+
+use super::run::{RunOptions, RunSummary, accuracy, run_sequence, stats, summary_json};
 
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Frames to render (30 per second).
+    #[arg(long, default_value_t = 150)]
+    pub frames: usize,
+    /// Synthetic preset (walking_xyz, walking_halfsphere, sitting_xyz, static, ...).
+    #[arg(long, default_value = "walking_xyz")]
+    pub preset: String,
+    /// Detector for the "on" run: gt (the generator's boxes), yolox or none.
+    #[arg(long, default_value = "gt")]
+    pub detector: String,
+    /// Random seed of the scene.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Keep the generated sequence in this folder instead of a temporary one.
+    #[arg(long)]
+    pub keep: Option<std::path::PathBuf>,
+    #[arg(long)]
+    pub json: bool,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("not implemented yet")
+fn ate_of(s: &RunSummary) -> Option<f64> {
+    accuracy(s).map(|(a, _)| a.stats.rmse)
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let preset = Preset::from_name(&args.preset)
+        .with_context(|| format!("unknown preset {:?}", args.preset))?;
+    let dir = match &args.keep {
+        Some(d) => d.clone(),
+        None => std::env::temp_dir().join(format!("stillpoint-demo-{}", std::process::id())),
+    };
+    let cfg = SynthConfig {
+        preset,
+        frames: args.frames,
+        seed: args.seed,
+        ..Default::default()
+    };
+    tracing::info!(
+        "rendering {} frames of {} into {}",
+        cfg.frames,
+        preset.name(),
+        dir.display()
+    );
+    stillpoint_synth::write_sequence(&cfg, WriteOptions::default(), &dir)
+        .with_context(|| format!("writing the synthetic sequence into {}", dir.display()))?;
+    let base = RunOptions {
+        dataset: dir.clone(),
+        kind: None,
+        settings: None,
+        out: None,
+        detector: None,
+        sequential: true,
+        frames: None,
+        progress: true,
+    };
+    tracing::info!("run 1/2: dynamic front-end off");
+    let off = run_sequence(&base)?;
+    tracing::info!("run 2/2: dynamic front-end on ({})", args.detector);
+    let on = run_sequence(&RunOptions {
+        detector: Some(args.detector.clone()),
+        ..base
+    })?;
+    if args.keep.is_none() {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    let (a_off, a_on) = (ate_of(&off), ate_of(&on));
+    let improvement = match (a_off, a_on) {
+        (Some(a), Some(b)) if a > 0.0 => Some(100.0 * (a - b) / a),
+        _ => None,
+    };
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "preset": preset.name(),
+                "frames": args.frames,
+                "off": summary_json(&off),
+                "on": summary_json(&on),
+                "ate_rmse_off": a_off,
+                "ate_rmse_on": a_on,
+                "improvement_percent": improvement,
+            })
+        );
+        return Ok(());
+    }
+    let fmt = |a: Option<f64>| a.map_or("n/a".to_string(), |a| format!("{:.2} cm", a * 100.0));
+    println!("{} ({} frames)", preset.name(), args.frames);
+    println!(
+        "  dynamic front-end off: ATE RMSE {}  ({} of {} frames tracked)",
+        fmt(a_off),
+        off.tracked,
+        off.frames
+    );
+    println!(
+        "  dynamic front-end on ({}): ATE RMSE {}  ({} of {} frames tracked)",
+        args.detector,
+        fmt(a_on),
+        on.tracked,
+        on.frames
+    );
+    if let Some(i) = improvement {
+        println!("  improvement: {i:.1} %");
+    }
+    println!(
+        "{:<30} {:>9} {:>9} {:>9}",
+        "stage (front-end on)", "mean ms", "median", "p90"
+    );
+    for (k, v) in &on.timings {
+        let (m, med, p90) = stats(v);
+        println!("{k:<30} {m:>9.2} {med:>9.2} {p90:>9.2}");
+    }
+    Ok(())
 }

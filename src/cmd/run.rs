@@ -1,8 +1,487 @@
-//! Not built yet: see the open issue for this command.
+//! `stillpoint run`: RGB-D SLAM over a dataset, with the dynamic front-end (paper figure 2) on
+//! every frame unless `--no-dynamic`. The per-frame trajectory is written as it goes (TUM), the
+//! keyframe trajectory at the end, then a timing table like the paper's table 6.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use stillpoint_datasets::{DatasetKind, Sequence};
+use stillpoint_detect::{DetectInput, DetectSettings, Detector, GtDetectorParams};
+use stillpoint_dynamic::{DynamicSettings, Verdict};
+use stillpoint_features::{OrbExtractor, OrbParams};
+use stillpoint_image::Gray8;
+use stillpoint_slam::module::frontend::{FilterOutcome, remove_dynamic};
+use stillpoint_slam::{Feature, SlamSettings, System};
+use stillpoint_trajectory::{Alignment, AteOptions, RpeOptions, Trajectory, TumWriter};
 
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Sequence folder (TUM/Bonn layout, a `stillpoint synth` output, ...).
+    #[arg(long)]
+    pub dataset: PathBuf,
+    /// Dataset kind (tum, bonn, synth, kitti, euroc, folder); detected when omitted.
+    #[arg(long)]
+    pub kind: Option<String>,
+    /// ORB-SLAM YAML or stillpoint TOML settings; the dataset's defaults when omitted.
+    #[arg(long)]
+    pub settings: Option<PathBuf>,
+    /// Per-frame trajectory (TUM format); the keyframe trajectory goes beside it (`*_keyframes.txt`).
+    #[arg(long, default_value = "trajectory.txt")]
+    pub out: PathBuf,
+    /// Object detector for the dynamic front-end: yolox, gt (the sequence's boxes.jsonl) or none.
+    #[arg(long, default_value = "yolox")]
+    pub detector: String,
+    /// Turn the dynamic front-end off (the ORB-SLAM3-like baseline).
+    #[arg(long)]
+    pub no_dynamic: bool,
+    /// Run local mapping inline after each keyframe (deterministic) instead of in its own thread.
+    #[arg(long)]
+    pub sequential: bool,
+    /// Only the first N frames.
+    #[arg(long)]
+    pub frames: Option<usize>,
+    /// Print a JSON summary on stdout instead of the tables.
+    #[arg(long)]
+    pub json: bool,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("not implemented yet")
+/// How one run is set up (shared with `demo` and `bench tum`).
+pub struct RunOptions {
+    pub dataset: PathBuf,
+    pub kind: Option<DatasetKind>,
+    pub settings: Option<PathBuf>,
+    pub out: Option<PathBuf>,
+    /// `None` = dynamic front-end off.
+    pub detector: Option<String>,
+    pub sequential: bool,
+    pub frames: Option<usize>,
+    pub progress: bool,
+}
+
+/// Per-stage times of one frame, ms.
+#[derive(Clone, Copy, Default)]
+struct FrameTimes {
+    semantic: f64,
+    geometry: f64,
+    orb: f64,
+    tracking: f64,
+}
+
+/// What a run produced.
+pub struct RunSummary {
+    pub name: String,
+    pub frames: usize,
+    pub tracked: usize,
+    pub keyframes: usize,
+    pub map_points: usize,
+    pub relocalisations: usize,
+    pub new_maps: usize,
+    pub culled_per_frame: Vec<usize>,
+    pub trajectory: Trajectory,
+    pub keyframe_trajectory: Trajectory,
+    pub ground_truth: Option<Trajectory>,
+    /// stage name -> per-frame (or per-keyframe) times in ms.
+    pub timings: Vec<(&'static str, Vec<f64>)>,
+    pub detector: String,
+}
+
+/// The dynamic front-end: motion consistency on (previous, current) gray while the detector works
+/// on the same frame in a scoped thread; then box judgement and culling.
+struct DynamicFrontEnd {
+    detector: Box<dyn Detector>,
+    settings: DynamicSettings,
+    prev_gray: Option<Gray8>,
+}
+
+impl DynamicFrontEnd {
+    fn judge(&mut self, frame: &stillpoint_datasets::Frame, kps: &[[f32; 2]]) -> FilterOutcome {
+        let mut out = FilterOutcome {
+            dynamic: vec![false; kps.len()],
+            ..Default::default()
+        };
+        let Some(prev) = self.prev_gray.replace(frame.gray.clone()) else {
+            return out;
+        };
+        let detector = &mut self.detector;
+        let geometry = &self.settings.geometry;
+        let (dets, check) = std::thread::scope(|s| {
+            let det = s.spawn(|| {
+                let t0 = Instant::now();
+                let dets = match &frame.rgb {
+                    Some(rgb) => detector
+                        .detect(&DetectInput {
+                            index: frame.index,
+                            timestamp: frame.timestamp,
+                            rgb,
+                        })
+                        .unwrap_or_else(|e| {
+                            tracing::warn!("frame {}: detector failed: {e}", frame.index);
+                            Vec::new()
+                        }),
+                    None => Vec::new(),
+                };
+                (dets, t0.elapsed().as_secs_f64() * 1e3)
+            });
+            let t0 = Instant::now();
+            let check = stillpoint_dynamic::motion_consistency(&prev, &frame.gray, geometry);
+            let geo_ms = t0.elapsed().as_secs_f64() * 1e3;
+            let dets = det.join().unwrap_or_else(|_| (Vec::new(), 0.0));
+            (dets, (check, geo_ms))
+        });
+        let (check, geo_ms) = check;
+        out.semantic_ms = dets.1;
+        out.geometry_ms = geo_ms;
+        let states = stillpoint_dynamic::judge_boxes(&dets.0, &check.points, &self.settings.judge);
+        out.dynamic_boxes = states
+            .iter()
+            .filter(|s| s.verdict == Verdict::Dynamic)
+            .count();
+        out.dynamic =
+            stillpoint_dynamic::cull_with(kps, &states, &check.points, &self.settings.cull);
+        out
+    }
+}
+
+/// SLAM settings from a dataset's settings (RGB-D; `bf` defaults to ORB-SLAM's TUM 40).
+pub fn slam_settings(s: &stillpoint_datasets::Settings) -> SlamSettings {
+    let mut out = SlamSettings::rgbd(s.camera, s.bf.unwrap_or(40.0), s.fps);
+    out.th_depth = s.th_depth;
+    out.scale_factor = s.orb.scale_factor as f64;
+    out.n_levels = s.orb.n_levels.max(1);
+    out
+}
+
+fn keyframe_path(out: &Path) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "trajectory".into());
+    out.with_file_name(format!("{stem}_keyframes.txt"))
+}
+
+/// Run SLAM over a sequence. Frames that cannot be read are logged and skipped.
+pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
+    let seq: Box<dyn Sequence> =
+        stillpoint_datasets::open(&o.dataset, o.kind, o.settings.as_deref())
+            .with_context(|| format!("opening {}", o.dataset.display()))?;
+    let ds = seq.settings().clone();
+    let mut settings = slam_settings(&ds);
+    settings.local_mapping_thread = !o.sequential;
+    let mut orb = OrbExtractor::new(OrbParams {
+        n_features: ds.orb.n_features,
+        scale_factor: ds.orb.scale_factor,
+        n_levels: ds.orb.n_levels,
+        ini_th_fast: ds.orb.ini_th_fast,
+        min_th_fast: ds.orb.min_th_fast,
+    });
+    let mut front = match &o.detector {
+        None => None,
+        Some(name) => {
+            let boxes = seq.boxes();
+            let detector = stillpoint_detect::open_detector(
+                name,
+                &DetectSettings::default(),
+                boxes.as_deref(),
+                GtDetectorParams::default(),
+            )
+            .with_context(|| format!("opening the {name} detector"))?;
+            Some(DynamicFrontEnd {
+                detector,
+                settings: DynamicSettings::default(),
+                prev_gray: None,
+            })
+        }
+    };
+    let detector_name = o.detector.clone().unwrap_or_else(|| "off".into());
+    let n = o.frames.map_or(seq.len(), |f| f.min(seq.len()));
+    if n == 0 {
+        bail!("{}: the sequence has no frames", o.dataset.display());
+    }
+    let mut writer = match &o.out {
+        Some(p) => Some(TumWriter::create(p).with_context(|| format!("creating {}", p.display()))?),
+        None => None,
+    };
+    let bar = if o.progress {
+        let b = indicatif::ProgressBar::new(n as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{spinner} {bar:40} {pos}/{len} frames {elapsed} ({eta} left) {msg}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let mut sys = System::new(settings);
+    let mut times: Vec<FrameTimes> = Vec::with_capacity(n);
+    let (mut stamps, mut poses) = (Vec::new(), Vec::new());
+    let mut culled = Vec::with_capacity(n);
+    let (mut tracked, mut relocs, mut new_maps) = (0, 0, 0);
+    for i in 0..n {
+        bar.inc(1);
+        let frame = match seq.frame(i) {
+            Ok(f) => f,
+            Err(e) => {
+                tracing::warn!("frame {i}: skipped: {e}");
+                continue;
+            }
+        };
+        let mut t = FrameTimes::default();
+        let t0 = Instant::now();
+        let feats = orb.extract(&frame.gray);
+        t.orb = t0.elapsed().as_secs_f64() * 1e3;
+        let mut features: Vec<Feature> = feats
+            .keypoints
+            .iter()
+            .map(|k| Feature {
+                x: k.x,
+                y: k.y,
+                octave: k.octave,
+                angle: k.angle,
+            })
+            .collect();
+        let mut descriptors = feats.descriptors;
+        let mut n_culled = 0;
+        if let Some(f) = front.as_mut() {
+            let kps: Vec<[f32; 2]> = features.iter().map(|k| [k.x, k.y]).collect();
+            let outcome = f.judge(&frame, &kps);
+            t.semantic = outcome.semantic_ms;
+            t.geometry = outcome.geometry_ms;
+            n_culled = remove_dynamic(&mut features, &mut descriptors, &outcome.dynamic);
+        }
+        culled.push(n_culled);
+        let report = sys
+            .track_rgbd(
+                i,
+                frame.timestamp,
+                &features,
+                &descriptors,
+                frame.depth.as_ref(),
+            )
+            .with_context(|| format!("frame {i} of {}", o.dataset.display()))?;
+        t.tracking = report.tracking_ms;
+        relocs += report.relocalised as usize;
+        new_maps += report.new_map as usize;
+        if let Some(p) = report.pose_wc {
+            tracked += 1;
+            if stamps.last().is_none_or(|&l| frame.timestamp > l) {
+                stamps.push(frame.timestamp);
+                poses.push(p);
+                if let Some(w) = writer.as_mut() {
+                    w.write(frame.timestamp, &p)
+                        .with_context(|| format!("writing frame {i}"))?;
+                }
+            }
+        }
+        bar.set_message(format!("{:?}, {} kf", report.state, sys.keyframe_count()));
+        times.push(t);
+    }
+    bar.finish_and_clear();
+    sys.shutdown().context("local mapping")?;
+    let trajectory = Trajectory::from_parts(stamps, poses).context("estimated trajectory")?;
+    let mut kf = sys.keyframe_trajectory();
+    kf.sort_by(|a, b| a.0.total_cmp(&b.0));
+    kf.dedup_by(|a, b| a.0 == b.0);
+    let keyframe_trajectory = Trajectory::from_parts(
+        kf.iter().map(|k| k.0).collect(),
+        kf.iter().map(|k| k.1).collect(),
+    )
+    .context("keyframe trajectory")?;
+    if let Some(p) = &o.out {
+        let kp = keyframe_path(p);
+        stillpoint_trajectory::write_tum(&kp, &keyframe_trajectory)
+            .with_context(|| format!("writing {}", kp.display()))?;
+    }
+    let ground_truth = match seq.ground_truth() {
+        Some(p) => match stillpoint_trajectory::read_tum(&p) {
+            Ok(t) => Some(t),
+            Err(e) => {
+                tracing::warn!("ground truth unreadable: {e}");
+                None
+            }
+        },
+        None => None,
+    };
+    let pick = |f: fn(&FrameTimes) -> f64| times.iter().map(f).collect::<Vec<f64>>();
+    let mut timings = vec![];
+    if o.detector.is_some() {
+        timings.push(("semantic", pick(|t| t.semantic)));
+        timings.push(("geometry", pick(|t| t.geometry)));
+    }
+    timings.push(("orb", pick(|t| t.orb)));
+    timings.push(("tracking", pick(|t| t.tracking)));
+    timings.push(("local mapping (per keyframe)", sys.mapping_times_ms()));
+    Ok(RunSummary {
+        name: seq.name(),
+        frames: n,
+        tracked,
+        keyframes: sys.keyframe_count(),
+        map_points: sys.map_point_count(),
+        relocalisations: relocs,
+        new_maps,
+        culled_per_frame: culled,
+        trajectory,
+        keyframe_trajectory,
+        ground_truth,
+        timings,
+        detector: detector_name,
+    })
+}
+
+/// mean / median / p90 of a list (0s when empty).
+pub fn stats(v: &[f64]) -> (f64, f64, f64) {
+    if v.is_empty() {
+        return (0.0, 0.0, 0.0);
+    }
+    let mut s = v.to_vec();
+    s.sort_by(|a, b| a.total_cmp(b));
+    let mean = s.iter().sum::<f64>() / s.len() as f64;
+    let at = |q: f64| s[((s.len() - 1) as f64 * q).round() as usize];
+    (mean, at(0.5), at(0.9))
+}
+
+/// ATE (SE3-aligned, as the paper) and translational RPE over 1 s, when there is ground truth.
+pub fn accuracy(
+    s: &RunSummary,
+) -> Option<(
+    stillpoint_trajectory::AteResult,
+    Option<stillpoint_trajectory::RpeResult>,
+)> {
+    let gt = s.ground_truth.as_ref()?;
+    let ate = stillpoint_trajectory::ate(
+        gt,
+        &s.trajectory,
+        &AteOptions {
+            align: Alignment::Se3,
+            ..Default::default()
+        },
+    )
+    .map_err(|e| tracing::warn!("ATE: {e}"))
+    .ok()?;
+    let rpe = stillpoint_trajectory::rpe(
+        gt,
+        &s.trajectory,
+        &RpeOptions {
+            delta: 1.0,
+            delta_unit: stillpoint_trajectory::DeltaUnit::Seconds,
+            ..Default::default()
+        },
+    )
+    .map_err(|e| tracing::warn!("RPE: {e}"))
+    .ok();
+    Some((ate, rpe))
+}
+
+pub fn summary_json(s: &RunSummary) -> serde_json::Value {
+    let acc = accuracy(s);
+    let timing: serde_json::Map<String, serde_json::Value> = s
+        .timings
+        .iter()
+        .map(|(k, v)| {
+            let (mean, median, p90) = stats(v);
+            (
+                k.to_string(),
+                serde_json::json!({"mean_ms": mean, "median_ms": median, "p90_ms": p90, "count": v.len()}),
+            )
+        })
+        .collect();
+    let culled: Vec<f64> = s.culled_per_frame.iter().map(|&c| c as f64).collect();
+    let (cm, cmed, cp90) = stats(&culled);
+    serde_json::json!({
+        "sequence": s.name,
+        "detector": s.detector,
+        "frames": s.frames,
+        "tracked": s.tracked,
+        "keyframes": s.keyframes,
+        "keyframe_poses_written": s.keyframe_trajectory.len(),
+        "map_points": s.map_points,
+        "relocalisations": s.relocalisations,
+        "new_maps": s.new_maps,
+        "culled_per_frame": {"mean": cm, "median": cmed, "p90": cp90},
+        "ate": acc.as_ref().map(|(a, _)| serde_json::json!({
+            "rmse": a.stats.rmse, "mean": a.stats.mean, "median": a.stats.median,
+            "std": a.stats.std, "max": a.stats.max, "pairs": a.stats.count})),
+        "rpe_1s": acc.as_ref().and_then(|(_, r)| r.as_ref()).map(|r| serde_json::json!({
+            "trans_rmse": r.translation.rmse, "trans_std": r.translation.std,
+            "rot_rmse_deg": r.rotation_deg.rmse})),
+        "timing": timing,
+    })
+}
+
+pub fn print_summary(s: &RunSummary) {
+    println!(
+        "{}: {} of {} frames tracked, {} keyframes, {} map points, {} relocalisations, {} new maps (detector: {})",
+        s.name,
+        s.tracked,
+        s.frames,
+        s.keyframes,
+        s.map_points,
+        s.relocalisations,
+        s.new_maps,
+        s.detector
+    );
+    if let Some((a, r)) = accuracy(s) {
+        print!(
+            "ATE RMSE {:.4} m (S.D. {:.4}, {} pairs)",
+            a.stats.rmse, a.stats.std, a.stats.count
+        );
+        if let Some(r) = r {
+            print!(
+                ", RPE (1 s) trans RMSE {:.4} m (S.D. {:.4})",
+                r.translation.rmse, r.translation.std
+            );
+        }
+        println!();
+    }
+    println!(
+        "{:<30} {:>9} {:>9} {:>9}",
+        "stage", "mean ms", "median", "p90"
+    );
+    for (k, v) in &s.timings {
+        let (m, med, p90) = stats(v);
+        println!("{k:<30} {m:>9.2} {med:>9.2} {p90:>9.2}");
+    }
+    let culled: Vec<f64> = s.culled_per_frame.iter().map(|&c| c as f64).collect();
+    let (m, med, p90) = stats(&culled);
+    println!(
+        "{:<30} {m:>9.1} {med:>9.1} {p90:>9.1}",
+        "keypoints culled / frame"
+    );
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let kind = match &args.kind {
+        Some(k) => Some(
+            k.parse::<DatasetKind>()
+                .map_err(|e| anyhow::anyhow!("--kind {k}: {e}"))?,
+        ),
+        None => None,
+    };
+    let o = RunOptions {
+        dataset: args.dataset.clone(),
+        kind,
+        settings: args.settings.clone(),
+        out: Some(args.out.clone()),
+        detector: (!args.no_dynamic).then(|| args.detector.clone()),
+        sequential: args.sequential,
+        frames: args.frames,
+        progress: true,
+    };
+    let s = run_sequence(&o)?;
+    tracing::info!(
+        "trajectory written to {} (keyframes: {})",
+        args.out.display(),
+        keyframe_path(&args.out).display()
+    );
+    if args.json {
+        println!("{}", summary_json(&s));
+    } else {
+        print_summary(&s);
+    }
+    if s.tracked == 0 {
+        bail!("no frame could be tracked");
+    }
+    Ok(())
 }
