@@ -118,3 +118,28 @@ fn tract_and_ort_agree_on_every_detector_image() {
         }
     }
 }
+
+#[test]
+#[ignore = "needs ../shared/data"]
+fn detector_thread_gives_the_same_boxes_as_a_direct_call() {
+    let image = shared().join("data/detector_images/tum_fr3_two_people.png");
+    let direct = detect("yolox_nano_256x320.onnx", Backend::Tract, &image);
+    let settings = DetectSettings {
+        model: Some(shared().join("models/yolox_nano_256x320.onnx")),
+        ..Default::default()
+    };
+    let worker = stillpoint_detect::DetectorThread::spawn(move || {
+        stillpoint_detect::open_detector("yolox", &settings, None, Default::default())
+    })
+    .unwrap();
+    assert_eq!(worker.name(), "yolox-tract");
+    let rgb = std::sync::Arc::new(stillpoint_image::read_rgb(&image).unwrap());
+    for i in 0..3 {
+        worker.send(i, i as f64 / 30.0, rgb.clone()).unwrap();
+    }
+    for i in 0..3 {
+        let (index, boxes) = worker.recv().unwrap();
+        assert_eq!(index, i);
+        assert_eq!(boxes.unwrap(), direct);
+    }
+}
