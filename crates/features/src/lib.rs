@@ -42,7 +42,7 @@ pub use matcher::{
     KeypointGrid, Match, MatchParams, Projected, ProjectionParams, RotationHistogram, hamming,
     match_brute_force, search_by_projection,
 };
-pub use orb::{KeyPoint, OrbExtractor, OrbFeatures, OrbParams, OrbTimings};
+pub use orb::{KeyPoint, OrbExtractor, OrbFeatures, OrbParams, OrbScore, OrbTimings};
 pub use stillpoint_image::{Gray8, rgb_to_gray};
 
 /// A 256-bit binary descriptor (ORB).

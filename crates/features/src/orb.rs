@@ -92,6 +92,17 @@ pub struct OrbExtractor {
     pyramid: Vec<Gray8>,
     blurred: Gray8,
     timings: OrbTimings,
+    score: OrbScore,
+}
+
+/// Which corner score picks the keypoint kept in each quadtree node.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum OrbScore {
+    /// FAST score, as ORB-SLAM3.
+    #[default]
+    Fast,
+    /// Harris response of the 7x7 block, as OpenCV's ORB ranks keypoints.
+    Harris,
 }
 
 impl OrbExtractor {
@@ -150,7 +161,15 @@ impl OrbExtractor {
             pyramid: Vec::new(),
             blurred: Gray8::new(0, 0, 0),
             timings: OrbTimings::default(),
+            score: OrbScore::default(),
         }
+    }
+
+    /// Choose the score that picks the keypoint of each quadtree node (and is reported as
+    /// `KeyPoint::response`).
+    pub fn with_score(mut self, score: OrbScore) -> Self {
+        self.score = score;
+        self
     }
 
     /// The settings in use.
@@ -206,10 +225,21 @@ impl OrbExtractor {
             }
             corners.clear();
             detect_in_cells(level_img, &self.params, &mut corners);
+            let harris: Option<Vec<f32>> = (self.score == OrbScore::Harris).then(|| {
+                corners
+                    .iter()
+                    .map(|c| harris_at(level_img, c.x as usize, c.y as usize))
+                    .collect()
+            });
             let t2 = Instant::now();
             self.timings.fast_ms += (t2 - t1).as_secs_f64() * 1e3;
+            let scores: Vec<f32> = match &harris {
+                Some(h) => h.clone(),
+                None => corners.iter().map(|c| c.score as f32).collect(),
+            };
             let keep = distribute_quadtree(
                 &corners,
+                &scores,
                 [
                     EDGE_THRESHOLD - 3,
                     w - EDGE_THRESHOLD + 3,
@@ -237,7 +267,7 @@ impl OrbExtractor {
                     y: y as f32 * scale,
                     octave: level as u8,
                     angle,
-                    response: c.score as f32,
+                    response: scores[i],
                     size,
                 });
             }
@@ -375,7 +405,12 @@ impl Node {
 /// ORB-SLAM3 `DistributeOctTree`: split the area into quadrants until there are `n` non-empty
 /// nodes (largest nodes first in the last round), then keep the strongest corner of each node.
 /// `bounds` = [min_x, max_x, min_y, max_y]. Returns indices into `corners`.
-fn distribute_quadtree(corners: &[Corner], bounds: [usize; 4], n: usize) -> Vec<usize> {
+fn distribute_quadtree(
+    corners: &[Corner],
+    scores: &[f32],
+    bounds: [usize; 4],
+    n: usize,
+) -> Vec<usize> {
     let [min_x, max_x, min_y, max_y] = bounds.map(|v| v as i32);
     if corners.is_empty() || n == 0 {
         return Vec::new();
@@ -466,13 +501,37 @@ fn distribute_quadtree(corners: &[Corner], bounds: [usize; 4], n: usize) -> Vec<
         .filter_map(|nd| {
             let mut best = *nd.keys.first()? as usize;
             for &k in &nd.keys[1..] {
-                if corners[k as usize].score > corners[best].score {
+                if scores[k as usize] > scores[best] {
                     best = k as usize;
                 }
             }
             Some(best)
         })
         .collect()
+}
+
+/// Harris response of the 7x7 block around (x, y) with OpenCV ORB's `HarrisResponses` gradients
+/// (k = 0.04). The caller keeps (x, y) 4 px inside the image.
+fn harris_at(img: &Gray8, x: usize, y: usize) -> f32 {
+    let w = img.width;
+    let d = &img.data;
+    let (mut a, mut b, mut c) = (0i64, 0i64, 0i64);
+    for yy in y - 3..=y + 3 {
+        for xx in x - 3..=x + 3 {
+            let i = yy * w + xx;
+            let p = |o: isize| d[(i as isize + o) as usize] as i32;
+            let s = w as isize;
+            let ix = (p(1) - p(-1)) * 2 + (p(-s + 1) - p(-s - 1)) + (p(s + 1) - p(s - 1));
+            let iy = (p(s) - p(-s)) * 2 + (p(s - 1) - p(-s - 1)) + (p(s + 1) - p(-s + 1));
+            a += (ix * ix) as i64;
+            b += (iy * iy) as i64;
+            c += (ix * iy) as i64;
+        }
+    }
+    let (a, b, c) = (a as f64, b as f64, c as f64);
+    // OpenCV's scale: 1 / (4 * block * 255)^4
+    let scale = 1.0 / (4.0 * 7.0 * 255.0f64);
+    ((a * b - c * c - 0.04 * (a + b) * (a + b)) * scale.powi(4)) as f32
 }
 
 /// Orientation (degrees, [0, 360)) of the intensity centroid of the circular patch of radius 15

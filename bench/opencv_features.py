@@ -1,0 +1,151 @@
+#!/usr/bin/env python3
+"""OpenCV reference for `stillpoint bench features` (issue 4).
+
+Two modes, both print JSON on stdout:
+
+  speed IMAGES... [--repeat N] [--threads T]
+      ms per frame (median, p90) of ORB (1000 features, ORB-SLAM settings), goodFeaturesToTrack
+      + cornerSubPix (paper settings), and calcOpticalFlowPyrLK of those corners into the next
+      image (paper settings), over all images x repeats. Image i is tracked into image i+1
+      (the last into the first).
+
+  quality PREV CUR [PREV CUR ...]
+      per pair: ORB matches (brute force, ratio 0.8, mutual), fundamental RANSAC inliers
+      (1 px, 0.99) and their ratio; LK points whose forward-backward error is below 0.5 px.
+
+Needs opencv-python-headless (pip install opencv-python-headless==4.6.0.66 "numpy<2").
+"""
+
+import argparse
+import json
+import sys
+import time
+
+import cv2
+import numpy as np
+
+ORB = dict(nfeatures=1000, scaleFactor=1.2, nlevels=8, edgeThreshold=19, patchSize=31,
+           fastThreshold=20)
+GFTT = dict(maxCorners=1000, qualityLevel=0.01, minDistance=8, blockSize=3,
+            useHarrisDetector=True, k=0.04)
+SUBPIX = dict(winSize=(10, 10), zeroZone=(-1, -1),
+              criteria=(cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+LK = dict(winSize=(22, 22), maxLevel=5,
+          criteria=(cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 20, 0.01))
+
+
+def gray(path):
+    img = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    if img is None:
+        sys.exit(f"{path}: cannot read image")
+    if img.dtype == np.uint16:
+        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    return img
+
+
+def stats(xs):
+    xs = sorted(xs)
+    return {"median": xs[len(xs) // 2], "p90": xs[min(len(xs) - 1, int(len(xs) * 0.9))],
+            "n": len(xs)}
+
+
+def corners(img):
+    pts = cv2.goodFeaturesToTrack(img, **GFTT)
+    if pts is None:
+        return np.zeros((0, 1, 2), np.float32)
+    cv2.cornerSubPix(img, pts, **SUBPIX)
+    return pts
+
+
+def speed(args):
+    cv2.setNumThreads(args.threads)
+    imgs = [gray(p) for p in args.images]
+    orb = cv2.ORB_create(**ORB)
+    t = {"orb": [], "gftt": [], "subpix": [], "harris_subpix": [], "lk": [], "harris_lk": []}
+    nfeat, ncorners, ntracked = [], [], []
+    for _ in range(args.repeat):
+        for i, img in enumerate(imgs):
+            nxt = imgs[(i + 1) % len(imgs)]
+            if nxt.shape != img.shape:
+                nxt = img
+            t0 = time.perf_counter()
+            kps, _ = orb.detectAndCompute(img, None)
+            t1 = time.perf_counter()
+            pts = cv2.goodFeaturesToTrack(img, **GFTT)
+            t2 = time.perf_counter()
+            if pts is None:
+                pts = np.zeros((0, 1, 2), np.float32)
+            else:
+                cv2.cornerSubPix(img, pts, **SUBPIX)
+            t3 = time.perf_counter()
+            if len(pts):
+                _, st, _ = cv2.calcOpticalFlowPyrLK(img, nxt, pts, None, **LK)
+                ntracked.append(int(st.sum()))
+            t4 = time.perf_counter()
+            nfeat.append(len(kps))
+            ncorners.append(len(pts))
+            ms = lambda a, b: (b - a) * 1e3
+            t["orb"].append(ms(t0, t1))
+            t["gftt"].append(ms(t1, t2))
+            t["subpix"].append(ms(t2, t3))
+            t["harris_subpix"].append(ms(t1, t3))
+            t["lk"].append(ms(t3, t4))
+            t["harris_lk"].append(ms(t1, t4))
+    out = {k: stats(v) for k, v in t.items()}
+    out["opencv"] = cv2.__version__
+    out["threads"] = cv2.getNumThreads()
+    out["features_mean"] = float(np.mean(nfeat))
+    out["corners_mean"] = float(np.mean(ncorners))
+    out["tracked_mean"] = float(np.mean(ntracked)) if ntracked else 0.0
+    print(json.dumps(out))
+
+
+def quality(args):
+    if len(args.images) % 2:
+        sys.exit("quality needs pairs of images")
+    orb = cv2.ORB_create(**ORB)
+    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+    res = []
+    for a, b in zip(args.images[::2], args.images[1::2]):
+        i1, i2 = gray(a), gray(b)
+        k1, d1 = orb.detectAndCompute(i1, None)
+        k2, d2 = orb.detectAndCompute(i2, None)
+        fwd = bf.knnMatch(d1, d2, k=2)
+        back = {m[0].queryIdx: m[0].trainIdx for m in bf.knnMatch(d2, d1, k=1) if m}
+        good = [m[0] for m in fwd if len(m) == 2 and m[0].distance <= 100
+                and m[0].distance < 0.8 * m[1].distance and back.get(m[0].trainIdx) == m[0].queryIdx]
+        p1 = np.float32([k1[m.queryIdx].pt for m in good])
+        p2 = np.float32([k2[m.trainIdx].pt for m in good])
+        inl = 0
+        if len(good) >= 8:
+            _, mask = cv2.findFundamentalMat(p1, p2, cv2.FM_RANSAC, 1.0, 0.99)
+            inl = int(mask.sum()) if mask is not None else 0
+        pts = corners(i1)
+        n_fb = 0
+        if len(pts) and i1.shape == i2.shape:
+            nxt, st, _ = cv2.calcOpticalFlowPyrLK(i1, i2, pts, None, **LK)
+            back_pts, st2, _ = cv2.calcOpticalFlowPyrLK(i2, i1, nxt, None, **LK)
+            fb = np.linalg.norm((back_pts - pts).reshape(-1, 2), axis=1)
+            ok = (st.ravel() == 1) & (st2.ravel() == 1) & (fb < 0.5)
+            n_fb = int(ok.sum())
+        res.append({"prev": a, "cur": b, "features": [len(k1), len(k2)], "matches": len(good),
+                    "inliers": inl, "inlier_ratio": inl / max(1, len(good)),
+                    "corners": len(pts), "lk_fb_below_0_5px": n_fb})
+    print(json.dumps({"opencv": cv2.__version__, "pairs": res}))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("mode", choices=["speed", "quality"])
+    ap.add_argument("images", nargs="+")
+    ap.add_argument("--repeat", type=int, default=20)
+    ap.add_argument("--threads", type=int, default=1,
+                    help="cv2.setNumThreads (1 = single-threaded, as stillpoint's front-end)")
+    args = ap.parse_args()
+    speed(args) if args.mode == "speed" else quality(args)
+
+
+if __name__ == "__main__":
+    main()
