@@ -4,7 +4,6 @@
 use super::{InferenceBackend, check_model_file, choose_input_size};
 use crate::{DetectError, yolox};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_core::runtime::RunOptions;
 use tract_onnx::tract_hir::infer::Factoid;
@@ -12,7 +11,8 @@ use tract_onnx::tract_hir::internal::DimLike;
 
 /// A YOLOX model loaded with tract.
 pub struct TractBackend {
-    plan: Arc<TypedSimplePlan>,
+    /// Kept between frames so tract reuses its buffers.
+    state: TypedSimpleState,
     input_size: (usize, usize),
     path: PathBuf,
 }
@@ -85,8 +85,9 @@ impl TractBackend {
         let plan = typed
             .into_runnable_with_options(&options)
             .map_err(not_onnx)?;
+        let state = plan.spawn().map_err(not_onnx)?;
         Ok(Self {
-            plan,
+            state,
             input_size: (h, w),
             path: path.to_path_buf(),
         })
@@ -107,7 +108,7 @@ impl InferenceBackend for TractBackend {
             msg: format!("{}: {e:#}", self.path.display()),
         };
         let tensor = Tensor::from_shape(&[1, 3, h, w], input).map_err(fail)?;
-        let outputs = self.plan.run(tvec!(tensor.into())).map_err(fail)?;
+        let outputs = self.state.run(tvec!(tensor.into())).map_err(fail)?;
         let out = outputs[0].to_plain_array_view::<f32>().map_err(fail)?;
         Ok((out.shape().to_vec(), out.iter().copied().collect()))
     }
