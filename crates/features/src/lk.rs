@@ -247,11 +247,16 @@ fn mismatch(
             &gx[r * pw..(r + 1) * pw],
             &gy[r * pw..(r + 1) * pw],
         );
-        for c0 in (0..pw).step_by(8) {
+        for (((j8, i8), x8), y8) in jrow
+            .chunks_exact(8)
+            .zip(ir.chunks_exact(8))
+            .zip(xr.chunks_exact(8))
+            .zip(yr.chunks_exact(8))
+        {
             for l in 0..8 {
-                let d = jrow[c0 + l] - ir[c0 + l];
-                acc1[l] += d * xr[c0 + l];
-                acc2[l] += d * yr[c0 + l];
+                let d = j8[l] - i8[l];
+                acc1[l] += d * x8[l];
+                acc2[l] += d * y8[l];
             }
         }
     }
@@ -313,9 +318,9 @@ fn track_all(
             sample_patch(dx, (w, h), ix, iy, wts, win, pw, win, &mut gx);
             sample_patch(dy, (w, h), ix, iy, wts, win, pw, win, &mut gy);
             let (mut a11, mut a12, mut a22) = ([0f32; 8], [0f32; 8], [0f32; 8]);
-            for c0 in (0..win * pw).step_by(8) {
+            for (x8, y8) in gx.chunks_exact(8).zip(gy.chunks_exact(8)) {
                 for l in 0..8 {
-                    let (x, y) = (gx[c0 + l], gy[c0 + l]);
+                    let (x, y) = (x8[l], y8[l]);
                     a11[l] += x * x;
                     a12[l] += x * y;
                     a22[l] += y * y;

@@ -563,16 +563,19 @@ fn ic_angle(img: &Gray8, x: usize, y: usize, umax: &[usize]) -> f32 {
 }
 
 /// 256-bit BRIEF with ORB's pattern rotated by `angle_deg` (ORB-SLAM3
-/// `computeOrbDescriptor`: offsets rounded half to even, as `cvRound`).
+/// `computeOrbDescriptor`; offsets rounded to nearest like `cvRound`).
 fn steered_brief(img: &Gray8, x: usize, y: usize, angle_deg: f32) -> Descriptor {
     let w = img.width as isize;
     let (b, a) = angle_deg.to_radians().sin_cos();
     let c = (y * img.width + x) as isize;
     let d = &img.data;
+    // round half away from zero with a truncating cast: `round_ties_even` is a libm call on
+    // baseline x86-64 and differs only on exact .5 ties, which irrational cos/sin never hit
+    let round = |v: f32| (v + 0.5f32.copysign(v)) as isize;
     let at = |px: i8, py: i8| -> u8 {
         let (px, py) = (px as f32, py as f32);
-        let dy = (px * b + py * a).round_ties_even() as isize;
-        let dx = (px * a - py * b).round_ties_even() as isize;
+        let dy = round(px * b + py * a);
+        let dx = round(px * a - py * b);
         d[(c + dy * w + dx) as usize]
     };
     let mut desc = [0u8; 32];

@@ -10,8 +10,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use serde_json::{Value, json};
 use stillpoint_features::{
-    CornerParams, LkParams, LkPyramid, OrbExtractor, OrbParams, good_features_to_track,
-    track_lk_pyramids,
+    CornerParams, LkParams, OrbExtractor, OrbParams, good_features_to_track, track_lk,
 };
 use stillpoint_image::{Gray8, read_gray};
 
@@ -160,9 +159,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let t1 = Instant::now();
             let corners = good_features_to_track(img, &cp);
             let t2 = Instant::now();
-            let pa = LkPyramid::new(img, &lp);
-            let pb = LkPyramid::new(next, &lp);
-            let tracked = track_lk_pyramids(&pa, &pb, &corners, &lp);
+            // pyramids of both images + tracking, the work calcOpticalFlowPyrLK does
+            let tracked = track_lk(img, next, &corners, &lp);
             let t3 = Instant::now();
             let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
             let st = orb.timings();
