@@ -40,6 +40,17 @@ fn shared() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from("../shared"))
 }
 
+/// On-CPU time of all this process's threads, in ns (Linux `/proc/self/task/*/schedstat`), so
+/// the report also shows compute per frame, which a busy machine does not inflate like wall time.
+fn process_cpu_ns() -> Option<u64> {
+    let mut total = 0u64;
+    for task in std::fs::read_dir("/proc/self/task").ok()? {
+        let stat = std::fs::read_to_string(task.ok()?.path().join("schedstat")).ok()?;
+        total += stat.split_whitespace().next()?.parse::<u64>().ok()?;
+    }
+    Some(total)
+}
+
 fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
     let n = v.len();
@@ -100,6 +111,7 @@ pub fn run(args: Args) -> Result<()> {
                 for _ in 0..args.warmup {
                     boxes = det.detect(&input)?.len();
                 }
+                let cpu_before = process_cpu_ns();
                 let mut times: Vec<f64> = (0..args.runs)
                     .map(|_| {
                         let t = Instant::now();
@@ -109,6 +121,10 @@ pub fn run(args: Args) -> Result<()> {
                         })
                     })
                     .collect::<Result<_, _>>()?;
+                let cpu_ms = match (cpu_before, process_cpu_ns()) {
+                    (Some(a), Some(b)) => b.saturating_sub(a) as f64 / 1e6 / args.runs as f64,
+                    _ => f64::NAN,
+                };
                 let min = times.iter().copied().fold(f64::INFINITY, f64::min);
                 let med = median(&mut times);
                 let (h, w) = det.input_size();
@@ -125,6 +141,7 @@ pub fn run(args: Args) -> Result<()> {
                     med,
                     min,
                     boxes,
+                    cpu_ms,
                 ));
             }
         }
@@ -133,10 +150,11 @@ pub fn run(args: Args) -> Result<()> {
     if args.json {
         let out: Vec<_> = rows
             .iter()
-            .map(|(model, size, be, threads, med, min, boxes)| {
+            .map(|(model, size, be, threads, med, min, boxes, cpu)| {
                 json!({
                     "model": model, "input": size, "backend": be, "threads": threads,
                     "median_ms": med, "min_ms": min, "boxes": boxes,
+                    "cpu_ms_per_frame": cpu,
                     "speedup_vs_reference": reference / med,
                 })
             })
@@ -158,12 +176,19 @@ pub fn run(args: Args) -> Result<()> {
             args.runs
         );
         println!(
-            "{:<8} {:<8} {:>7} {:>10} {:>10} {:>9} {:>6}",
-            "backend", "input", "threads", "median ms", "min ms", "speed-up", "boxes"
+            "{:<8} {:<8} {:>7} {:>10} {:>10} {:>9} {:>13} {:>6}",
+            "backend",
+            "input",
+            "threads",
+            "median ms",
+            "min ms",
+            "speed-up",
+            "cpu ms/frame",
+            "boxes"
         );
-        for (_, size, be, threads, med, min, boxes) in &rows {
+        for (_, size, be, threads, med, min, boxes, cpu) in &rows {
             println!(
-                "{be:<8} {size:<8} {threads:>7} {med:>10.1} {min:>10.1} {:>8.2}x {boxes:>6}",
+                "{be:<8} {size:<8} {threads:>7} {med:>10.1} {min:>10.1} {:>8.2}x {cpu:>13.1} {boxes:>6}",
                 reference / med
             );
         }
