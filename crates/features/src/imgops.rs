@@ -150,14 +150,24 @@ pub(crate) fn gaussian_blur7(src: &Gray8, dst: &mut Gray8) {
 }
 }
 
-simd_fn! {
 /// OpenCV `pyrDown`: 5x5 Gaussian ([1 4 6 4 1]² / 256), reflect-101, size ((w+1)/2, (h+1)/2).
+#[cfg(test)]
 pub(crate) fn pyr_down(src: &Gray8) -> Gray8 {
+    let mut dst = Gray8::new(0, 0, 0);
+    pyr_down_into(src, &mut dst);
+    dst
+}
+
+simd_fn! {
+/// [`pyr_down`] into `dst`, reusing its buffer.
+pub(crate) fn pyr_down_into(src: &Gray8, dst: &mut Gray8) {
     let (w, h) = (src.width, src.height);
     let (dw, dh) = (w.div_ceil(2), h.div_ceil(2));
-    let mut dst = Gray8::new(dw, dh, 0);
+    dst.width = dw;
+    dst.height = dh;
+    dst.data.resize(dw * dh, 0);
     if w == 0 || h == 0 {
-        return dst;
+        return;
     }
     let mut vsum = vec![0u16; w + 4];
     for dy in 0..dh {
@@ -183,19 +193,27 @@ pub(crate) fn pyr_down(src: &Gray8) -> Gray8 {
             *o = ((v + 128) >> 8) as u8;
         }
     }
-    dst
 }
 }
 
-simd_fn! {
 /// Scharr derivatives as OpenCV's LK computes them (`[3 10 3]` smoothing × `[-1 0 1]`,
 /// reflect-101), unscaled, as f32: returns (dx, dy), each `w*h`.
+#[cfg(test)]
 pub(crate) fn scharr(src: &Gray8) -> (Vec<f32>, Vec<f32>) {
     let (w, h) = (src.width, src.height);
     let mut dx = vec![0f32; w * h];
     let mut dy = vec![0f32; w * h];
+    scharr_into(src, &mut dx, &mut dy, w, 0);
+    (dx, dy)
+}
+
+simd_fn! {
+/// Scharr derivatives (see [`scharr`]) written into `dx`, `dy` at row stride `stride`, pixel
+/// (0, 0) at index `origin` (so the outputs can carry a border).
+pub(crate) fn scharr_into(src: &Gray8, dx: &mut [f32], dy: &mut [f32], stride: usize, origin: usize) {
+    let (w, h) = (src.width, src.height);
     if w == 0 || h == 0 {
-        return (dx, dy);
+        return;
     }
     let mut trow = vec![0i16; w + 2]; // 3*up + 10*mid + 3*down (for dx)
     let mut drow = vec![0i16; w + 2]; // down - up (for dy)
@@ -217,14 +235,14 @@ pub(crate) fn scharr(src: &Gray8) -> (Vec<f32>, Vec<f32>) {
         drow[0] = drow[l];
         trow[w + 1] = trow[r];
         drow[w + 1] = drow[r];
-        let ox = &mut dx[y * w..(y + 1) * w];
-        let oy = &mut dy[y * w..(y + 1) * w];
+        let o = origin + y * stride;
+        let ox = &mut dx[o..o + w];
+        let oy = &mut dy[o..o + w];
         for x in 0..w {
             ox[x] = (trow[x + 2] - trow[x]) as f32;
             oy[x] = (3 * (drow[x] + drow[x + 2]) + 10 * drow[x + 1]) as f32;
         }
     }
-    (dx, dy)
 }
 }
 

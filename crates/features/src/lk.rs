@@ -2,7 +2,7 @@
 //! scheme): `pyrDown` pyramids, Scharr gradients of the previous image, per-level Newton steps
 //! on a window, minimum-eigenvalue rejection, oscillation damping.
 
-use crate::imgops::{pyr_down, scharr, simd_fn};
+use crate::imgops::{pyr_down_into, reflect101, scharr_into, simd_fn};
 use crate::valid;
 use stillpoint_image::Gray8;
 
@@ -36,58 +36,134 @@ impl Default for LkParams {
     }
 }
 
-/// One image prepared for LK: its pyramid as f32 (and Scharr gradients when it is the image
-/// tracked *from*). Build once per frame and reuse it for both directions of a
-/// forward-backward check.
-#[derive(Clone, Debug)]
+/// One image prepared for LK: its pyramid as f32 with a border (reflect-101 for the image,
+/// zero for the gradients, as OpenCV's `buildOpticalFlowPyramid`), and the Scharr gradients when
+/// it is the image tracked *from*. Build once per frame and reuse it for both directions of a
+/// forward-backward check, or keep the current frame's pyramid as the next frame's previous one
+/// (see [`LkPyramid::rebuild`], which reuses the buffers).
+#[derive(Clone, Debug, Default)]
 pub struct LkPyramid {
     sizes: Vec<(usize, usize)>,
+    /// Border on each side of every level, in pixels.
+    border: usize,
     levels: Vec<Vec<f32>>,
     grads: Vec<(Vec<f32>, Vec<f32>)>,
+    /// The 8-bit levels (scratch for `pyrDown`, kept to reuse the allocations).
+    gray: Vec<Gray8>,
+}
+
+/// Border needed for a window of `win` pixels: a window corner may sit `win` px left of the
+/// image (OpenCV's bound), and a padded row reads `padded(win) + 1` samples from its corner.
+fn border_for(win: usize) -> usize {
+    padded(win) + 2
 }
 
 impl LkPyramid {
     /// Build the pyramid of `img` (with gradients) for the settings `p`.
     pub fn new(img: &Gray8, p: &LkParams) -> Self {
-        Self::build(img, p, true)
+        let mut out = Self::default();
+        out.build(img, p, true);
+        out
     }
 
-    fn build(img: &Gray8, p: &LkParams, with_gradients: bool) -> Self {
-        let mut out = Self {
-            sizes: Vec::new(),
-            levels: Vec::new(),
-            grads: Vec::new(),
-        };
+    /// Rebuild in place for a new image (same result as [`LkPyramid::new`]), reusing the
+    /// buffers: a tracker that keeps one pyramid per frame allocates nothing after the first.
+    pub fn rebuild(&mut self, img: &Gray8, p: &LkParams) {
+        self.build(img, p, true);
+    }
+
+    fn build(&mut self, img: &Gray8, p: &LkParams, with_gradients: bool) {
+        self.sizes.clear();
         if !valid(img) {
-            return out;
+            self.levels.clear();
+            self.grads.clear();
+            return;
         }
         let win = p.window.max(3);
-        let mut cur = img.clone();
+        let bd = border_for(win);
+        self.border = bd;
+        let mut n = 0;
         for level in 0..=p.max_level {
-            out.sizes.push((cur.width, cur.height));
-            out.levels
-                .push(cur.data.iter().map(|&v| v as f32).collect());
+            let (w, h) = if level == 0 {
+                (img.width, img.height)
+            } else {
+                (
+                    self.sizes[level - 1].0.div_ceil(2),
+                    self.sizes[level - 1].1.div_ceil(2),
+                )
+            };
+            if level > 0 {
+                // OpenCV stops when the next level would not exceed the window
+                if w <= win || h <= win {
+                    break;
+                }
+                if self.gray.len() < level {
+                    self.gray.push(Gray8::new(0, 0, 0));
+                }
+                let (done, rest) = self.gray.split_at_mut(level - 1);
+                let src = if level == 1 { img } else { &done[level - 2] };
+                pyr_down_into(src, &mut rest[0]);
+            }
+            let cur = if level == 0 {
+                img
+            } else {
+                &self.gray[level - 1]
+            };
+            self.sizes.push((w, h));
+            let (sw, sh) = (w + 2 * bd, h + 2 * bd);
+            if self.levels.len() <= level {
+                self.levels.push(Vec::new());
+            }
+            fill_padded(cur, bd, &mut self.levels[level]);
             if with_gradients {
-                out.grads.push(scharr(&cur));
+                if self.grads.len() <= level {
+                    self.grads.push((Vec::new(), Vec::new()));
+                }
+                let (dx, dy) = &mut self.grads[level];
+                for d in [&mut *dx, &mut *dy] {
+                    d.clear();
+                    d.resize(sw * sh, 0.0);
+                }
+                scharr_into(cur, dx, dy, sw, bd * sw + bd);
             }
-            // OpenCV stops when the next level would not exceed the window
-            let (nw, nh) = (cur.width.div_ceil(2), cur.height.div_ceil(2));
-            if level == p.max_level || nw <= win || nh <= win {
-                break;
-            }
-            cur = pyr_down(&cur);
+            n += 1;
         }
-        out
+        self.levels.truncate(n);
+        self.grads.truncate(if with_gradients { n } else { 0 });
     }
 
     /// Number of levels built.
     pub fn levels(&self) -> usize {
-        self.levels.len()
+        self.sizes.len()
     }
 
     /// Size of level 0.
     pub fn size(&self) -> (usize, usize) {
         self.sizes.first().copied().unwrap_or((0, 0))
+    }
+}
+
+/// `img` as f32 with a reflect-101 border of `bd` pixels on each side, into `out`.
+fn fill_padded(img: &Gray8, bd: usize, out: &mut Vec<f32>) {
+    let (w, h) = (img.width, img.height);
+    let sw = w + 2 * bd;
+    out.resize(sw * (h + 2 * bd), 0.0);
+    let cols: Vec<usize> = (0..sw)
+        .map(|i| reflect101(i as isize - bd as isize, w))
+        .collect();
+    for (r, row) in out.chunks_exact_mut(sw).enumerate() {
+        let src = img.row(reflect101(r as isize - bd as isize, h));
+        let (left, rest) = row.split_at_mut(bd);
+        let (mid, right) = rest.split_at_mut(w);
+        for (o, &v) in mid.iter_mut().zip(src) {
+            *o = v as f32;
+        }
+        for (o, &c) in left.iter_mut().zip(&cols[..bd]) {
+            *o = src[c] as f32;
+        }
+        for (o, &c) in right.iter_mut().zip(&cols[bd + w..]) {
+            *o = src[c] as f32;
+        }
     }
 }
 
@@ -112,21 +188,28 @@ pub fn track_lk(
     pts: &[[f32; 2]],
     p: &LkParams,
 ) -> Vec<Option<[f32; 2]>> {
-    let a = LkPyramid::build(prev, p, true);
-    let b = LkPyramid::build(cur, p, false);
+    let mut a = LkPyramid::default();
+    a.build(prev, p, true);
+    let mut b = LkPyramid::default();
+    b.build(cur, p, false);
     track_lk_pyramids(&a, &b, pts, p)
 }
 
-/// [`track_lk`] on prepared pyramids (`prev` must have been built with [`LkPyramid::new`]).
+/// [`track_lk`] on prepared pyramids (`prev` must have been built with [`LkPyramid::new`] or
+/// [`LkPyramid::rebuild`], both with a window at least `p.window`).
 pub fn track_lk_pyramids(
     prev: &LkPyramid,
     cur: &LkPyramid,
     pts: &[[f32; 2]],
     p: &LkParams,
 ) -> Vec<Option<[f32; 2]>> {
+    let win = p.window.max(3);
     if prev.levels.is_empty()
         || prev.grads.len() != prev.levels.len()
         || prev.sizes.first() != cur.sizes.first()
+        || prev.border < border_for(win)
+        || cur.border < border_for(win)
+        || prev.border != cur.border
     {
         return vec![None; pts.len()];
     }
@@ -163,104 +246,46 @@ fn padded(win: usize) -> usize {
     win.div_ceil(8) * 8
 }
 
-/// Bilinear patch of `rows` x `pw` samples whose top-left is (ix + a, iy + b), into `out`
-/// (stride `pw`); columns at or beyond `valid_cols` are zero. Clamps at the image border.
-#[allow(clippy::too_many_arguments)]
+/// Eight lanes, kept in registers by LLVM (loads and stores are whole-vector copies).
+type V8 = [f32; 8];
+
 #[inline(always)]
-fn sample_patch(
-    src: &[f32],
-    (w, h): (usize, usize),
-    ix: isize,
-    iy: isize,
-    wts: [f32; 4],
-    rows: usize,
-    pw: usize,
-    valid_cols: usize,
-    out: &mut [f32],
-) {
-    let [w00, w01, w10, w11] = wts;
-    let inside = ix >= 0 && iy >= 0 && ix as usize + pw < w && iy as usize + rows < h;
-    for r in 0..rows {
-        let o = &mut out[r * pw..(r + 1) * pw];
-        if inside {
-            let base = (iy as usize + r) * w + ix as usize;
-            let r0 = &src[base..base + pw + 1];
-            let r1 = &src[base + w..base + w + pw + 1];
-            for (c, v) in o.iter_mut().enumerate() {
-                *v = w00 * r0[c] + w01 * r0[c + 1] + w10 * r1[c] + w11 * r1[c + 1];
-            }
-        } else {
-            let y0 = (iy + r as isize).clamp(0, h as isize - 1) as usize;
-            let y1 = (iy + r as isize + 1).clamp(0, h as isize - 1) as usize;
-            for (c, v) in o.iter_mut().enumerate() {
-                let x0 = (ix + c as isize).clamp(0, w as isize - 1) as usize;
-                let x1 = (ix + c as isize + 1).clamp(0, w as isize - 1) as usize;
-                *v = w00 * src[y0 * w + x0]
-                    + w01 * src[y0 * w + x1]
-                    + w10 * src[y1 * w + x0]
-                    + w11 * src[y1 * w + x1];
-            }
-        }
-        for v in o.iter_mut().skip(valid_cols) {
-            *v = 0.0;
-        }
+fn ld(s: &[f32], i: usize) -> V8 {
+    let mut v = [0f32; 8];
+    v.copy_from_slice(&s[i..i + 8]);
+    v
+}
+
+#[inline(always)]
+fn st(s: &mut [f32], i: usize, v: &V8) {
+    s[i..i + 8].copy_from_slice(v);
+}
+
+/// Bilinear row: `out[c] = w00 r0[c] + w01 r0[c + 1] + w10 r1[c] + w11 r1[c + 1]`
+/// (`r0`, `r1` hold `out.len() + 1` samples; `out.len()` is a multiple of 8). Fixed 8-lane
+/// blocks, so a 24-wide row runs as three vectors instead of a scalar remainder loop.
+#[inline(always)]
+fn bilinear_row(r0: &[f32], r1: &[f32], wts: [f32; 4], out: &mut [f32]) {
+    for c in (0..out.len() / 8).map(|b| b * 8) {
+        st(out, c, &bilinear8(r0, r1, c, wts));
     }
 }
 
-/// Σ (J - I) Gx and Σ (J - I) Gy over the window, J sampled bilinearly at (ix + a, iy + b),
-/// accumulated in 8 lanes.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn mismatch(
-    src: &[f32],
-    (w, h): (usize, usize),
-    ix: isize,
-    iy: isize,
-    wts: [f32; 4],
-    win: usize,
-    pw: usize,
-    ip: &[f32],
-    gx: &[f32],
-    gy: &[f32],
-    scratch: &mut [f32],
-) -> (f32, f32) {
+fn bilinear8(r0: &[f32], r1: &[f32], c: usize, wts: [f32; 4]) -> V8 {
     let [w00, w01, w10, w11] = wts;
-    let inside = ix >= 0 && iy >= 0 && ix as usize + pw < w && iy as usize + win < h;
-    let mut acc1 = [0f32; 8];
-    let mut acc2 = [0f32; 8];
-    for r in 0..win {
-        let jrow: &[f32] = if inside {
-            let base = (iy as usize + r) * w + ix as usize;
-            let r0 = &src[base..base + pw + 1];
-            let r1 = &src[base + w..base + w + pw + 1];
-            let s = &mut scratch[..pw];
-            for c in 0..pw {
-                s[c] = w00 * r0[c] + w01 * r0[c + 1] + w10 * r1[c] + w11 * r1[c + 1];
-            }
-            s
-        } else {
-            sample_patch(src, (w, h), ix, iy + r as isize, wts, 1, pw, pw, scratch);
-            &scratch[..pw]
-        };
-        let (ir, xr, yr) = (
-            &ip[r * pw..(r + 1) * pw],
-            &gx[r * pw..(r + 1) * pw],
-            &gy[r * pw..(r + 1) * pw],
-        );
-        for (((j8, i8), x8), y8) in jrow
-            .chunks_exact(8)
-            .zip(ir.chunks_exact(8))
-            .zip(xr.chunks_exact(8))
-            .zip(yr.chunks_exact(8))
-        {
-            for l in 0..8 {
-                let d = j8[l] - i8[l];
-                acc1[l] += d * x8[l];
-                acc2[l] += d * y8[l];
-            }
-        }
+    let (a0, a1, b0, b1) = (ld(r0, c), ld(r0, c + 1), ld(r1, c), ld(r1, c + 1));
+    let mut o = [0f32; 8];
+    for l in 0..8 {
+        o[l] = w00 * a0[l] + w01 * a1[l] + w10 * b0[l] + w11 * b1[l];
     }
-    (acc1.iter().sum(), acc2.iter().sum())
+    o
+}
+
+/// `n` samples from `o` and the `n` one row (`stride`) below.
+#[inline(always)]
+fn two_rows(src: &[f32], o: usize, stride: usize, n: usize) -> (&[f32], &[f32]) {
+    (&src[o..o + n], &src[o + stride..o + stride + n])
 }
 
 #[inline(always)]
@@ -277,15 +302,20 @@ fn track_all(
 ) -> Vec<Option<[f32; 2]>> {
     let win = p.window.max(3);
     let pw = padded(win);
+    let bd = prev.border as isize;
     let half = (win as f32 - 1.0) * 0.5;
     let n_levels = prev.levels.len().min(cur.levels.len());
     let eps2 = p.epsilon * p.epsilon;
     // OpenCV's units: gradients are raw Scharr, products scaled by 2^-20, intensities x 32
     let flt_scale = 1.0 / (1u32 << 20) as f32;
+    // lanes past the window carry zero gradients, so they add nothing to any sum
+    let lane_mask: Vec<f32> = (0..pw).map(|c| if c < win { 1.0 } else { 0.0 }).collect();
     let mut ip = vec![0f32; win * pw];
     let mut gx = vec![0f32; win * pw];
     let mut gy = vec![0f32; win * pw];
-    let mut scratch = vec![0f32; pw];
+    // per-lane sums (float sums are not reassociated, so each column keeps its own)
+    let (mut a11, mut a12, mut a22) = (vec![0f32; pw], vec![0f32; pw], vec![0f32; pw]);
+    let (mut b1, mut b2) = (vec![0f32; pw], vec![0f32; pw]);
     let mut out = Vec::with_capacity(pts.len());
     for pt in pts {
         if !(pt[0].is_finite() && pt[1].is_finite()) {
@@ -296,6 +326,7 @@ fn track_all(
         let mut ok = true;
         for level in (0..n_levels).rev() {
             let (w, h) = prev.sizes[level];
+            let stride = w + 2 * bd as usize;
             let s = 1.0 / (1u32 << level) as f32;
             let pp = [pt[0] * s - half, pt[1] * s - half];
             // `next` is the centre estimate, carried from the coarser level
@@ -313,17 +344,37 @@ fn track_all(
                 continue;
             }
             let wts = weights(pp[0] - fx, pp[1] - fy);
-            let (dx, dy) = &prev.grads[level];
-            sample_patch(&prev.levels[level], (w, h), ix, iy, wts, win, pw, win, &mut ip);
-            sample_patch(dx, (w, h), ix, iy, wts, win, pw, win, &mut gx);
-            sample_patch(dy, (w, h), ix, iy, wts, win, pw, win, &mut gy);
-            let (mut a11, mut a12, mut a22) = ([0f32; 8], [0f32; 8], [0f32; 8]);
-            for (x8, y8) in gx.chunks_exact(8).zip(gy.chunks_exact(8)) {
-                for l in 0..8 {
-                    let (x, y) = (x8[l], y8[l]);
-                    a11[l] += x * x;
-                    a12[l] += x * y;
-                    a22[l] += y * y;
+            let (dxl, dyl) = &prev.grads[level];
+            let il = &prev.levels[level];
+            let base = (iy + bd) as usize * stride + (ix + bd) as usize;
+            for acc in [&mut a11, &mut a12, &mut a22] {
+                acc.iter_mut().for_each(|v| *v = 0.0);
+            }
+            for r in 0..win {
+                let o = base + r * stride;
+                let orow = r * pw;
+                let (i0, i1) = two_rows(il, o, stride, pw + 1);
+                bilinear_row(i0, i1, wts, &mut ip[orow..orow + pw]);
+                let (x0, x1) = two_rows(dxl, o, stride, pw + 1);
+                bilinear_row(x0, x1, wts, &mut gx[orow..orow + pw]);
+                let (y0, y1) = two_rows(dyl, o, stride, pw + 1);
+                bilinear_row(y0, y1, wts, &mut gy[orow..orow + pw]);
+                for c in (0..pw / 8).map(|b| b * 8) {
+                    let m = ld(&lane_mask, c);
+                    let (mut xs, mut ys) = (ld(&gx, orow + c), ld(&gy, orow + c));
+                    let (mut s11, mut s12, mut s22) = (ld(&a11, c), ld(&a12, c), ld(&a22, c));
+                    for l in 0..8 {
+                        xs[l] *= m[l];
+                        ys[l] *= m[l];
+                        s11[l] += xs[l] * xs[l];
+                        s12[l] += xs[l] * ys[l];
+                        s22[l] += ys[l] * ys[l];
+                    }
+                    st(&mut gx, orow + c, &xs);
+                    st(&mut gy, orow + c, &ys);
+                    st(&mut a11, c, &s11);
+                    st(&mut a12, c, &s12);
+                    st(&mut a22, c, &s22);
                 }
             }
             let a11: f32 = a11.iter().sum::<f32>() * flt_scale;
@@ -358,10 +409,30 @@ fn track_all(
                     break;
                 }
                 let jw = weights(next[0] - fx, next[1] - fy);
-                let (b1, b2) =
-                    mismatch(jl, (w, h), jx, jy, jw, win, pw, &ip, &gx, &gy, &mut scratch);
+                let jbase = (jy + bd) as usize * stride + (jx + bd) as usize;
+                for acc in [&mut b1, &mut b2] {
+                    acc.iter_mut().for_each(|v| *v = 0.0);
+                }
+                for r in 0..win {
+                    let o = jbase + r * stride;
+                    let (j0, j1) = two_rows(jl, o, stride, pw + 1);
+                    let k = r * pw;
+                    for c in (0..pw / 8).map(|b| b * 8) {
+                        let jv = bilinear8(j0, j1, c, jw);
+                        let (iv, xv, yv) = (ld(&ip, k + c), ld(&gx, k + c), ld(&gy, k + c));
+                        let (mut s1, mut s2) = (ld(&b1, c), ld(&b2, c));
+                        for l in 0..8 {
+                            let d = jv[l] - iv[l];
+                            s1[l] += d * xv[l];
+                            s2[l] += d * yv[l];
+                        }
+                        st(&mut b1, c, &s1);
+                        st(&mut b2, c, &s2);
+                    }
+                }
                 // OpenCV scales intensities by 32 and products by 2^-20
-                let (b1, b2) = (b1 * 32.0 * flt_scale, b2 * 32.0 * flt_scale);
+                let b1 = b1.iter().sum::<f32>() * 32.0 * flt_scale;
+                let b2 = b2.iter().sum::<f32>() * 32.0 * flt_scale;
                 let delta = [
                     (a12 * b2 - a22 * b1) * inv_det,
                     (a12 * b1 - a11 * b2) * inv_det,
