@@ -12,9 +12,9 @@ use crate::settings::CullParams;
 /// use stillpoint_dynamic::{BoxPart, BoxState, Rule, Verdict, cull};
 /// use stillpoint_geometry::BBox;
 /// let person = BoxState { bbox: BBox::new(0.0, 0.0, 100.0, 300.0), class_id: 0, detection: 0,
-///     part: BoxPart::Whole, rule: Rule::Nhbc, verdict: Verdict::Dynamic, tracked: 9, outliers: 3 };
+///     part: BoxPart::Whole, rule: Rule::Nhbc, verdict: Verdict::Dynamic, tracked: 9, outliers: 3, depth: None };
 /// let chair = BoxState { bbox: BBox::new(50.0, 200.0, 150.0, 320.0), class_id: 56, detection: 1,
-///     part: BoxPart::Whole, rule: Rule::Ata, verdict: Verdict::Static, tracked: 10, outliers: 1 };
+///     part: BoxPart::Whole, rule: Rule::Ata, verdict: Verdict::Static, tracked: 10, outliers: 1, depth: None };
 /// let removed = cull(&[[20.0, 20.0], [80.0, 250.0], [400.0, 10.0]], &[person, chair]);
 /// assert_eq!(removed, vec![true, false, false]); // on the person / on the chair / elsewhere
 /// ```

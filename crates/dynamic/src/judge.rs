@@ -61,6 +61,9 @@ pub struct BoxState {
     pub tracked: usize,
     /// Of those, the geometric outliers.
     pub outliers: usize,
+    /// The moving object's depth for a dynamic box on an RGB-D frame (ours; filled by
+    /// [`crate::depth::estimate_object_depths`], `None` from [`judge_boxes`]).
+    pub depth: Option<crate::depth::ObjectDepth>,
 }
 
 impl BoxState {
@@ -106,6 +109,7 @@ pub fn judge_boxes(dets: &[Detection], pts: &[TrackedPoint], p: &JudgeParams) ->
                     verdict,
                     tracked,
                     outliers,
+                    depth: None,
                 });
             }
         } else {
@@ -128,6 +132,7 @@ pub fn judge_boxes(dets: &[Detection], pts: &[TrackedPoint], p: &JudgeParams) ->
                 verdict: ata_verdict(tracked, outliers, p),
                 tracked,
                 outliers,
+                depth: None,
             });
         }
     }

@@ -24,16 +24,18 @@
 //! where we follow the authors' code and where we deliberately differ.
 
 pub mod cull;
+pub mod depth;
 pub mod judge;
 pub mod motion_consistency;
 pub mod settings;
 
 pub use cull::{cull, cull_with, near_outliers};
+pub use depth::{DepthCullInput, ObjectDepth, cull_frame, cull_with_depth};
 pub use judge::{BoxPart, BoxState, Rule, Verdict, judge_boxes, nhbc_parts};
 pub use motion_consistency::{
     GeometryTimings, MotionCheck, MotionModel, TrackedPoint, motion_consistency,
 };
-pub use settings::{CullParams, DynamicSettings, GeometryParams, JudgeParams};
+pub use settings::{CullParams, DepthParams, DynamicSettings, GeometryParams, JudgeParams};
 
 #[cfg(test)]
 mod paper_cases;

@@ -1,6 +1,8 @@
 //! `stillpoint bench dynamic`: precision and recall of the dynamic-keypoint decision against the
 //! ground-truth masks of a synthetic sequence (`stillpoint synth --masks`), for our method
-//! (geometry + NHBC/ATA + culling), our method with the unknown-object option, a person-box-only
+//! (geometry + NHBC/ATA + culling, the paper's algorithm 3), the depth-aware culling for RGB-D
+//! (`ours_depth`, when the sequence has depth), our method with the unknown-object option, a
+//! person-box-only
 //! baseline (Crowd-SLAM: cull everything in person boxes) and a detection-free baseline
 //! (epipolar outliers only, dilated to a radius). Also times the geometry module per frame, as a
 //! ratio to ORB extraction of the same frames.
@@ -13,11 +15,11 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 use stillpoint_detect::{DetectInput, DetectSettings, GtDetectorParams, open_detector};
 use stillpoint_dynamic::{
-    CullParams, DynamicSettings, MotionModel, cull_with, judge_boxes, motion_consistency,
-    near_outliers,
+    CullParams, DynamicSettings, MotionModel, cull_frame, cull_with, judge_boxes,
+    motion_consistency, near_outliers,
 };
 use stillpoint_features::{OrbExtractor, OrbParams};
-use stillpoint_image::{Gray8, read_gray, read_rgb, rgb_to_gray};
+use stillpoint_image::{DepthMetres, Gray8, read_depth_metres, read_gray, read_rgb, rgb_to_gray};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -36,9 +38,32 @@ pub struct Args {
     /// that is partly the mover.
     #[arg(long, default_value_t = 0)]
     gt_radius: usize,
+    /// Depth-aware culling: half width of the band around the object's depth, at least (m).
+    #[arg(long)]
+    depth_band_m: Option<f32>,
+    /// Depth-aware culling: half width of the band, at least this share of the depth.
+    #[arg(long)]
+    depth_band_rel: Option<f32>,
+    /// Depth-aware culling: a keypoint's depth is the nearest within this many pixels.
+    #[arg(long)]
+    depth_window: Option<usize>,
+    /// Depth-aware culling: radius of the local rule around outliers, as a share of the square
+    /// root of the box's area (0: off).
+    #[arg(long)]
+    local_radius: Option<f32>,
+    /// Depth-aware culling: cull a seated person's dynamic part only around its outliers, not
+    /// whole at its depth.
+    #[arg(long)]
+    seated_local: bool,
+    /// Ignore the sequence's depth (ours_depth then equals ours).
+    #[arg(long)]
+    no_depth: bool,
     /// Use at most this many frames (0: all).
     #[arg(long, default_value_t = 0)]
     max_frames: usize,
+    /// Print the dynamic boxes of each frame with their estimated object depth.
+    #[arg(long)]
+    boxes: bool,
     /// Print one line per frame as well.
     #[arg(long)]
     per_frame: bool,
@@ -79,8 +104,9 @@ impl Counts {
     }
 }
 
-const METHODS: [&str; 6] = [
+const METHODS: [&str; 7] = [
     "ours",
+    "ours_depth",
     "ours+unknown",
     "ours_no_protect",
     "ours_ata_own_points",
@@ -117,6 +143,8 @@ struct Report {
     dataset: String,
     detector: String,
     frames: usize,
+    /// Frames that had a depth map (ours_depth is ours on the others).
+    depth_frames: usize,
     methods: Vec<MethodReport>,
     models: Vec<(MotionModel, usize)>,
     geometry_ms_mean: f64,
@@ -125,6 +153,64 @@ struct Report {
     orb_ms_mean: f64,
     geometry_over_orb: f64,
     per_frame: Vec<FrameReport>,
+}
+
+/// The depth maps of a TUM-layout sequence (depth.txt): (timestamp, path), sorted by time;
+/// empty when the sequence has none.
+fn read_depth_list(dir: &Path) -> anyhow::Result<Vec<(f64, PathBuf)>> {
+    let list = dir.join("depth.txt");
+    if !list.exists() {
+        return Ok(Vec::new());
+    }
+    let text = std::fs::read_to_string(&list)
+        .with_context(|| format!("{}: cannot read", list.display()))?;
+    let mut out = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let mut it = line.split_whitespace();
+        let (Some(t), Some(file)) = (it.next(), it.next()) else {
+            bail!("{}:{}: expected `timestamp file`", list.display(), n + 1);
+        };
+        let t: f64 = t
+            .parse()
+            .with_context(|| format!("{}:{}: bad timestamp {t:?}", list.display(), n + 1))?;
+        out.push((t, dir.join(file)));
+    }
+    out.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Ok(out)
+}
+
+/// The depth map nearest in time to `t` (within 0.02 s, the TUM tools' association), in metres.
+fn depth_for(list: &[(f64, PathBuf)], t: f64, factor: f32) -> anyhow::Result<Option<DepthMetres>> {
+    let Some((dt, path)) = list
+        .iter()
+        .map(|(s, p)| ((s - t).abs(), p))
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+    else {
+        return Ok(None);
+    };
+    if dt > 0.02 {
+        return Ok(None);
+    }
+    Ok(Some(read_depth_metres(path, factor).with_context(
+        || format!("{}: depth map", path.display()),
+    )?))
+}
+
+/// Depth units per metre from the sequence's settings.toml (`depth_factor`), TUM's 5000 without.
+fn depth_factor(dir: &Path) -> f32 {
+    std::fs::read_to_string(dir.join("settings.toml"))
+        .ok()
+        .and_then(|text| {
+            text.lines().find_map(|l| {
+                let (k, v) = l.split_once('=')?;
+                (k.trim() == "depth_factor").then(|| v.trim().parse::<f32>().ok())?
+            })
+        })
+        .unwrap_or(5000.0)
 }
 
 /// The frames of a TUM-layout sequence: (timestamp, rgb path, mask path).
@@ -189,7 +275,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         GtDetectorParams::default(),
     )
     .with_context(|| format!("detector {:?}", args.detector))?;
-    let settings = DynamicSettings::default();
+    let mut settings = DynamicSettings::default();
+    if let Some(v) = args.depth_band_m {
+        settings.depth.band_min_m = v;
+    }
+    if let Some(v) = args.depth_band_rel {
+        settings.depth.band_relative = v;
+    }
+    if let Some(v) = args.local_radius {
+        settings.depth.local_radius_fraction = v;
+    }
+    settings.depth.seated_parts_local = args.seated_local;
+    if let Some(v) = args.depth_window {
+        settings.depth.keypoint_window_px = v;
+    }
+    let depth_list = if args.no_depth {
+        Vec::new()
+    } else {
+        read_depth_list(&args.dataset)?
+    };
+    let factor = depth_factor(&args.dataset);
+    let mut depth_frames = 0usize;
     let no_protect = CullParams {
         static_box_protects: false,
         unknown_box_protects: false,
@@ -201,7 +307,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let mut orb = OrbExtractor::new(OrbParams::default());
 
-    let mut totals = [Counts::default(); 6];
+    let mut totals = [Counts::default(); METHODS.len()];
     let mut per_frame = Vec::new();
     let (mut geometry_ms, mut orb_ms) = (Vec::new(), Vec::new());
     let mut stages = [0.0f64; 4];
@@ -254,6 +360,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             })
             .with_context(|| format!("frame {index}: detector"))?;
         let states = judge_boxes(&dets, &check.points, &settings.judge);
+        let depth = depth_for(&depth_list, *t, factor).with_context(|| format!("frame {index}"))?;
+        depth_frames += usize::from(depth.is_some());
+        let mut depth_states = states.clone();
         let person = settings.judge.person_class;
         let own_judge = stillpoint_dynamic::JudgeParams {
             ata_ignores_person_points: true,
@@ -262,6 +371,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let own_states = judge_boxes(&dets, &check.points, &own_judge);
         let predictions = [
             cull_with(&kps, &states, &check.points, &settings.cull),
+            cull_frame(
+                &kps,
+                &mut depth_states,
+                &check.points,
+                depth.as_ref(),
+                &settings,
+            ),
             cull_with(&kps, &states, &check.points, &unknown),
             cull_with(&kps, &states, &check.points, &no_protect),
             cull_with(&kps, &own_states, &check.points, &settings.cull),
@@ -273,7 +389,32 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .collect(),
             near_outliers(&kps, &check.points, args.radius, 1),
         ];
-        let mut counts = [Counts::default(); 6];
+        if args.boxes && !args.json {
+            for b in depth_states.iter().filter(|b| b.is_dynamic()) {
+                println!(
+                    "frame {index:4} class {:3} {:?} {:?} box [{:.0} {:.0} {:.0} {:.0}] tracked {} outliers {} depth {}",
+                    b.class_id,
+                    b.part,
+                    b.rule,
+                    b.bbox.x1,
+                    b.bbox.y1,
+                    b.bbox.x2,
+                    b.bbox.y2,
+                    b.tracked,
+                    b.outliers,
+                    b.depth.map_or("-".to_string(), |o| format!(
+                        "{:.2} m [{:.2}, {:.2}] central {:.2} outliers {}/{}",
+                        o.metres,
+                        o.near,
+                        o.far,
+                        o.central_share,
+                        o.outliers_in_band,
+                        o.outliers_with_depth
+                    ))
+                );
+            }
+        }
+        let mut counts = [Counts::default(); METHODS.len()];
         for ((c, total), p) in counts.iter_mut().zip(&mut totals).zip(&predictions) {
             c.add(p, &truth);
             total.add(p, &truth);
@@ -316,6 +457,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         dataset: args.dataset.display().to_string(),
         detector: detector.name().to_string(),
         frames: per_frame.len(),
+        depth_frames,
         methods: METHODS
             .iter()
             .zip(&totals)
@@ -339,8 +481,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Ok(());
     }
     println!(
-        "{}: {} frames judged, detector {}",
-        report.dataset, report.frames, report.detector
+        "{}: {} frames judged ({} with depth), detector {}",
+        report.dataset, report.frames, report.depth_frames, report.detector
     );
     println!(
         "{:<20} {:>9} {:>9} {:>7} {:>7} {:>7}",

@@ -1,0 +1,556 @@
+//! Depth-aware culling for RGB-D frames (ours; the paper culls whole boxes).
+//!
+//! The paper's algorithm 3 removes every keypoint inside a dynamic box that is inside no static
+//! box. A person's box is about half background, so that caps precision near 0.5, and a static
+//! table, chair or screen box overlapping a walker protects the walker's own keypoints, which
+//! costs recall. With a depth map both can be told apart: a person is compact in depth.
+//!
+//! Rules ([`cull_with_depth`]), for a keypoint inside at least one dynamic box:
+//! - each dynamic box carries its moving object's depth ([`ObjectDepth`], from
+//!   [`object_depth`]): the depth with the best score "share of the box's central depth samples
+//!   within the band + w x (the box's geometric outliers within the band) / (outliers + k)"
+//!   ([`DepthParams::outlier_weight`], [`DepthParams::outlier_half_count`]: many outliers
+//!   outweigh the centre, a single one does not), refined to the median of the central samples
+//!   in that band;
+//! - the band is that depth ± max([`DepthParams::band_min_m`],
+//!   [`DepthParams::band_relative`] x depth);
+//! - a keypoint with a valid depth is culled when its depth lies in the band of a dynamic box
+//!   holding it, whatever static boxes also hold it (a chair or table at another depth keeps
+//!   its points, the person's points in the chair's box go), and kept when it lies outside every
+//!   such band (background seen past the person, a desk in front of it);
+//! - a keypoint without depth, or in a dynamic box whose depth could not be estimated (too few
+//!   valid samples), is judged by the paper's rule (culled unless a static box holds it).
+//!
+//! Keypoints in no dynamic box are kept, exactly as the paper (or handled by the unknown-object
+//! option of [`crate::cull_with`]).
+
+use crate::cull::cull_with;
+use crate::judge::{BoxPart, BoxState, Verdict};
+use crate::motion_consistency::TrackedPoint;
+use crate::settings::{CullParams, DepthParams, DynamicSettings};
+use serde::Serialize;
+use stillpoint_geometry::BBox;
+use stillpoint_image::DepthMetres;
+
+/// The estimated depth of the moving object in a dynamic box, and the evidence for it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ObjectDepth {
+    /// The object's depth, metres.
+    pub metres: f32,
+    /// Nearest depth still counted as the object.
+    pub near: f32,
+    /// Farthest depth still counted as the object.
+    pub far: f32,
+    /// Valid depth samples in the box's central region.
+    pub samples: usize,
+    /// Share of those samples inside the band.
+    pub central_share: f32,
+    /// Geometric outliers inside the box with a valid depth.
+    pub outliers_with_depth: usize,
+    /// Of those, the ones inside the band.
+    pub outliers_in_band: usize,
+}
+
+impl ObjectDepth {
+    /// True when `depth` lies in the object's band.
+    pub fn holds(&self, depth: f32) -> bool {
+        depth >= self.near && depth <= self.far
+    }
+}
+
+/// The band [near, far] around `depth`.
+pub fn depth_band(depth: f32, p: &DepthParams) -> (f32, f32) {
+    let half = p.band_min_m.max(p.band_relative * depth);
+    (depth - half, depth + half)
+}
+
+fn valid(d: f32, p: &DepthParams) -> bool {
+    d.is_finite() && d > p.min_valid_m
+}
+
+/// The nearest valid depth within `window` pixels of `at` (a (2 window + 1)² square), or 0.0 when
+/// none is valid or `at` is outside the image. Nearest, because a keypoint on a silhouette
+/// describes a patch that is partly the foreground object.
+///
+/// ```
+/// use stillpoint_dynamic::depth::depth_near;
+/// use stillpoint_image::DepthMetres;
+/// let mut d = DepthMetres::new(4, 4, 3.0);
+/// d.set(2, 1, 1.5);
+/// d.set(1, 1, 0.0); // no reading
+/// assert_eq!(depth_near(&d, [1.2, 1.4], 0, 0.05), 0.0);
+/// assert_eq!(depth_near(&d, [1.2, 1.4], 1, 0.05), 1.5);
+/// ```
+pub fn depth_near(depth: &DepthMetres, at: [f32; 2], window: usize, min_valid_m: f32) -> f32 {
+    if !(at[0].is_finite() && at[1].is_finite()) {
+        return 0.0;
+    }
+    let (x, y) = (at[0].round() as isize, at[1].round() as isize);
+    let w = window as isize;
+    let mut best = f32::INFINITY;
+    for dy in -w..=w {
+        for dx in -w..=w {
+            if let Some(d) = depth.get_checked(x + dx, y + dy)
+                && d.is_finite()
+                && d > min_valid_m
+            {
+                best = best.min(d);
+            }
+        }
+    }
+    if best.is_finite() { best } else { 0.0 }
+}
+
+/// Depth of each keypoint by [`depth_near`] with [`DepthParams::keypoint_window_px`]; 0.0 when
+/// missing.
+pub fn keypoint_depths(depth: &DepthMetres, keypoints: &[[f32; 2]], p: &DepthParams) -> Vec<f32> {
+    keypoints
+        .iter()
+        .map(|&k| depth_near(depth, k, p.keypoint_window_px, p.min_valid_m))
+        .collect()
+}
+
+/// Estimate the depth of the moving object in `bbox` (see the module docs); `None` when the
+/// box's central region has fewer than [`DepthParams::min_samples`] valid depths.
+pub fn object_depth(
+    bbox: &BBox,
+    tracked: &[TrackedPoint],
+    depth: &DepthMetres,
+    p: &DepthParams,
+) -> Option<ObjectDepth> {
+    let central = central_samples(bbox, depth, p);
+    if central.len() < p.min_samples.max(1) {
+        return None;
+    }
+    let mut outliers: Vec<f32> = tracked
+        .iter()
+        .filter(|t| t.outlier && bbox.contains_strict(t.cur[0], t.cur[1]))
+        .map(|t| depth_near(depth, t.cur, p.keypoint_window_px, p.min_valid_m))
+        .filter(|&d| valid(d, p))
+        .collect();
+    outliers.sort_by(f32::total_cmp);
+    let in_band = |sorted: &[f32], d: f32| {
+        let (near, far) = depth_band(d, p);
+        sorted.partition_point(|&v| v <= far) - sorted.partition_point(|&v| v < near)
+    };
+    let score = |d: f32| {
+        let c = in_band(&central, d) as f32 / central.len() as f32;
+        let o = if outliers.is_empty() {
+            0.0
+        } else {
+            in_band(&outliers, d) as f32 / (outliers.len() as f32 + p.outlier_half_count.max(0.0))
+        };
+        c + p.outlier_weight * o
+    };
+    // Candidates: the central samples (thinned to at most ~256) and the outliers' depths.
+    let step = (central.len() / 256).max(1);
+    let best = central
+        .iter()
+        .step_by(step)
+        .chain(&outliers)
+        .copied()
+        .map(|d| (score(d), d))
+        .fold(None::<(f32, f32)>, |acc, (s, d)| match acc {
+            // Ties go to the nearer depth: the mover is in front of what it hides.
+            Some((bs, bd)) if bs > s || (bs == s && bd <= d) => Some((bs, bd)),
+            _ => Some((s, d)),
+        })?
+        .1;
+    // Refine to the median of the central samples in the band (stable against the candidate's
+    // own noise).
+    let (near, far) = depth_band(best, p);
+    let lo = central.partition_point(|&v| v < near);
+    let hi = central.partition_point(|&v| v <= far);
+    let metres = if hi > lo {
+        central[(lo + hi) / 2]
+    } else {
+        best
+    };
+    let (near, far) = depth_band(metres, p);
+    let central_in = in_band(&central, metres);
+    Some(ObjectDepth {
+        metres,
+        near,
+        far,
+        samples: central.len(),
+        central_share: central_in as f32 / central.len() as f32,
+        outliers_with_depth: outliers.len(),
+        outliers_in_band: in_band(&outliers, metres),
+    })
+}
+
+/// Valid depths on a grid over the box's central region, sorted.
+fn central_samples(bbox: &BBox, depth: &DepthMetres, p: &DepthParams) -> Vec<f32> {
+    let (w, h) = (bbox.width(), bbox.height());
+    let overlaps = bbox.x2 > 0.0
+        && bbox.y2 > 0.0
+        && bbox.x1 < depth.width as f32
+        && bbox.y1 < depth.height as f32;
+    if !(w > 0.0 && h > 0.0 && overlaps) || depth.is_empty() {
+        return Vec::new();
+    }
+    let cx = (bbox.x1 + bbox.x2) / 2.0;
+    let cy = (bbox.y1 + bbox.y2) / 2.0;
+    let (hw, hh) = (
+        w * p.central_width.clamp(0.0, 1.0) / 2.0,
+        h * p.central_height.clamp(0.0, 1.0) / 2.0,
+    );
+    let clamp_x = |v: f32| v.clamp(0.0, depth.width as f32 - 1.0).round() as usize;
+    let clamp_y = |v: f32| v.clamp(0.0, depth.height as f32 - 1.0).round() as usize;
+    let (x1, x2, y1, y2) = (
+        clamp_x(cx - hw),
+        clamp_x(cx + hw),
+        clamp_y(cy - hh),
+        clamp_y(cy + hh),
+    );
+    let step = p.sample_step_px.max(1);
+    let mut samples = Vec::new();
+    for y in (y1..=y2).step_by(step) {
+        for x in (x1..=x2).step_by(step) {
+            let d = depth.get(x, y);
+            if valid(d, p) {
+                samples.push(d);
+            }
+        }
+    }
+    samples.sort_by(f32::total_cmp);
+    samples
+}
+
+/// Fill [`BoxState::depth`] of every dynamic box with [`object_depth`]; static boxes are left
+/// without one (their keypoints are never culled for their own sake).
+pub fn estimate_object_depths(
+    states: &mut [BoxState],
+    tracked: &[TrackedPoint],
+    depth: &DepthMetres,
+    p: &DepthParams,
+) {
+    for s in states.iter_mut() {
+        s.depth = if s.verdict == Verdict::Dynamic {
+            object_depth(&s.bbox, tracked, depth, p)
+        } else {
+            None
+        };
+    }
+}
+
+/// A point (pixels) and its depth (metres).
+type DepthPoint = ([f32; 2], f32);
+
+/// Everything [`cull_with_depth`] reads for one frame. Depths are metres; 0, negative or not
+/// finite means missing, and a slice shorter than its points counts the rest as missing.
+#[derive(Clone, Copy, Debug)]
+pub struct DepthCullInput<'a> {
+    /// Keypoints of the current frame (level-0 pixels).
+    pub keypoints: &'a [[f32; 2]],
+    /// Depth of each keypoint ([`keypoint_depths`]).
+    pub keypoint_depths: &'a [f32],
+    /// The judged boxes; dynamic ones with [`BoxState::depth`] from [`estimate_object_depths`]
+    /// (those without fall back to the paper's rule).
+    pub states: &'a [BoxState],
+    /// The geometry module's points (for the local rule and the unknown-object option).
+    pub tracked: &'a [TrackedPoint],
+    /// Depth of each tracked point at its current position.
+    pub tracked_depths: &'a [f32],
+}
+
+/// Depth-aware culling (rules in the module docs): `true` = dynamic, remove.
+///
+/// ```
+/// use stillpoint_dynamic::depth::{DepthCullInput, ObjectDepth, cull_with_depth};
+/// use stillpoint_dynamic::{BoxPart, BoxState, CullParams, DepthParams, Rule, Verdict};
+/// use stillpoint_geometry::BBox;
+/// let person_depth = ObjectDepth { metres: 2.0, near: 1.6, far: 2.4, samples: 100,
+///     central_share: 0.8, outliers_with_depth: 5, outliers_in_band: 5 };
+/// let person = BoxState { bbox: BBox::new(0.0, 0.0, 100.0, 300.0), class_id: 0, detection: 0,
+///     part: BoxPart::Whole, rule: Rule::Nhbc, verdict: Verdict::Dynamic, tracked: 9, outliers: 5,
+///     depth: Some(person_depth) };
+/// let input = DepthCullInput { keypoints: &[[50.0, 50.0], [10.0, 10.0], [20.0, 20.0]],
+///     keypoint_depths: &[2.1, 4.0, 0.0], states: &[person], tracked: &[], tracked_depths: &[] };
+/// let removed = cull_with_depth(&input, &CullParams::default(), &DepthParams::default());
+/// assert_eq!(removed, vec![true, false, true]); // on the person / wall behind / no depth
+/// ```
+pub fn cull_with_depth(input: &DepthCullInput, cull: &CullParams, p: &DepthParams) -> Vec<bool> {
+    let DepthCullInput {
+        keypoints,
+        keypoint_depths,
+        states,
+        tracked,
+        tracked_depths,
+    } = *input;
+    let paper = cull_with(keypoints, states, tracked, cull);
+    let protects = |s: &BoxState| match s.verdict {
+        Verdict::Static => cull.static_box_protects,
+        Verdict::StaticUnknown => cull.unknown_box_protects,
+        Verdict::Dynamic => false,
+    };
+    // Per state: the outliers inside it with a valid depth, and the local radius.
+    let local: Vec<(Vec<DepthPoint>, f32)> = states
+        .iter()
+        .map(|s| {
+            if !s.is_dynamic() || p.local_radius_fraction <= 0.0 {
+                return (Vec::new(), 0.0);
+            }
+            let pts = tracked
+                .iter()
+                .enumerate()
+                .filter(|(_, t)| t.outlier && s.bbox.contains_strict(t.cur[0], t.cur[1]))
+                .filter_map(|(j, t)| {
+                    // Outliers behind the object are background near its silhouette (covered
+                    // or uncovered as it moves): not evidence of a part of the object.
+                    let d = tracked_depths.get(j).copied().unwrap_or(0.0);
+                    let far = s.depth.map_or(f32::INFINITY, |o| o.far);
+                    (valid(d, p) && d <= far).then_some((t.cur, d))
+                })
+                .collect();
+            let radius = p.local_radius_fraction * (s.bbox.area().max(0.0)).sqrt();
+            (pts, radius)
+        })
+        .collect();
+    keypoints
+        .iter()
+        .enumerate()
+        .map(|(i, &[x, y])| {
+            let inside = |s: &BoxState| s.bbox.contains_strict(x, y);
+            let mut dynamic = states
+                .iter()
+                .zip(&local)
+                .filter(|(s, _)| inside(s) && s.is_dynamic())
+                .peekable();
+            if dynamic.peek().is_none() {
+                // In no dynamic box: the paper's decision (kept, or the unknown-object option).
+                return paper[i];
+            }
+            let d = keypoint_depths.get(i).copied().unwrap_or(0.0);
+            let protected = || states.iter().filter(|s| inside(s)).any(protects);
+            dynamic.any(|(s, (outliers, radius))| match s.depth {
+                Some(o) if valid(d, p) => {
+                    let whole = !(p.seated_parts_local && s.part != BoxPart::Whole);
+                    let near_outlier = || {
+                        outliers.iter().any(|&(at, od)| {
+                            let (near, far) = depth_band(od, p);
+                            let (dx, dy) = (at[0] - x, at[1] - y);
+                            d >= near && d <= far && dx * dx + dy * dy <= radius * radius
+                        })
+                    };
+                    (whole && o.holds(d)) || near_outlier()
+                }
+                _ => !protected(),
+            })
+        })
+        .collect()
+}
+
+/// The whole culling step for one frame: depth-aware when `depth` is given and
+/// [`DepthParams::enabled`], the paper's algorithm 3 otherwise. Fills [`BoxState::depth`] of the
+/// dynamic boxes as a side result (why a keypoint was kept or culled).
+pub fn cull_frame(
+    keypoints: &[[f32; 2]],
+    states: &mut [BoxState],
+    tracked: &[TrackedPoint],
+    depth: Option<&DepthMetres>,
+    s: &DynamicSettings,
+) -> Vec<bool> {
+    match depth {
+        Some(depth) if s.depth.enabled && !depth.is_empty() => {
+            estimate_object_depths(states, tracked, depth, &s.depth);
+            let depths = keypoint_depths(depth, keypoints, &s.depth);
+            let cur: Vec<[f32; 2]> = tracked.iter().map(|t| t.cur).collect();
+            let tracked_depths = keypoint_depths(depth, &cur, &s.depth);
+            let input = DepthCullInput {
+                keypoints,
+                keypoint_depths: &depths,
+                states,
+                tracked,
+                tracked_depths: &tracked_depths,
+            };
+            cull_with_depth(&input, &s.cull, &s.depth)
+        }
+        _ => cull_with(keypoints, states, tracked, &s.cull),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::judge::judge_boxes;
+    use crate::settings::JudgeParams;
+    use stillpoint_detect::Detection;
+
+    const PERSON: u16 = 0;
+    const CHAIR: u16 = 56;
+
+    fn det(class_id: u16, x1: f32, y1: f32, x2: f32, y2: f32) -> Detection {
+        Detection {
+            class_id,
+            score: 0.9,
+            bbox: BBox::new(x1, y1, x2, y2),
+        }
+    }
+
+    fn pt(x: f32, y: f32, outlier: bool) -> TrackedPoint {
+        TrackedPoint {
+            prev: [x, y],
+            cur: [x, y],
+            epipolar_distance: if outlier { 3.0 } else { 0.2 },
+            outlier,
+        }
+    }
+
+    /// A depth map at `background` metres with rectangles [x1, y1, x2, y2] painted at a depth,
+    /// back to front.
+    fn depth_map(background: f32, rects: &[([usize; 4], f32)]) -> DepthMetres {
+        let mut d = DepthMetres::new(640, 480, background);
+        for &([x1, y1, x2, y2], z) in rects {
+            for y in y1..y2 {
+                for x in x1..x2 {
+                    d.set(x, y, z);
+                }
+            }
+        }
+        d
+    }
+
+    fn settings() -> DynamicSettings {
+        DynamicSettings::default()
+    }
+
+    #[test]
+    fn person_in_front_of_a_wall_keeps_the_wall_points_in_its_box() {
+        // Box 120 x 400 (standing); the body is the middle 80 px at 2 m, the wall at 4 m.
+        let person = det(PERSON, 240.0, 40.0, 360.0, 440.0);
+        let depth = depth_map(4.0, &[([260, 60, 340, 440], 2.0)]);
+        let tracked = [pt(300.0, 200.0, true), pt(320.0, 300.0, true)];
+        let mut states = judge_boxes(&[person], &tracked, &JudgeParams::default());
+        let keypoints = [
+            [300.0, 100.0], // chest: culled
+            [270.0, 400.0], // leg: culled
+            [245.0, 100.0], // wall seen beside the body, inside the box: kept
+            [355.0, 420.0], // wall, inside the box: kept
+            [500.0, 100.0], // wall outside the box: kept
+        ];
+        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &settings());
+        assert_eq!(removed, vec![true, true, false, false, false]);
+        let o = states[0].depth.expect("object depth");
+        assert!((o.metres - 2.0).abs() < 1e-6 && o.holds(2.35) && !o.holds(2.5));
+        assert_eq!((o.outliers_with_depth, o.outliers_in_band), (2, 2));
+        // The paper's rule culls the whole box.
+        let paper = cull_with(&keypoints, &states, &tracked, &CullParams::default());
+        assert_eq!(paper, vec![true, true, true, true, false]);
+    }
+
+    #[test]
+    fn chair_in_front_of_a_walker_keeps_its_points_the_walker_loses_his() {
+        // Walker at 3 m, body 260..340; a chair at 2 m in front of his legs; wall at 5 m.
+        // The chair's box is wider than its silhouette, as detector boxes are.
+        let walker = det(PERSON, 230.0, 40.0, 360.0, 460.0);
+        let chair = det(CHAIR, 180.0, 300.0, 330.0, 470.0);
+        let depth = depth_map(
+            5.0,
+            &[([260, 50, 340, 460], 3.0), ([180, 320, 300, 470], 2.0)],
+        );
+        let mut tracked: Vec<TrackedPoint> = (0..12)
+            .map(|i| pt(190.0 + 12.0 * i as f32, 380.0, false))
+            .filter(|t| t.cur[0] < 330.0)
+            .collect();
+        tracked.extend([pt(300.0, 100.0, true), pt(290.0, 200.0, true)]);
+        let mut states = judge_boxes(&[walker, chair], &tracked, &JudgeParams::default());
+        assert_eq!(states[0].verdict, Verdict::Dynamic);
+        assert_eq!(states[1].verdict, Verdict::Static);
+        let keypoints = [
+            [300.0, 150.0], // walker's torso: culled
+            [250.0, 400.0], // chair, in both boxes: kept (at 2 m, not the walker's 3 m)
+            [320.0, 330.0], // walker's leg beside the chair, in the chair's box: culled
+            [355.0, 200.0], // wall inside the walker's box: kept
+        ];
+        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &settings());
+        assert_eq!(removed, vec![true, false, true, false]);
+        // The paper: the chair box protects the leg too, and the wall is culled.
+        let paper = cull_with(&keypoints, &states, &tracked, &CullParams::default());
+        assert_eq!(paper, vec![true, false, false, true]);
+    }
+
+    #[test]
+    fn missing_depth_falls_back_to_the_paper() {
+        let walker = det(PERSON, 200.0, 40.0, 300.0, 440.0);
+        let chair = det(CHAIR, 200.0, 300.0, 300.0, 440.0);
+        let mut depth = depth_map(4.0, &[([220, 40, 280, 440], 2.0)]);
+        for y in 90..110 {
+            for x in 240..260 {
+                depth.set(x, y, 0.0); // a hole in the Kinect's reading
+            }
+        }
+        for y in 348..353 {
+            for x in 248..253 {
+                depth.set(x, y, f32::NAN);
+            }
+        }
+        let tracked = [pt(250.0, 200.0, true)];
+        let mut states = judge_boxes(&[walker, chair], &tracked, &JudgeParams::default());
+        let keypoints = [[250.0, 100.0], [250.0, 350.0], [210.0, 100.0]];
+        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &settings());
+        // hole on the body: culled; NaN inside the static chair box: protected; wall: kept
+        assert_eq!(removed, vec![true, false, false]);
+
+        // No valid depth at all in the box: no estimate, the paper's rule for every keypoint.
+        let blank = DepthMetres::new(640, 480, 0.0);
+        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&blank), &settings());
+        assert!(states[0].depth.is_none());
+        assert_eq!(
+            removed,
+            cull_with(&keypoints, &states, &tracked, &CullParams::default())
+        );
+        // Depth switched off: the paper exactly, even with a good depth map.
+        let mut off = settings();
+        off.depth.enabled = false;
+        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &off);
+        assert_eq!(removed, vec![true, false, true]);
+        // A depth slice shorter than the keypoints counts the rest as missing.
+        let input = DepthCullInput {
+            keypoints: &keypoints,
+            keypoint_depths: &[],
+            states: &states,
+            tracked: &tracked,
+            tracked_depths: &[],
+        };
+        let short = cull_with_depth(&input, &CullParams::default(), &off.depth);
+        assert_eq!(short, vec![true, false, true]);
+    }
+
+    #[test]
+    fn the_outliers_pick_the_object_when_the_centre_is_mostly_background() {
+        // A thin person (40 px at 2 m) in a wide box: the central samples are mostly wall at 4 m,
+        // but the outliers sit on the person.
+        let bbox = BBox::new(100.0, 40.0, 400.0, 440.0);
+        let depth = depth_map(4.0, &[([230, 40, 270, 440], 2.0)]);
+        let tracked: Vec<TrackedPoint> = (0..5)
+            .map(|i| pt(250.0, 100.0 + 50.0 * i as f32, true))
+            .chain([pt(150.0, 200.0, false), pt(380.0, 100.0, true)]) // one bad track on the wall
+            .collect();
+        let o = object_depth(&bbox, &tracked, &depth, &DepthParams::default()).expect("depth");
+        assert!(o.central_share < 0.5, "{o:?}");
+        assert_eq!(o.metres, 2.0);
+        assert_eq!((o.outliers_with_depth, o.outliers_in_band), (6, 5));
+        // Without outliers the centre's mode wins: the wall.
+        let none = object_depth(&bbox, &[], &depth, &DepthParams::default()).expect("depth");
+        assert_eq!(none.metres, 4.0);
+        // Degenerate boxes give no estimate, never a panic.
+        for b in [
+            BBox::new(f32::NAN, 0.0, 10.0, 10.0),
+            BBox::new(50.0, 50.0, 10.0, 10.0),
+            BBox::new(-500.0, -500.0, -400.0, -400.0),
+        ] {
+            assert!(object_depth(&b, &tracked, &depth, &DepthParams::default()).is_none());
+        }
+    }
+
+    #[test]
+    fn band_grows_with_depth() {
+        let p = DepthParams::default();
+        assert_eq!(depth_band(1.0, &p), (0.6, 1.4));
+        let (near, far) = depth_band(4.0, &p);
+        let (n2, f2) = depth_band(8.0, &p);
+        assert!((near - 3.6).abs() < 1e-5 && (far - 4.4).abs() < 1e-5);
+        assert!((n2 - 7.2).abs() < 1e-5 && (f2 - 8.8).abs() < 1e-5);
+    }
+}
