@@ -347,6 +347,10 @@ fn seated_pose(t: f64, phase: f64) -> Pose {
     let e1 = burst(t, 6.0, phase);
     let e2 = burst(t, 4.3, phase + 1.3);
     let eh = burst(t, 5.1, phase + 2.1);
+    // Arms rest with the forearms level on the desk (shoulder + elbow >= ~1.65 rad keeps the
+    // hands at or above the desk top); bursts raise and wave them (typing, gesturing,
+    // reaching), as the people in TUM fr3 sitting_* do.
+    let wave = |period: f64, ph: f64| 0.5 + 0.5 * (TAU * t / period + ph).sin();
     Pose {
         pelvis: 0.5,
         torso_pitch: -0.06,
@@ -354,16 +358,16 @@ fn seated_pose(t: f64, phase: f64) -> Pose {
         head_yaw: 0.5 * eh * (TAU * t / 2.7 + phase).sin(),
         head_pitch: 0.08 + 0.15 * eh * (TAU * t / 1.9).sin(),
         shoulder: [
-            0.45 + e1 * (0.5 + 0.45 * (TAU * t / 1.7 + phase).sin()),
-            0.45 + e2 * (0.6 + 0.5 * (TAU * t / 1.3 + phase).sin()),
+            0.5 + e1 * 0.8 * wave(1.7, phase),
+            0.5 + e2 * 0.9 * wave(1.3, phase),
         ],
         shoulder_out: [
             0.12 + 0.2 * e1,
             0.12 + 0.25 * e2 * (TAU * t / 2.1).sin().abs(),
         ],
         elbow: [
-            1.1 + e1 * 0.5 * (TAU * t / 1.1).sin(),
-            1.1 + e2 * 0.6 * (TAU * t / 0.9 + 1.0).sin(),
+            1.2 + e1 * 0.5 * wave(1.1, 0.0),
+            1.2 + e2 * 0.6 * wave(0.9, 1.0),
         ],
         hip: [FRAC_PI_2, FRAC_PI_2],
         knee: [FRAC_PI_2, FRAC_PI_2],
