@@ -1,8 +1,7 @@
 //! FAST-9 (16-pixel circle) corners with OpenCV's score and 3x3 non-maximum suppression.
 //!
-//! The rejection test runs 32 pixels at a time (every corner has, for each of the 8 opposite
-//! pairs on the circle, at least one pixel brighter than centre + t, or darker than centre - t,
-//! the same pre-test OpenCV uses); the full arc test and the score run only on survivors.
+//! The full segment test runs 32 pixels at a time as byte masks (blocks where no pixel passes
+//! the opposite-pairs pre-test are skipped); the score runs only on true corners.
 
 use crate::imgops::simd_fn;
 use stillpoint_image::Gray8;
@@ -35,17 +34,49 @@ pub(crate) struct Corner {
     pub score: u8,
 }
 
-/// Full segment test and score of pixel at `idx` (score 0 = not a corner at `t`).
+/// Score of a pixel known to be a corner: the largest margin over the 16 arcs of 9 of the
+/// smallest |difference| on the arc (bright or dark), minus one (OpenCV's convention). Sliding
+/// minima on fixed 32-lane arrays, so LLVM runs it as a handful of vector ops.
 #[inline]
+fn corner_score(data: &[u8], idx: usize, offsets: &[isize; 16]) -> u8 {
+    let c = data[idx] as i16;
+    let mut d = [0i16; 32];
+    for k in 0..16 {
+        let v = data[(idx as isize + offsets[k]) as usize] as i16 - c;
+        d[k] = v;
+        d[k + 16] = v;
+    }
+    // min / max of d[k..k + 9] for every k by doubling windows: 2, 4, 8, then + 1
+    let (mut lo, mut hi) = ([0i16; 32], [0i16; 32]);
+    for i in 0..31 {
+        lo[i] = d[i].min(d[i + 1]);
+        hi[i] = d[i].max(d[i + 1]);
+    }
+    for step in [2usize, 4] {
+        let (l0, h0) = (lo, hi);
+        for i in 0..32 - step {
+            lo[i] = l0[i].min(l0[i + step]);
+            hi[i] = h0[i].max(h0[i + step]);
+        }
+    }
+    let mut best = 0i16;
+    for k in 0..16 {
+        let mn = lo[k].min(d[k + 8]);
+        let mx = hi[k].max(d[k + 8]);
+        best = best.max(mn).max(-mx);
+    }
+    (best - 1).clamp(1, 255) as u8
+}
+
+/// Full segment test and score of pixel at `idx` (score 0 = not a corner at `t`).
+#[cfg(test)]
 fn score_at(data: &[u8], idx: usize, offsets: &[isize; 16], t: u8) -> u8 {
     let c = data[idx] as i32;
-    let mut d = [0i32; 16];
     let (mut bright, mut dark) = (0u32, 0u32);
     for k in 0..16 {
-        let p = data[(idx as isize + offsets[k]) as usize] as i32;
-        d[k] = p - c;
-        bright |= ((d[k] > t as i32) as u32) << k;
-        dark |= ((d[k] < -(t as i32)) as u32) << k;
+        let d = data[(idx as isize + offsets[k]) as usize] as i32 - c;
+        bright |= ((d > t as i32) as u32) << k;
+        dark |= ((d < -(t as i32)) as u32) << k;
     }
     let has_arc = |m: u32| {
         let m = m | (m << 16);
@@ -58,67 +89,100 @@ fn score_at(data: &[u8], idx: usize, offsets: &[isize; 16], t: u8) -> u8 {
     if !has_arc(bright) && !has_arc(dark) {
         return 0;
     }
-    // score: best over the 16 arcs of 9 of the smallest margin, minus one (OpenCV's convention)
-    let mut best = 0i32;
+    corner_score(data, idx, offsets)
+}
+
+/// Lanes processed together by the row test (one AVX2 register of bytes).
+const L: usize = 32;
+
+/// Per lane: 0xFF where 9 contiguous of the 16 circle masks `m` are set (cyclically).
+#[inline(always)]
+fn arc9(m: &[[u8; L]; 16]) -> [u8; L] {
+    let mut a1 = [[0u8; L]; 16];
     for k in 0..16 {
-        let (mut lo_b, mut lo_d) = (i32::MAX, i32::MAX);
-        for i in 0..9 {
-            let v = d[(k + i) & 15];
-            lo_b = lo_b.min(v);
-            lo_d = lo_d.min(-v);
+        for j in 0..L {
+            a1[k][j] = m[k][j] & m[(k + 1) & 15][j];
         }
-        best = best.max(lo_b).max(lo_d);
     }
-    (best - 1).clamp(1, 255) as u8
+    let mut a2 = [[0u8; L]; 16];
+    for k in 0..16 {
+        for j in 0..L {
+            a2[k][j] = a1[k][j] & a1[(k + 2) & 15][j];
+        }
+    }
+    let mut out = [0u8; L];
+    for k in 0..16 {
+        for j in 0..L {
+            out[j] |= a2[k][j] & a2[(k + 4) & 15][j] & m[(k + 8) & 15][j];
+        }
+    }
+    out
 }
 
 simd_fn! {
-/// Mark pixels of row `y`, columns `x0..x1`, that pass the opposite-pairs pre-test.
-fn pretest_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<u8>) {
+/// Mark pixels of row `y`, columns `x0..x1`, that are FAST corners at threshold `t` (full
+/// segment test, 32 pixels at a time; blocks where no pixel passes the opposite-pairs pre-test
+/// are skipped).
+fn corner_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<u8>) {
     let w = img.width;
     let n = x1 - x0;
     out.clear();
-    out.resize(n, 0);
+    out.resize(n.div_ceil(L) * L, 0);
     let base = y * w + x0;
-    let center = &img.data[base..base + n];
-    let circ: [&[u8]; 16] = std::array::from_fn(|k| {
-        let (dx, dy) = CIRCLE[k];
-        let start = (base as isize + dy * w as isize + dx) as usize;
-        &img.data[start..start + n]
-    });
-    const L: usize = 32;
+    let offsets: [isize; 16] = std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
     let mut i = 0;
-    while i + L <= n {
-        let c: &[u8; L] = center[i..i + L].try_into().unwrap_or(&[0; L]);
-        let p: [&[u8; L]; 16] =
-            std::array::from_fn(|k| circ[k][i..i + L].try_into().unwrap_or(&[0; L]));
-        let o: &mut [u8; L] = (&mut out[i..i + L]).try_into().unwrap_or_else(|_| unreachable!());
-        for j in 0..L {
-            let hi = c[j].saturating_add(t);
-            let lo = c[j].saturating_sub(t);
-            let mut b = 1u8;
-            let mut d = 1u8;
-            for k in 0..8 {
-                let (a, q) = (p[k][j], p[k + 8][j]);
-                b &= ((a > hi) | (q > hi)) as u8;
-                d &= ((a < lo) | (q < lo)) as u8;
+    while i < n {
+        let lanes = L.min(n - i);
+        let mut c = [0u8; L];
+        let mut p = [[0u8; L]; 16];
+        if lanes == L {
+            c.copy_from_slice(&img.data[base + i..base + i + L]);
+            for k in 0..16 {
+                let s = (base as isize + i as isize + offsets[k]) as usize;
+                p[k].copy_from_slice(&img.data[s..s + L]);
             }
-            o[j] = b | d;
+        } else {
+            // the row's tail: copy what is there, the rest of the lanes stay flat (no corner)
+            c[..lanes].copy_from_slice(&img.data[base + i..base + i + lanes]);
+            for k in 0..16 {
+                let s = (base as isize + i as isize + offsets[k]) as usize;
+                p[k][..lanes].copy_from_slice(&img.data[s..s + lanes]);
+            }
+        }
+        let mut hi = [0u8; L];
+        let mut lo = [0u8; L];
+        for j in 0..L {
+            hi[j] = c[j].saturating_add(t);
+            lo[j] = c[j].saturating_sub(t);
+        }
+        let mut bright = [[0u8; L]; 16];
+        let mut dark = [[0u8; L]; 16];
+        for k in 0..16 {
+            for j in 0..L {
+                bright[k][j] = ((p[k][j] > hi[j]) as u8).wrapping_neg();
+                dark[k][j] = ((p[k][j] < lo[j]) as u8).wrapping_neg();
+            }
+        }
+        // a 9-arc holds one pixel of every opposite pair: cheap block rejection
+        let mut any = 0u8;
+        for j in 0..L {
+            let (mut b, mut d) = (0xFFu8, 0xFFu8);
+            for k in 0..8 {
+                b &= bright[k][j] | bright[k + 8][j];
+                d &= dark[k][j] | dark[k + 8][j];
+            }
+            any |= b | d;
+        }
+        if any != 0 {
+            let (b, d) = (arc9(&bright), arc9(&dark));
+            let o = &mut out[i..i + L];
+            for j in 0..L {
+                o[j] = b[j] | d[j];
+            }
         }
         i += L;
     }
-    for j in i..n {
-        let hi = center[j].saturating_add(t);
-        let lo = center[j].saturating_sub(t);
-        let mut b = true;
-        let mut d = true;
-        for k in 0..8 {
-            let (a, q) = (circ[k][j], circ[k + 8][j]);
-            b &= (a > hi) | (q > hi);
-            d &= (a < lo) | (q < lo);
-        }
-        out[j] = (b | d) as u8;
-    }
+    out.truncate(n);
 }
 }
 
@@ -147,10 +211,10 @@ pub(crate) fn detect(img: &Gray8, rect: [usize; 4], t: u8, out: &mut Vec<Corner>
         if y < y0 || y >= y1 {
             return;
         }
-        pretest_row(img, y, x0, x1, t, &mut mask);
+        corner_row(img, y, x0, x1, t, &mut mask);
         for (j, &m) in mask.iter().enumerate() {
             if m != 0 {
-                row[j + 1] = score_at(&img.data, y * w + x0 + j, &offsets, t);
+                row[j + 1] = corner_score(&img.data, y * w + x0 + j, &offsets);
             }
         }
     };
@@ -218,6 +282,42 @@ mod tests {
             }
         }
         v
+    }
+
+    /// The score by its definition: best over the 16 arcs of 9 of the smallest margin, minus one.
+    fn naive_score(data: &[u8], idx: usize, offsets: &[isize; 16]) -> u8 {
+        let c = data[idx] as i32;
+        let d: Vec<i32> = (0..16)
+            .map(|k| data[(idx as isize + offsets[k]) as usize] as i32 - c)
+            .collect();
+        let mut best = 0i32;
+        for k in 0..16 {
+            let arc = (0..9).map(|i| d[(k + i) & 15]);
+            best = best.max(arc.clone().min().unwrap_or(0));
+            best = best.max(-arc.max().unwrap_or(0));
+        }
+        (best - 1).clamp(1, 255) as u8
+    }
+
+    #[test]
+    fn sliding_window_score_matches_its_definition() {
+        let (w, h) = (40, 30);
+        let mut img = Gray8::new(w, h, 0);
+        let mut s = 987u32;
+        for v in img.data.iter_mut() {
+            s = s.wrapping_mul(1664525).wrapping_add(1013904223);
+            *v = (s >> 24) as u8;
+        }
+        let offsets: [isize; 16] = std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
+        for y in 3..h - 3 {
+            for x in 3..w - 3 {
+                let i = y * w + x;
+                assert_eq!(
+                    corner_score(&img.data, i, &offsets),
+                    naive_score(&img.data, i, &offsets)
+                );
+            }
+        }
     }
 
     #[test]
