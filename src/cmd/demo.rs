@@ -62,6 +62,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         sequential: true,
         frames: None,
         progress: true,
+        paper_cull: false,
     };
     tracing::info!("run 1/2: dynamic front-end off");
     let off = run_sequence(&base)?;

@@ -33,6 +33,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 sequential: true,
                 frames: args.frames,
                 progress: true,
+                paper_cull: false,
             })?;
             let acc = accuracy(&s);
             rows.push(serde_json::json!({
