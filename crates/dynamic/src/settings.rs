@@ -51,10 +51,11 @@ pub struct GeometryParams {
     /// mover gives 0.91, a translating one with a 24 % near box 0.63 — see the tests).
     /// Values above 1 disable the fallback whenever F exists.
     pub homography_support_ratio: f64,
-    /// The camera counts as still, and the homography is used whatever F explains, when 90 % of
-    /// the homography's inliers moved less than this many pixels (ours; default 1.0 px, the
-    /// outlier threshold: parallax cannot exceed the flow of the nearest static point). This
-    /// catches a static camera watching a large rigid mover, which the ratio above cannot.
+    /// The camera counts as still, and the homography is used whatever F explains, when the
+    /// points that moved less than this many pixels number at least 90 % of the homography's
+    /// inliers (ours; default 1.0 px, the outlier threshold: parallax cannot exceed the flow of
+    /// the nearest static point). This catches a static camera watching large movers, which the
+    /// ratio above cannot.
     pub still_camera_flow_px: f64,
     /// Fewest pairs for the last fallback, the flow relative to the median flow (ours).
     pub min_points_flow: usize,
