@@ -248,69 +248,96 @@ pub fn corner_sub_pix(
     }
     let win = half_window as isize;
     let side = 2 * half_window + 1;
-    let ps = side + 2; // sampled patch with a 1-pixel margin for the gradients
+    // gradient lanes per row (side, padded to whole vectors) and the patch row stride: the
+    // patch has side + 2 rows and every gradient lane j reads patch columns j..=j + 2
+    let gw = side.div_ceil(8) * 8;
+    let pst = gw + 8;
+    let ps = side + 2;
     let coeff = 1.0 / (half_window * half_window) as f32;
     let mask_1d: Vec<f32> = (-win..=win).map(|i| (-(i * i) as f32 * coeff).exp()).collect();
-    let mut patch = vec![0f32; ps * ps];
+    // Gaussian weights per lane (zero on the padding lanes) and the lane's x offset
+    let mut weight = vec![0f32; side * gw];
+    for i in 0..side {
+        for j in 0..side {
+            weight[i * gw + j] = mask_1d[i] * mask_1d[j];
+        }
+    }
+    let px: Vec<f32> = (0..gw).map(|j| j as f32 - win as f32).collect();
+    let mut patch = vec![0f32; ps * pst];
+    let mut acc = vec![[0f32; 8]; 5 * gw / 8];
     let eps2 = (epsilon * epsilon) as f64;
     let (w, h) = (img.width as f32, img.height as f32);
     for pt in pts.iter_mut() {
         let start = *pt;
         let mut c = *pt;
         for _ in 0..max_iterations.max(1) {
-            // sample the (side + 2)² patch centred on c
+            // sample the patch centred on c (1-pixel margin for the gradients)
             let (ox, oy) = (c[0] - (half_window + 1) as f32, c[1] - (half_window + 1) as f32);
             let (fx, fy) = (ox.floor(), oy.floor());
             let (ix, iy) = (fx as isize, fy as isize);
             let (a, b) = (ox - fx, oy - fy);
             let inside = ix >= 0
                 && iy >= 0
-                && ix + (ps as isize) < img.width as isize
+                && ix + (pst as isize) < img.width as isize
                 && iy + (ps as isize) < img.height as isize;
             if inside {
-                let (w00, w01, w10, w11) = ((1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b);
+                let wts = [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b];
                 for r in 0..ps {
                     let base = (iy as usize + r) * img.width + ix as usize;
-                    let r0 = &img.data[base..base + ps + 1];
-                    let r1 = &img.data[base + img.width..base + img.width + ps + 1];
-                    let out = &mut patch[r * ps..(r + 1) * ps];
-                    for x in 0..ps {
-                        out[x] = w00 * r0[x] as f32
-                            + w01 * r0[x + 1] as f32
-                            + w10 * r1[x] as f32
-                            + w11 * r1[x + 1] as f32;
+                    let r0 = &img.data[base..base + pst + 1];
+                    let r1 = &img.data[base + img.width..base + img.width + pst + 1];
+                    let out = &mut patch[r * pst..(r + 1) * pst];
+                    for k in 0..pst / 8 {
+                        let v = bilinear8_u8(r0, r1, k * 8, wts);
+                        out[k * 8..k * 8 + 8].copy_from_slice(&v);
                     }
                 }
             } else {
                 for r in 0..ps {
-                    for x in 0..ps {
-                        patch[r * ps + x] = sample_clamped(img, ox + x as f32, oy + r as f32);
+                    for x in 0..pst {
+                        patch[r * pst + x] = sample_clamped(img, ox + x as f32, oy + r as f32);
                     }
                 }
             }
-            let (mut sa, mut sb, mut sc, mut bb1, mut bb2) = (0f64, 0f64, 0f64, 0f64, 0f64);
+            // per-lane sums of gxx, gxy, gyy, gxx px + gxy py, gxy px + gyy py
+            acc.iter_mut().for_each(|v| *v = [0.0; 8]);
             for i in 0..side {
                 let py = i as f32 - win as f32;
-                let (mut ra, mut rb, mut rc, mut r1, mut r2) = (0f32, 0f32, 0f32, 0f32, 0f32);
-                for j in 0..side {
-                    let m = mask_1d[i] * mask_1d[j];
-                    let k = (i + 1) * ps + j + 1;
-                    let tgx = patch[k + 1] - patch[k - 1];
-                    let tgy = patch[k + ps] - patch[k - ps];
-                    let (gxx, gxy, gyy) = (tgx * tgx * m, tgx * tgy * m, tgy * tgy * m);
-                    let px = j as f32 - win as f32;
-                    ra += gxx;
-                    rb += gxy;
-                    rc += gyy;
-                    r1 += gxx * px + gxy * py;
-                    r2 += gxy * px + gyy * py;
+                let mid = &patch[(i + 1) * pst..(i + 2) * pst];
+                let up = &patch[i * pst..(i + 1) * pst];
+                let down = &patch[(i + 2) * pst..(i + 3) * pst];
+                for k in 0..gw / 8 {
+                    let j = k * 8;
+                    let m = ld8(&weight, i * gw + j);
+                    let (l, r) = (ld8(mid, j), ld8(mid, j + 2));
+                    let (u, d) = (ld8(up, j + 1), ld8(down, j + 1));
+                    let x = ld8(&px, j);
+                    let mut t = [[0f32; 8]; 5];
+                    for q in 0..8 {
+                        let (tgx, tgy) = (r[q] - l[q], d[q] - u[q]);
+                        let (gxx, gxy, gyy) = (tgx * tgx * m[q], tgx * tgy * m[q], tgy * tgy * m[q]);
+                        t[0][q] = gxx;
+                        t[1][q] = gxy;
+                        t[2][q] = gyy;
+                        t[3][q] = gxx * x[q] + gxy * py;
+                        t[4][q] = gxy * x[q] + gyy * py;
+                    }
+                    for (s, tv) in t.iter().enumerate() {
+                        let a = &mut acc[s * gw / 8 + k];
+                        for q in 0..8 {
+                            a[q] += tv[q];
+                        }
+                    }
                 }
-                sa += ra as f64;
-                sb += rb as f64;
-                sc += rc as f64;
-                bb1 += r1 as f64;
-                bb2 += r2 as f64;
             }
+            let total = |s: usize| -> f64 {
+                acc[s * gw / 8..(s + 1) * gw / 8]
+                    .iter()
+                    .flatten()
+                    .map(|&v| v as f64)
+                    .sum()
+            };
+            let (sa, sb, sc, bb1, bb2) = (total(0), total(1), total(2), total(3), total(4));
             let det = sa * sc - sb * sb;
             if det.abs() <= f64::EPSILON * f64::EPSILON {
                 break;
@@ -329,6 +356,31 @@ pub fn corner_sub_pix(
         *pt = if far || !c[0].is_finite() || !c[1].is_finite() { start } else { c };
     }
 }
+}
+
+/// Eight f32 lanes from `s[i..i + 8]`.
+#[inline(always)]
+fn ld8(s: &[f32], i: usize) -> [f32; 8] {
+    let mut v = [0f32; 8];
+    v.copy_from_slice(&s[i..i + 8]);
+    v
+}
+
+/// Bilinear sample of 8 lanes at columns `c..c + 8` between the 8-bit rows `r0`, `r1`.
+#[inline(always)]
+fn bilinear8_u8(r0: &[u8], r1: &[u8], c: usize, wts: [f32; 4]) -> [f32; 8] {
+    let [w00, w01, w10, w11] = wts;
+    let (a, b) = (&r0[c..c + 9], &r1[c..c + 9]);
+    let (mut fa, mut fb) = ([0f32; 9], [0f32; 9]);
+    for q in 0..9 {
+        fa[q] = a[q] as f32;
+        fb[q] = b[q] as f32;
+    }
+    let mut o = [0f32; 8];
+    for q in 0..8 {
+        o[q] = w00 * fa[q] + w01 * fa[q + 1] + w10 * fb[q] + w11 * fb[q + 1];
+    }
+    o
 }
 
 #[cfg(test)]
