@@ -91,12 +91,19 @@ fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32) -> Vec<f32> 
         let mut pad = vec![0f32; w + block];
         for y in 0..h {
             let row = &src[y * w..(y + 1) * w];
-            for (i, p) in pad.iter_mut().enumerate() {
-                *p = row[reflect101(i as isize - half, w)];
+            // reflect-101 only on the `half` border samples; the middle is a copy
+            let hb = half as usize;
+            pad[hb..hb + w].copy_from_slice(row);
+            for i in (0..hb).chain(hb + w..w + block) {
+                pad[i] = row[reflect101(i as isize - half, w)];
             }
             let out = &mut tmp[y * w..(y + 1) * w];
-            for (x, o) in out.iter_mut().enumerate() {
-                *o = pad[x..x + block].iter().sum();
+            out.copy_from_slice(&pad[..w]);
+            // shifted whole-row adds (vectorised), not a small sum per pixel
+            for d in 1..block {
+                for (o, &v) in out.iter_mut().zip(&pad[d..d + w]) {
+                    *o += v;
+                }
             }
         }
         let mut dst = vec![0f32; w * h];
