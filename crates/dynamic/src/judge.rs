@@ -93,7 +93,14 @@ pub fn judge_boxes(dets: &[Detection], pts: &[TrackedPoint], p: &JudgeParams) ->
         if det.class_id == p.person_class {
             for (part, bbox) in nhbc_parts(&det.bbox, p) {
                 let (tracked, outliers) = count_inside(&bbox, pts);
-                let verdict = if outliers >= p.person_min_outliers.max(1) {
+                let subpixel = p.person_subpixel_px.is_some_and(|px| {
+                    pts.iter()
+                        .filter(|t| bbox.contains_strict(t.cur[0], t.cur[1]))
+                        .filter(|t| t.epipolar_distance > px)
+                        .count()
+                        >= p.person_subpixel_min_points.max(1)
+                });
+                let verdict = if outliers >= p.person_min_outliers.max(1) || subpixel {
                     Verdict::Dynamic
                 } else if tracked < p.min_tracked {
                     Verdict::StaticUnknown

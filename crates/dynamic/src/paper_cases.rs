@@ -257,3 +257,45 @@ fn ata_on_own_points_keeps_a_table_behind_a_walker_static() {
     assert_eq!((states[0].verdict, states[0].tracked), (Verdict::Static, 4));
     assert_eq!(states[1].verdict, Verdict::Dynamic);
 }
+
+#[test]
+fn subpixel_hand_motion_makes_a_seated_top_part_dynamic_ours() {
+    // Seated person; the hand moved 0.6-0.8 px off its epipolar line (below the paper's 1 px).
+    let person = det(PERSON, 100.0, 100.0, 300.0, 360.0);
+    let mut pts = static_grid(100.0, 100.0, 300.0, 360.0, 6);
+    for (i, r) in [0.6, 0.7, 0.8].into_iter().enumerate() {
+        let mut t = pt(250.0 + 5.0 * i as f32, 250.0, false);
+        t.epipolar_distance = r;
+        pts.push(t);
+    }
+    let paper = JudgeParams {
+        person_subpixel_px: None,
+        ..JudgeParams::default()
+    };
+    assert_eq!(
+        judge_boxes(&[person], &pts, &paper)[0].verdict,
+        Verdict::Static
+    );
+    let states = judge_boxes(&[person], &pts, &JudgeParams::default());
+    assert_eq!(
+        (states[0].part, states[0].verdict, states[1].verdict),
+        (BoxPart::SeatedTop, Verdict::Dynamic, Verdict::Static)
+    );
+    // Two such points are not enough (a noisy track or two), nor is noise below 0.5 px.
+    pts.pop();
+    assert_eq!(
+        judge_boxes(&[person], &pts, &JudgeParams::default())[0].verdict,
+        Verdict::Static
+    );
+    let quiet: Vec<TrackedPoint> = static_grid(100.0, 100.0, 300.0, 360.0, 6)
+        .into_iter()
+        .map(|mut t| {
+            t.epipolar_distance = 0.45;
+            t
+        })
+        .collect();
+    assert_eq!(
+        judge_boxes(&[person], &quiet, &JudgeParams::default())[0].verdict,
+        Verdict::Static
+    );
+}

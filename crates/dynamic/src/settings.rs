@@ -97,6 +97,15 @@ pub struct JudgeParams {
     pub seated_top_fraction: f32,
     /// A person box or part is dynamic with at least this many outliers strictly inside (paper: 1).
     pub person_min_outliers: usize,
+    /// Sub-pixel motion of persons (ours; `None` = the paper): a person box or part is also
+    /// dynamic when at least [`Self::person_subpixel_min_points`] of its tracked points have a
+    /// residual above this many pixels (below the 1 px outlier threshold): a seated person's hand
+    /// at 2-3 m often moves less than a pixel between frames. Default 0.5 px: on synth sitting_xyz
+    /// the depth-aware recall goes 0.80 → 0.96 (sitting_static 0.93 → 0.98) at the same
+    /// precision, walking sequences unchanged; a false alarm only costs keypoints on a person.
+    pub person_subpixel_px: Option<f32>,
+    /// See [`Self::person_subpixel_px`] (ours: 3, so that a single noisy track does not count).
+    pub person_subpixel_min_points: usize,
     /// ATA: a non-person box is dynamic when outliers / tracked points inside exceed this
     /// (paper's ε = 0.4).
     pub ata_ratio: f32,
@@ -117,6 +126,8 @@ impl Default for JudgeParams {
             seated_max_aspect: 3.0,
             seated_top_fraction: 1.0 / 1.3,
             person_min_outliers: 1,
+            person_subpixel_px: Some(0.5),
+            person_subpixel_min_points: 3,
             ata_ratio: 0.4,
             min_tracked: 1,
             ata_ignores_person_points: false,

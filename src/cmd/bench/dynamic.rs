@@ -55,7 +55,14 @@ pub struct Args {
     /// whole at its depth.
     #[arg(long)]
     seated_local: bool,
-    /// Ignore the sequence's depth (ours_depth then equals ours).
+    /// Outlier threshold of the geometry module in pixels (paper: 1.0).
+    #[arg(long)]
+    outlier_px: Option<f64>,
+    /// NHBC (ours_depth): a person box or part is also dynamic with 3 tracked points above this
+    /// residual in pixels (default 0.5; 0 turns it off, as the paper).
+    #[arg(long)]
+    person_subpixel: Option<f32>,
+    /// Ignore the sequence's depth (ours_depth then culls by the paper's rule).
     #[arg(long)]
     no_depth: bool,
     /// Use at most this many frames (0: all).
@@ -282,6 +289,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(v) = args.depth_band_rel {
         settings.depth.band_relative = v;
     }
+    if let Some(v) = args.outlier_px {
+        settings.geometry.outlier_threshold_px = v;
+    }
+    if let Some(v) = args.person_subpixel {
+        settings.judge.person_subpixel_px = (v > 0.0).then_some(v);
+    }
+    // The paper's judgement for every method but ours_depth.
+    let paper_judge = stillpoint_dynamic::JudgeParams {
+        person_subpixel_px: None,
+        ..settings.judge.clone()
+    };
     if let Some(v) = args.local_radius {
         settings.depth.local_radius_fraction = v;
     }
@@ -359,14 +377,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 rgb: &rgb,
             })
             .with_context(|| format!("frame {index}: detector"))?;
-        let states = judge_boxes(&dets, &check.points, &settings.judge);
+        let states = judge_boxes(&dets, &check.points, &paper_judge);
         let depth = depth_for(&depth_list, *t, factor).with_context(|| format!("frame {index}"))?;
         depth_frames += usize::from(depth.is_some());
-        let mut depth_states = states.clone();
+        let mut depth_states = judge_boxes(&dets, &check.points, &settings.judge);
         let person = settings.judge.person_class;
         let own_judge = stillpoint_dynamic::JudgeParams {
             ata_ignores_person_points: true,
-            ..settings.judge.clone()
+            ..paper_judge.clone()
         };
         let own_states = judge_boxes(&dets, &check.points, &own_judge);
         let predictions = [
