@@ -1,0 +1,123 @@
+//! Guard for speed work on the ORB extractor: keypoints and descriptors must stay bit-identical
+//! (the SLAM results depend on them). Hashes of the full output on synthetic textures (and, when
+//! the data is there, on the real TUM images) were recorded from the reference implementation.
+
+use stillpoint_features::{Gray8, OrbExtractor, OrbFeatures, OrbParams};
+
+/// FNV-1a over every keypoint field's bits and every descriptor byte.
+fn hash(f: &OrbFeatures) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    for k in &f.keypoints {
+        for v in [k.x, k.y, k.angle, k.response, k.size] {
+            eat(&v.to_bits().to_le_bytes());
+        }
+        eat(&[k.octave]);
+    }
+    for d in &f.descriptors {
+        eat(d);
+    }
+    h
+}
+
+/// Smooth random blobs plus pixel noise, so FAST fires at both thresholds and in every cell.
+fn texture(w: usize, h: usize, seed: u32) -> Gray8 {
+    let mut s = seed;
+    let mut rnd = || {
+        s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        (s >> 8) as f32 / (1u32 << 24) as f32
+    };
+    let mut f = vec![0f32; w * h];
+    for _ in 0..(w * h / 60) {
+        let (cx, cy, r, a) = (rnd() * w as f32, rnd() * h as f32, 2.0 + rnd() * 6.0, rnd());
+        let (x0, x1) = ((cx - r).max(0.0) as usize, ((cx + r) as usize).min(w - 1));
+        let (y0, y1) = ((cy - r).max(0.0) as usize, ((cy + r) as usize).min(h - 1));
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let (dx, dy) = (x as f32 - cx, y as f32 - cy);
+                if dx * dx + dy * dy < r * r {
+                    f[y * w + x] += a * 90.0 - 45.0;
+                }
+            }
+        }
+    }
+    let mut img = Gray8::new(w, h, 0);
+    for (o, v) in img.data.iter_mut().zip(&f) {
+        *o = (128.0 + v + rnd() * 6.0).clamp(0.0, 255.0) as u8;
+    }
+    img
+}
+
+fn run(img: &Gray8, n: usize) -> u64 {
+    let mut orb = OrbExtractor::new(OrbParams {
+        n_features: n,
+        ..OrbParams::default()
+    });
+    // twice, so buffers kept between frames cannot change the output
+    let a = orb.extract(img);
+    let b = orb.extract(img);
+    assert_eq!(a, b);
+    hash(&a)
+}
+
+#[test]
+fn orb_output_is_unchanged_on_synthetic_textures() {
+    let cases = [
+        (640, 480, 7, 1000),
+        (641, 479, 11, 1000),
+        (320, 240, 3, 500),
+        (1241, 376, 5, 2000),
+    ];
+    let got: Vec<u64> = cases
+        .iter()
+        .map(|&(w, h, seed, n)| run(&texture(w, h, seed), n))
+        .collect();
+    eprintln!("synthetic hashes {got:#x?}");
+    let want: [u64; 4] = [
+        0xd99366601202c343,
+        0xddf923c9f15df00b,
+        0x083e5ac45bf0507c,
+        0x578fd94376e697eb,
+    ];
+    assert_eq!(got, want);
+}
+
+fn shared_dir() -> std::path::PathBuf {
+    std::env::var_os("STILLPOINT_SHARED")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared"))
+}
+
+#[test]
+#[ignore = "needs ../shared/data"]
+fn orb_output_is_unchanged_on_real_images() {
+    let d = shared_dir().join("data");
+    let mut paths = vec![
+        d.join("rgbd_pairs/pair/1.png"),
+        d.join("rgbd_pairs/pair/2.png"),
+    ];
+    let mut tum: Vec<_> = std::fs::read_dir(d.join("tum/fr3_walking_halfsphere_first10_rgb/rgb"))
+        .expect("TUM frames")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .collect();
+    tum.sort();
+    paths.extend(tum.into_iter().take(4));
+    let got: Vec<u64> = paths
+        .iter()
+        .map(|p| run(&stillpoint_image::read_gray(p).expect("image"), 1000))
+        .collect();
+    eprintln!("real hashes {got:#x?}");
+    let want: [u64; 6] = [
+        0xba0fb5db090891f4,
+        0xf378e57b7e1dce2e,
+        0x485f761f5af21e8a,
+        0xde7ee43584307d1f,
+        0xb54f062382c269c7,
+        0xf252f26196816fb4,
+    ];
+    assert_eq!(got, want);
+}
