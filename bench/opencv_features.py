@@ -9,6 +9,11 @@ Two modes, both print JSON on stdout:
       image (paper settings), over all images x repeats. Image i is tracked into image i+1
       (the last into the first).
 
+  serve IMAGES... [--threads T]
+      the speed measurement one round at a time: prints a JSON header line, then for every
+      `round` line on stdin runs every image once and prints that round's per-frame ms as one
+      JSON line. `stillpoint bench features` uses it to alternate its rounds with OpenCV's.
+
   quality PREV CUR [PREV CUR ...]
       per pair: ORB matches (brute force, ratio 0.8, mutual), fundamental RANSAC inliers
       (1 px, 0.99) and their ratio; LK points whose forward-backward error is below 0.5 px.
@@ -59,47 +64,75 @@ def corners(img):
     return pts
 
 
+def one_round(imgs, orb, t, counts):
+    """Every image once: ORB, goodFeaturesToTrack + cornerSubPix, LK into the next image."""
+    for i, img in enumerate(imgs):
+        nxt = imgs[(i + 1) % len(imgs)]
+        if nxt.shape != img.shape:
+            nxt = img
+        t0 = time.perf_counter()
+        kps, _ = orb.detectAndCompute(img, None)
+        t1 = time.perf_counter()
+        pts = cv2.goodFeaturesToTrack(img, **GFTT)
+        t2 = time.perf_counter()
+        if pts is None:
+            pts = np.zeros((0, 1, 2), np.float32)
+        else:
+            cv2.cornerSubPix(img, pts, **SUBPIX)
+        t3 = time.perf_counter()
+        if len(pts):
+            _, st, _ = cv2.calcOpticalFlowPyrLK(img, nxt, pts, None, **LK)
+            counts["tracked"].append(int(st.sum()))
+        t4 = time.perf_counter()
+        counts["features"].append(len(kps))
+        counts["corners"].append(len(pts))
+        ms = lambda a, b: (b - a) * 1e3
+        t["orb"].append(ms(t0, t1))
+        t["gftt"].append(ms(t1, t2))
+        t["subpix"].append(ms(t2, t3))
+        t["harris_subpix"].append(ms(t1, t3))
+        t["lk"].append(ms(t3, t4))
+        t["harris_lk"].append(ms(t1, t4))
+
+
+def new_times():
+    return {"orb": [], "gftt": [], "subpix": [], "harris_subpix": [], "lk": [], "harris_lk": []}
+
+
+def summary(t, counts):
+    out = {k: stats(v) for k, v in t.items() if v}
+    out["opencv"] = cv2.__version__
+    out["threads"] = cv2.getNumThreads()
+    for k in ("features", "corners", "tracked"):
+        out[k + "_mean"] = float(np.mean(counts[k])) if counts[k] else 0.0
+    return out
+
+
 def speed(args):
     cv2.setNumThreads(args.threads)
     imgs = [gray(p) for p in args.images]
     orb = cv2.ORB_create(**ORB)
-    t = {"orb": [], "gftt": [], "subpix": [], "harris_subpix": [], "lk": [], "harris_lk": []}
-    nfeat, ncorners, ntracked = [], [], []
+    t = new_times()
+    counts = {"features": [], "corners": [], "tracked": []}
     for _ in range(args.repeat):
-        for i, img in enumerate(imgs):
-            nxt = imgs[(i + 1) % len(imgs)]
-            if nxt.shape != img.shape:
-                nxt = img
-            t0 = time.perf_counter()
-            kps, _ = orb.detectAndCompute(img, None)
-            t1 = time.perf_counter()
-            pts = cv2.goodFeaturesToTrack(img, **GFTT)
-            t2 = time.perf_counter()
-            if pts is None:
-                pts = np.zeros((0, 1, 2), np.float32)
-            else:
-                cv2.cornerSubPix(img, pts, **SUBPIX)
-            t3 = time.perf_counter()
-            if len(pts):
-                _, st, _ = cv2.calcOpticalFlowPyrLK(img, nxt, pts, None, **LK)
-                ntracked.append(int(st.sum()))
-            t4 = time.perf_counter()
-            nfeat.append(len(kps))
-            ncorners.append(len(pts))
-            ms = lambda a, b: (b - a) * 1e3
-            t["orb"].append(ms(t0, t1))
-            t["gftt"].append(ms(t1, t2))
-            t["subpix"].append(ms(t2, t3))
-            t["harris_subpix"].append(ms(t1, t3))
-            t["lk"].append(ms(t3, t4))
-            t["harris_lk"].append(ms(t1, t4))
-    out = {k: stats(v) for k, v in t.items()}
-    out["opencv"] = cv2.__version__
-    out["threads"] = cv2.getNumThreads()
-    out["features_mean"] = float(np.mean(nfeat))
-    out["corners_mean"] = float(np.mean(ncorners))
-    out["tracked_mean"] = float(np.mean(ntracked)) if ntracked else 0.0
-    print(json.dumps(out))
+        one_round(imgs, orb, t, counts)
+    print(json.dumps(summary(t, counts)))
+
+
+def serve(args):
+    """One JSON line per `round` line read on stdin (per-frame ms of that round), so the caller
+    can interleave its own rounds with OpenCV's and load changes hit both sides alike."""
+    cv2.setNumThreads(args.threads)
+    imgs = [gray(p) for p in args.images]
+    orb = cv2.ORB_create(**ORB)
+    print(json.dumps({"opencv": cv2.__version__, "threads": cv2.getNumThreads()}), flush=True)
+    for line in sys.stdin:
+        if line.strip() != "round":
+            break
+        t = new_times()
+        counts = {"features": [], "corners": [], "tracked": []}
+        one_round(imgs, orb, t, counts)
+        print(json.dumps({"times": t, "counts": counts}), flush=True)
 
 
 def quality(args):
@@ -138,13 +171,13 @@ def quality(args):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("mode", choices=["speed", "quality"])
+    ap.add_argument("mode", choices=["speed", "serve", "quality"])
     ap.add_argument("images", nargs="+")
     ap.add_argument("--repeat", type=int, default=20)
     ap.add_argument("--threads", type=int, default=1,
                     help="cv2.setNumThreads (1 = single-threaded, as stillpoint's front-end)")
     args = ap.parse_args()
-    speed(args) if args.mode == "speed" else quality(args)
+    {"speed": speed, "serve": serve, "quality": quality}[args.mode](args)
 
 
 if __name__ == "__main__":

@@ -1,10 +1,13 @@
 //! `stillpoint bench features`: ms per frame of each front-end stage (ORB: pyramid, FAST,
 //! distribution, orientation + descriptors; Harris + sub-pixel; LK of the corners into the next
 //! image), and the same measured for OpenCV by `bench/opencv_features.py` in the same run, so the
-//! ratios compare like with like. Build with `--release`.
+//! ratios compare like with like: our rounds and OpenCV's alternate (the script runs as a child
+//! serving one round per request), and each ratio is the median of per-round ratios. Build with
+//! `--release`.
 
+use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
@@ -19,7 +22,7 @@ pub struct Args {
     /// Images to run on (PNG/JPEG; colour is converted to gray). Image i is tracked into image
     /// i+1. Default: the TUM pair and the first TUM walking frames in ../shared/data.
     pub images: Vec<PathBuf>,
-    /// Times each image is processed.
+    /// Rounds (every image once per round, ours and OpenCV's alternating).
     #[arg(long, default_value_t = 20)]
     pub repeat: usize,
     /// ORB features per image (ORB-SLAM: 1000 TUM, 2000 KITTI).
@@ -78,27 +81,72 @@ fn script_path() -> Option<PathBuf> {
     cands.into_iter().find(|p| p.is_file())
 }
 
-fn run_opencv(args: &Args, images: &[PathBuf]) -> anyhow::Result<Value> {
-    let script = script_path().context("bench/opencv_features.py not found")?;
-    let out = Command::new(&args.python)
-        .arg(&script)
-        .arg("speed")
-        .args(images)
-        .arg("--repeat")
-        .arg(args.repeat.to_string())
-        .arg("--threads")
-        .arg(args.opencv_threads.to_string())
-        .output()
-        .with_context(|| format!("cannot run {} {}", args.python, script.display()))?;
-    if !out.status.success() {
-        bail!(
-            "{} failed: {}",
-            script.display(),
-            String::from_utf8_lossy(&out.stderr).trim()
-        );
+/// The OpenCV reference as a child process that runs one round (every image once) per request,
+/// so our rounds and OpenCV's alternate and load changes on the machine hit both sides alike.
+struct OpenCvServer {
+    child: std::process::Child,
+    stdin: std::process::ChildStdin,
+    stdout: std::io::BufReader<std::process::ChildStdout>,
+    /// The header line: OpenCV version and threads.
+    header: Value,
+}
+
+impl OpenCvServer {
+    fn start(args: &Args, images: &[PathBuf]) -> anyhow::Result<Self> {
+        let script = script_path().context("bench/opencv_features.py not found")?;
+        let mut child = Command::new(&args.python)
+            .arg(&script)
+            .arg("serve")
+            .args(images)
+            .arg("--threads")
+            .arg(args.opencv_threads.to_string())
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .with_context(|| format!("cannot run {} {}", args.python, script.display()))?;
+        let stdin = child.stdin.take().context("no stdin")?;
+        let stdout = BufReader::new(child.stdout.take().context("no stdout")?);
+        let mut s = Self {
+            child,
+            stdin,
+            stdout,
+            header: Value::Null,
+        };
+        s.header = s
+            .read_line()
+            .with_context(|| format!("{}: no header (is OpenCV installed?)", script.display()))?;
+        Ok(s)
     }
-    serde_json::from_slice(&out.stdout)
-        .with_context(|| format!("{}: output is not JSON", script.display()))
+
+    fn read_line(&mut self) -> anyhow::Result<Value> {
+        let mut line = String::new();
+        if self.stdout.read_line(&mut line)? == 0 {
+            bail!("the OpenCV reference exited");
+        }
+        serde_json::from_str(&line).context("OpenCV reference output is not JSON")
+    }
+
+    /// One round: per-frame ms of each stage, and the counts.
+    fn round(&mut self) -> anyhow::Result<Value> {
+        writeln!(self.stdin, "round")?;
+        self.stdin.flush()?;
+        self.read_line()
+    }
+}
+
+impl Drop for OpenCvServer {
+    fn drop(&mut self) {
+        // closing stdin ends the script's loop
+        let _ = writeln!(self.stdin, "quit");
+        let _ = self.stdin.flush();
+        let _ = self.child.wait();
+    }
+}
+
+fn median(xs: &[f64]) -> Option<f64> {
+    let mut v = xs.to_vec();
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied()
 }
 
 fn load(paths: &[PathBuf]) -> anyhow::Result<Vec<Gray8>> {
@@ -145,7 +193,30 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut t: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
     let (mut nfeat, mut ncorn, mut ntrack) = (0usize, 0usize, 0usize);
     let mut runs = 0usize;
-    for _ in 0..args.repeat.max(1) {
+    let mut cv = if args.no_opencv {
+        None
+    } else {
+        match OpenCvServer::start(&args, &images) {
+            Ok(s) => Some(s),
+            Err(e) => {
+                tracing::warn!("OpenCV reference skipped: {e:#}");
+                None
+            }
+        }
+    };
+    let compare = ["orb", "harris_subpix", "lk", "harris_lk"];
+    let mut cv_t: Vec<Vec<f64>> = vec![Vec::new(); compare.len()];
+    let mut cv_counts = [0f64; 3];
+    // per round: median of ours / median of OpenCV's, for each compared stage
+    let mut round_ratios: Vec<Vec<f64>> = vec![Vec::new(); compare.len()];
+    for round in 0..args.repeat.max(1) {
+        // alternate who goes first, so neither side always runs on a cache warmed by the other
+        let cv_first = round % 2 == 1;
+        let mut cv_round = None;
+        if cv_first && let Some(s) = cv.as_mut() {
+            cv_round = Some(s.round()?);
+        }
+        let mut ours_round: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
         for (i, img) in imgs.iter().enumerate() {
             let next = &imgs[(i + 1) % imgs.len()];
             let next = if (next.width, next.height) == (img.width, img.height) {
@@ -177,12 +248,38 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .into_iter()
             .enumerate()
             {
-                t[k].push(v);
+                ours_round[k].push(v);
             }
             nfeat += f.keypoints.len();
             ncorn += corners.len();
             ntrack += tracked.iter().flatten().count();
             runs += 1;
+        }
+        if !cv_first && let Some(s) = cv.as_mut() {
+            cv_round = Some(s.round()?);
+        }
+        if let Some(r) = &cv_round {
+            for (c, k) in compare.iter().enumerate() {
+                let v: Vec<f64> = r["times"][*k]
+                    .as_array()
+                    .map(|a| a.iter().filter_map(Value::as_f64).collect())
+                    .unwrap_or_default();
+                let ours_k = names.iter().position(|n| n == k).unwrap_or(0);
+                if let (Some(a), Some(b)) = (median(&ours_round[ours_k]), median(&v))
+                    && b > 0.0
+                {
+                    round_ratios[c].push(a / b);
+                }
+                cv_t[c].extend(v);
+            }
+            for (n, k) in ["features", "corners", "tracked"].iter().enumerate() {
+                if let Some(a) = r["counts"][*k].as_array() {
+                    cv_counts[n] += a.iter().filter_map(Value::as_f64).sum::<f64>();
+                }
+            }
+        }
+        for (all, r) in t.iter_mut().zip(ours_round) {
+            all.extend(r);
         }
     }
     let mut ours = serde_json::Map::new();
@@ -192,30 +289,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     ours.insert("features_mean".into(), json!(nfeat as f64 / runs as f64));
     ours.insert("corners_mean".into(), json!(ncorn as f64 / runs as f64));
     ours.insert("tracked_mean".into(), json!(ntrack as f64 / runs as f64));
-    let opencv = if args.no_opencv {
-        None
-    } else {
-        match run_opencv(&args, &images) {
-            Ok(v) => Some(v),
-            Err(e) => {
-                tracing::warn!("OpenCV reference skipped: {e:#}");
-                None
-            }
+    let opencv = cv.as_ref().map(|s| {
+        let mut m = serde_json::Map::new();
+        for (k, v) in compare.iter().zip(cv_t.iter_mut()) {
+            m.insert(k.to_string(), stats(v));
         }
-    };
-    // ratio = ours / OpenCV on the median (below 1 = faster than OpenCV)
-    let compare = ["orb", "harris_subpix", "lk", "harris_lk"];
-    let ratios: serde_json::Map<String, Value> = match &opencv {
-        Some(cv) => compare
-            .iter()
-            .filter_map(|k| {
-                let a = ours.get(*k)?.get("median")?.as_f64()?;
-                let b = cv.get(*k)?.get("median")?.as_f64()?;
-                Some((k.to_string(), json!(a / b)))
-            })
-            .collect(),
-        None => serde_json::Map::new(),
-    };
+        for (n, k) in ["features", "corners", "tracked"].iter().enumerate() {
+            m.insert(format!("{k}_mean"), json!(cv_counts[n] / runs as f64));
+        }
+        m.insert("opencv".into(), s.header["opencv"].clone());
+        m.insert("threads".into(), s.header["threads"].clone());
+        Value::Object(m)
+    });
+    drop(cv);
+    // ratio = ours / OpenCV (below 1 = faster than OpenCV): the median over rounds of the
+    // ratio of the two sides' medians within the round, so slow patches of load cancel out
+    let ratios: serde_json::Map<String, Value> = compare
+        .iter()
+        .zip(&round_ratios)
+        .filter_map(|(k, r)| Some((k.to_string(), json!(median(r)?))))
+        .collect();
     if args.json {
         let out = json!({
             "images": images,
@@ -236,7 +329,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let cvm = opencv.as_ref().and_then(Value::as_object);
     println!(
-        "{} images x {} repeats; ms per frame (median / p90)",
+        "{} images x {} rounds, ours and OpenCV alternating; ms per frame (median / p90); ratio = median of per-round ratios",
         imgs.len(),
         args.repeat
     );
