@@ -45,9 +45,37 @@ impl Default for KinectNoise {
 
 /// A standard normal sample (Box-Muller).
 pub fn gaussian(rng: &mut Pcg64Mcg) -> f32 {
+    gaussian_pair(rng)[0]
+}
+
+/// Two independent standard normal samples from one Box-Muller draw (cos and sin branch).
+pub fn gaussian_pair(rng: &mut Pcg64Mcg) -> [f32; 2] {
     let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
     let u2: f64 = rng.random();
-    ((-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()) as f32
+    let r = (-2.0 * u1.ln()).sqrt();
+    let (s, c) = (std::f64::consts::TAU * u2).sin_cos();
+    [(r * c) as f32, (r * s) as f32]
+}
+
+/// Standard normal samples, using both outputs of each Box-Muller draw.
+struct Gaussians {
+    spare: Option<f32>,
+}
+
+impl Gaussians {
+    fn new() -> Self {
+        Self { spare: None }
+    }
+
+    #[inline]
+    fn next(&mut self, rng: &mut Pcg64Mcg) -> f32 {
+        if let Some(g) = self.spare.take() {
+            return g;
+        }
+        let [a, b] = gaussian_pair(rng);
+        self.spare = Some(b);
+        a
+    }
 }
 
 /// Degrade a depth map (metres, 0 = none) in place.
@@ -59,6 +87,7 @@ pub fn apply_depth(
     rng: &mut Pcg64Mcg,
 ) {
     let exact = depth.to_vec();
+    let mut normal = Gaussians::new();
     for y in 0..height {
         for x in 0..width {
             let i = y * width + x;
@@ -82,7 +111,7 @@ pub fn apply_depth(
                 continue;
             }
             let s = p.sigma_a + p.sigma_b * (z - p.sigma_c).powi(2);
-            depth[i] = z + s * gaussian(rng);
+            depth[i] = z + s * normal.next(rng);
         }
     }
     for _ in 0..p.holes {
@@ -114,9 +143,10 @@ pub fn apply_image(rgb: &mut [[u8; 3]], sigma: f32, rng: &mut Pcg64Mcg) {
     if sigma <= 0.0 {
         return;
     }
+    let mut normal = Gaussians::new();
     for p in rgb.iter_mut() {
         for c in p.iter_mut() {
-            *c = (*c as f32 + sigma * gaussian(rng))
+            *c = (*c as f32 + sigma * normal.next(rng))
                 .round()
                 .clamp(0.0, 255.0) as u8;
         }

@@ -175,7 +175,22 @@ fn scan(t: &ScreenTri, width: usize, mut frag: impl FnMut(usize, f64, f64, [f64;
             t.b[1] * yf + t.c[1],
             t.b[2] * yf + t.c[2],
         ];
-        for x in t.bbox[0]..=t.bbox[2] {
+        // the x range where all three edge functions are >= 0, widened by a pixel so that the
+        // exact test below alone decides the border pixels
+        let (mut x0, mut x1) = (t.bbox[0] as f64, t.bbox[2] as f64);
+        for (&a, &r) in t.a.iter().zip(&row) {
+            if a > 0.0 {
+                x0 = x0.max((-r / a).floor() - 1.0);
+            } else if a < 0.0 {
+                x1 = x1.min((-r / a).ceil() + 1.0);
+            } else if r < 0.0 {
+                x1 = -1.0;
+            }
+        }
+        if x0.is_nan() || x1.is_nan() || x0 > x1 {
+            continue;
+        }
+        for x in x0 as usize..=x1 as usize {
             let xf = x as f64;
             let l = [
                 t.a[0] * xf + row[0],
@@ -221,10 +236,30 @@ fn shade(n: &P3) -> f32 {
     (0.55 + 0.35 * n.dot(&l1).abs() + 0.15 * n.dot(&l2).abs()).min(1.0) as f32
 }
 
+/// A clipped screen triangle with what shading it needs.
+struct Setup {
+    tri: ScreenTri,
+    tex: u16,
+    light: f32,
+    id: u16,
+}
+
+/// Depth of a fragment as the z-buffer stores it.
+#[inline]
+fn frag_depth(st: &ScreenTri, l: [f64; 3]) -> f32 {
+    let wz = l[0] * st.iz[0] + l[1] * st.iz[1] + l[2] * st.iz[2];
+    (1.0 / wz) as f32
+}
+
 /// Draw `items` into `target` through `cam` (depth test, alpha test, shading).
+///
+/// Two passes: the first fills the z-buffer and the id buffer (sampling textures only for the
+/// alpha test of cut-outs), the second shades each pixel once, with the triangle that won the
+/// depth test, so hidden surfaces cost no texture lookups (most of the time went there).
 pub fn draw(target: &mut Target, cam: &PinholeCamera, items: &[DrawItem], textures: &[Texture]) {
     let (w, h) = (target.width, target.height);
     let mut clipped = Vec::with_capacity(2);
+    let mut setups: Vec<Setup> = Vec::new();
     for item in items {
         for tri in &item.mesh.tris {
             let pc = tri.p.map(|p| item.t_cp.transform_point(&p.into()).coords);
@@ -236,32 +271,56 @@ pub fn draw(target: &mut Target, cam: &PinholeCamera, items: &[DrawItem], textur
             let nl = (tri.p[1] - tri.p[0]).cross(&(tri.p[2] - tri.p[0]));
             let nw = item.r_wp * nl.try_normalize(1e-18).unwrap_or(P3::z());
             let light = shade(&nw);
-            let tex = &textures[tri.tex as usize];
             for &(p, uv) in clipped.iter() {
-                let Some(st) = setup(cam, p, uv, w, h) else {
-                    continue;
-                };
-                scan(&st, w, |i, _, _, l| {
-                    let wz = l[0] * st.iz[0] + l[1] * st.iz[1] + l[2] * st.iz[2];
-                    let z = (1.0 / wz) as f32;
-                    if z.partial_cmp(&target.depth[i]) != Some(std::cmp::Ordering::Less) {
-                        return;
-                    }
-                    let (u, v, rho, _) = texcoord(&st, l, tex);
-                    let c = tex.sample(u, v, rho);
-                    if tex.has_alpha && c[3] < 128.0 {
-                        return;
-                    }
-                    target.depth[i] = z;
-                    target.id[i] = item.id;
-                    target.rgb[i] = [
-                        (c[0] * light).round().clamp(0.0, 255.0) as u8,
-                        (c[1] * light).round().clamp(0.0, 255.0) as u8,
-                        (c[2] * light).round().clamp(0.0, 255.0) as u8,
-                    ];
-                });
+                if let Some(st) = setup(cam, p, uv, w, h) {
+                    setups.push(Setup {
+                        tri: st,
+                        tex: tri.tex,
+                        light,
+                        id: item.id,
+                    });
+                }
             }
         }
+    }
+    // pass 1: visibility; the winner of a pixel is the first triangle with the smallest depth
+    let mut winner = vec![u32::MAX; w * h];
+    for (k, s) in setups.iter().enumerate() {
+        let tex = &textures[s.tex as usize];
+        let st = &s.tri;
+        scan(st, w, |i, _, _, l| {
+            let z = frag_depth(st, l);
+            if z.partial_cmp(&target.depth[i]) != Some(std::cmp::Ordering::Less) {
+                return;
+            }
+            if tex.has_alpha {
+                let (u, v, rho, _) = texcoord(st, l, tex);
+                if tex.sample(u, v, rho)[3] < 128.0 {
+                    return;
+                }
+            }
+            target.depth[i] = z;
+            target.id[i] = s.id;
+            winner[i] = k as u32;
+        });
+    }
+    // pass 2: shade each pixel with the triangle that won it
+    for (i, &k) in winner.iter().enumerate() {
+        let Some(s) = setups.get(k as usize) else {
+            continue;
+        };
+        let st = &s.tri;
+        let (xf, yf) = ((i % w) as f64, (i / w) as f64);
+        let l = [
+            st.a[0] * xf + (st.b[0] * yf + st.c[0]),
+            st.a[1] * xf + (st.b[1] * yf + st.c[1]),
+            st.a[2] * xf + (st.b[2] * yf + st.c[2]),
+        ];
+        let tex = &textures[s.tex as usize];
+        let (u, v, rho, _) = texcoord(st, l, tex);
+        let c = tex.sample(u, v, rho);
+        let q = |x: f32| (x * s.light + 0.5).clamp(0.0, 255.0) as u8;
+        target.rgb[i] = [q(c[0]), q(c[1]), q(c[2])];
     }
 }
 

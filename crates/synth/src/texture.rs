@@ -22,6 +22,16 @@ pub struct Texture {
     pub has_alpha: bool,
 }
 
+/// log2 of a positive normal float, exact at powers of two and linear in between (error < 0.09;
+/// only the blend between mip levels depends on it, and libm's log2f was 6 % of the time).
+#[inline]
+fn fast_log2(x: f32) -> f32 {
+    let bits = x.to_bits();
+    let exponent = ((bits >> 23) & 0xff) as i32 - 127;
+    let mantissa = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000);
+    exponent as f32 + (mantissa - 1.0)
+}
+
 impl Texture {
     /// Build from a level-0 image, computing the mip chain (alpha-weighted 2x2 box filter).
     pub fn from_level(base: Level) -> Texture {
@@ -90,7 +100,7 @@ impl Texture {
     /// Trilinear sample: `texels_per_pixel` is how many level-0 texels one pixel spans.
     #[inline]
     pub fn sample(&self, u: f32, v: f32, texels_per_pixel: f32) -> [f32; 4] {
-        let lod = texels_per_pixel.max(1.0).log2();
+        let lod = fast_log2(texels_per_pixel.max(1.0));
         let max = (self.levels.len() - 1) as f32;
         let lod = lod.min(max);
         let l0 = lod as usize;
