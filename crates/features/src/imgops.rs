@@ -47,11 +47,22 @@ pub(crate) fn reflect101(i: isize, n: usize) -> usize {
 
 /// Bilinear resize with OpenCV's `INTER_LINEAR` sampling (`src = (dst + 0.5) * scale - 0.5`,
 /// 11-bit fixed-point weights), which ORB-SLAM3 uses to build its pyramid.
+#[cfg(test)]
 pub(crate) fn resize_linear(src: &Gray8, dw: usize, dh: usize) -> Gray8 {
+    let mut dst = Gray8::new(0, 0, 0);
+    resize_linear_into(src, dw, dh, &mut dst);
+    dst
+}
+
+/// [`resize_linear`] into `dst`, reusing its buffer (every pixel is written).
+pub(crate) fn resize_linear_into(src: &Gray8, dw: usize, dh: usize, dst: &mut Gray8) {
     let (sw, sh) = (src.width, src.height);
-    let mut dst = Gray8::new(dw, dh, 0);
+    dst.width = dw;
+    dst.height = dh;
+    dst.data.resize(dw * dh, 0);
     if sw == 0 || sh == 0 || dw == 0 || dh == 0 {
-        return dst;
+        dst.data.fill(0);
+        return;
     }
     let coef = |d: usize, scale: f64, n: usize| -> (usize, i32) {
         let f = (d as f64 + 0.5) * scale - 0.5;
@@ -100,16 +111,21 @@ pub(crate) fn resize_linear(src: &Gray8, dw: usize, dh: usize) -> Gray8 {
             *o = ((p * b0 + q * b + (1 << 21)) >> 22) as u8;
         }
     }
-    dst
 }
 
 /// 7-tap Gaussian, sigma 2, in 8-bit fixed point (sum 256), as ORB-SLAM3 blurs each level
 /// (`GaussianBlur(7x7, 2, 2, BORDER_REFLECT_101)`) before computing descriptors.
 const GAUSS7: [u32; 7] = [18, 33, 49, 56, 49, 33, 18];
 
-simd_fn! {
 /// Separable 7x7 Gaussian blur (sigma 2) with reflect-101 borders.
+#[cfg(test)]
 pub(crate) fn gaussian_blur7(src: &Gray8, dst: &mut Gray8) {
+    gaussian_blur7_with(src, dst, &mut Vec::new());
+}
+
+simd_fn! {
+/// [`gaussian_blur7`] with a scratch buffer for the horizontal pass, kept between calls.
+pub(crate) fn gaussian_blur7_with(src: &Gray8, dst: &mut Gray8, tmp: &mut Vec<u16>) {
     let (w, h) = (src.width, src.height);
     dst.width = w;
     dst.height = h;
@@ -118,12 +134,14 @@ pub(crate) fn gaussian_blur7(src: &Gray8, dst: &mut Gray8) {
         return;
     }
     // horizontal pass into u16 (max 255 * 256)
-    let mut tmp = vec![0u16; w * h];
+    tmp.resize(w * h, 0);
+    let tmp = &mut tmp[..w * h];
     let mut padded = vec![0u8; w + 6];
     for y in 0..h {
         let row = src.row(y);
-        for (i, p) in padded.iter_mut().enumerate() {
-            *p = row[reflect101(i as isize - 3, w)];
+        padded[3..w + 3].copy_from_slice(row);
+        for i in (0..3).chain(w + 3..w + 6) {
+            padded[i] = row[reflect101(i as isize - 3, w)];
         }
         let out = &mut tmp[y * w..(y + 1) * w];
         for (x, o) in out.iter_mut().enumerate() {

@@ -5,7 +5,7 @@
 use std::time::Instant;
 
 use crate::fast::{self, Corner};
-use crate::imgops::{gaussian_blur7, resize_linear};
+use crate::imgops::{gaussian_blur7_with, resize_linear_into};
 use crate::pattern::BIT_PATTERN_31;
 use crate::{Descriptor, valid};
 use stillpoint_image::Gray8;
@@ -88,9 +88,12 @@ pub struct OrbExtractor {
     level_sigma2: Vec<f32>,
     features_per_level: Vec<usize>,
     umax: Vec<usize>,
-    /// Levels 1.. (level 0 is the input itself).
+    /// Levels 1.. (level 0 is the input itself); buffers kept between frames, the first
+    /// `pyramid_len` hold the current frame.
     pyramid: Vec<Gray8>,
+    pyramid_len: usize,
     blurred: Gray8,
+    blur_tmp: Vec<u16>,
     timings: OrbTimings,
     score: OrbScore,
 }
@@ -159,7 +162,9 @@ impl OrbExtractor {
             features_per_level,
             umax,
             pyramid: Vec::new(),
+            pyramid_len: 0,
             blurred: Gray8::new(0, 0, 0),
+            blur_tmp: Vec::new(),
             timings: OrbTimings::default(),
             score: OrbScore::default(),
         }
@@ -214,7 +219,7 @@ impl OrbExtractor {
             let level_img = if level == 0 {
                 img
             } else {
-                match self.pyramid.get(level - 1) {
+                match self.pyramid[..self.pyramid_len].get(level - 1) {
                     Some(l) => l,
                     None => break,
                 }
@@ -253,7 +258,7 @@ impl OrbExtractor {
             if keep.is_empty() {
                 continue;
             }
-            gaussian_blur7(level_img, &mut self.blurred);
+            gaussian_blur7_with(level_img, &mut self.blurred, &mut self.blur_tmp);
             let scale = self.scale_factors[level];
             let size = PATCH_SIZE * scale;
             for &i in &keep {
@@ -277,7 +282,7 @@ impl OrbExtractor {
     }
 
     fn build_pyramid(&mut self, img: &Gray8) {
-        self.pyramid.clear();
+        self.pyramid_len = 0;
         for level in 1..self.params.n_levels {
             let inv = 1.0 / self.scale_factors[level];
             let (w, h) = (
@@ -288,13 +293,13 @@ impl OrbExtractor {
                 break;
             }
             // ORB-SLAM resizes each level from the previous one
-            let prev = if level == 1 {
-                img
-            } else {
-                &self.pyramid[level - 2]
-            };
-            let next = resize_linear(prev, w, h);
-            self.pyramid.push(next);
+            if self.pyramid.len() < level {
+                self.pyramid.push(Gray8::new(0, 0, 0));
+            }
+            let (done, rest) = self.pyramid.split_at_mut(level - 1);
+            let prev = if level == 1 { img } else { &done[level - 2] };
+            resize_linear_into(prev, w, h, &mut rest[0]);
+            self.pyramid_len = level;
         }
     }
 }
