@@ -186,6 +186,28 @@ fn corner_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<
 }
 }
 
+/// Call `f(i)` for every `i` with `v[i] != 0`, in increasing order; most of a row is zero, so
+/// it skips 8 bytes at a time.
+#[inline(always)]
+fn for_each_nonzero(v: &[u8], mut f: impl FnMut(usize)) {
+    let chunks = v.chunks_exact(8);
+    let tail = chunks.remainder();
+    for (c, chunk) in chunks.enumerate() {
+        let mut bits = u64::from_le_bytes(chunk.try_into().unwrap_or([0; 8]));
+        while bits != 0 {
+            let i = bits.trailing_zeros() as usize / 8;
+            f(c * 8 + i);
+            bits &= !(0xFFu64 << (i * 8));
+        }
+    }
+    let base = v.len() - tail.len();
+    for (i, &x) in tail.iter().enumerate() {
+        if x != 0 {
+            f(base + i);
+        }
+    }
+}
+
 /// FAST corners at threshold `t` inside `[x0, x1) x [y0, y1)` (clipped to 3 px from the image
 /// border), with 3x3 non-maximum suppression among the corners of that rectangle (like OpenCV's
 /// `FAST(roi, t, true)`).
@@ -212,20 +234,18 @@ pub(crate) fn detect(img: &Gray8, rect: [usize; 4], t: u8, out: &mut Vec<Corner>
             return;
         }
         corner_row(img, y, x0, x1, t, &mut mask);
-        for (j, &m) in mask.iter().enumerate() {
-            if m != 0 {
-                row[j + 1] = corner_score(&img.data, y * w + x0 + j, &offsets);
-            }
-        }
+        for_each_nonzero(&mask, |j| {
+            row[j + 1] = corner_score(&img.data, y * w + x0 + j, &offsets);
+        });
     };
     fill(y0, &mut rows[1]);
     for y in y0..y1 {
         let [prev, cur, next] = &mut rows;
         fill(y + 1, next);
-        for j in 1..=rw {
+        for_each_nonzero(&cur[1..=rw], |j| {
+            let j = j + 1;
             let s = cur[j];
-            if s != 0
-                && s > cur[j - 1]
+            if s > cur[j - 1]
                 && s > cur[j + 1]
                 && s > prev[j - 1]
                 && s > prev[j]
@@ -240,7 +260,7 @@ pub(crate) fn detect(img: &Gray8, rect: [usize; 4], t: u8, out: &mut Vec<Corner>
                     score: s,
                 });
             }
-        }
+        });
         rows.rotate_left(1);
     }
 }

@@ -567,31 +567,59 @@ fn ic_angle(img: &Gray8, x: usize, y: usize, umax: &[usize]) -> f32 {
     if a < 0.0 { a + 360.0 } else { a }
 }
 
+/// The pattern's points as f32, first points of all pairs then second points, so the rotation
+/// runs over plain arrays (vectorised) before the 512 lookups.
+const PATTERN_X: [f32; 512] = pattern_coords(0);
+const PATTERN_Y: [f32; 512] = pattern_coords(1);
+
+const fn pattern_coords(axis: usize) -> [f32; 512] {
+    let mut out = [0f32; 512];
+    let mut i = 0;
+    while i < 256 {
+        out[i] = BIT_PATTERN_31[i][axis] as f32;
+        out[256 + i] = BIT_PATTERN_31[i][2 + axis] as f32;
+        i += 1;
+    }
+    out
+}
+
 /// 256-bit BRIEF with ORB's pattern rotated by `angle_deg` (ORB-SLAM3
 /// `computeOrbDescriptor`; offsets rounded to nearest like `cvRound`).
 fn steered_brief(img: &Gray8, x: usize, y: usize, angle_deg: f32) -> Descriptor {
-    let w = img.width as isize;
     let (b, a) = angle_deg.to_radians().sin_cos();
+    let mut offsets = [0i32; 512];
+    rotated_offsets(a, b, img.width as i32, &mut offsets);
     let c = (y * img.width + x) as isize;
     let d = &img.data;
-    // round half away from zero with a truncating cast: `round_ties_even` is a libm call on
-    // baseline x86-64 and differs only on exact .5 ties, which irrational cos/sin never hit
-    let round = |v: f32| (v + 0.5f32.copysign(v)) as isize;
-    let at = |px: i8, py: i8| -> u8 {
-        let (px, py) = (px as f32, py as f32);
-        let dy = round(px * b + py * a);
-        let dx = round(px * a - py * b);
-        d[(c + dy * w + dx) as usize]
-    };
+    let at = |o: i32| d[(c + o as isize) as usize];
+    let (first, second) = offsets.split_at(256);
     let mut desc = [0u8; 32];
-    for (byte, pairs) in desc.iter_mut().zip(BIT_PATTERN_31.chunks_exact(8)) {
+    for (byte, (p0, p1)) in desc
+        .iter_mut()
+        .zip(first.chunks_exact(8).zip(second.chunks_exact(8)))
+    {
         let mut v = 0u8;
-        for (bit, pr) in pairs.iter().enumerate() {
-            v |= ((at(pr[0], pr[1]) < at(pr[2], pr[3])) as u8) << bit;
+        for bit in 0..8 {
+            v |= ((at(p0[bit]) < at(p1[bit])) as u8) << bit;
         }
         *byte = v;
     }
     desc
+}
+
+crate::imgops::simd_fn! {
+/// Pixel offsets (`dy * width + dx`) of the pattern's points rotated by (cos `a`, sin `b`).
+/// Same f32 operations in the same order as a point-by-point loop, so the same rounding.
+fn rotated_offsets(a: f32, b: f32, width: i32, out: &mut [i32; 512]) {
+    // round half away from zero with a truncating cast: `round_ties_even` is a libm call on
+    // baseline x86-64 and differs only on exact .5 ties, which irrational cos/sin never hit
+    let round = |v: f32| (v + 0.5f32.copysign(v)) as i32;
+    for ((o, &px), &py) in out.iter_mut().zip(&PATTERN_X).zip(&PATTERN_Y) {
+        let dy = round(px * b + py * a);
+        let dx = round(px * a - py * b);
+        *o = dy * width + dx;
+    }
+}
 }
 
 #[cfg(test)]
