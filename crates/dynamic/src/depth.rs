@@ -18,6 +18,10 @@
 //!   holding it, whatever static boxes also hold it (a chair or table at another depth keeps
 //!   its points, the person's points in the chair's box go), and kept when it lies outside every
 //!   such band (background seen past the person, a desk in front of it);
+//! - local rule: a keypoint within [`DepthParams::local_radius_fraction`] x sqrt(box area) of a
+//!   geometric outlier of the box and in that outlier's band is culled too (a hand reaching in
+//!   front of the body); outliers behind the object's band are background at its silhouette and
+//!   do not count (on synth walking_xyz: recall 0.955 → 0.966 at 0.009 precision);
 //! - a keypoint without depth, or in a dynamic box whose depth could not be estimated (too few
 //!   valid samples), is judged by the paper's rule (culled unless a static box holds it).
 //!
