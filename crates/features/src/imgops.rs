@@ -78,19 +78,27 @@ pub(crate) fn resize_linear_into(src: &Gray8, dw: usize, dh: usize, dst: &mut Gr
         }
         (s as usize, (a * 2048.0).round() as i32)
     };
-    let xs: Vec<(usize, i32)> = (0..dw)
-        .map(|x| coef(x, sw as f64 / dw as f64, sw))
-        .collect();
+    // per destination column: left source column, right source column (clamped), weight
+    let (mut x_left, mut x_right, mut x_weight) = (
+        Vec::with_capacity(dw),
+        Vec::with_capacity(dw),
+        Vec::with_capacity(dw),
+    );
+    for x in 0..dw {
+        let (sx, a) = coef(x, sw as f64 / dw as f64, sw);
+        x_left.push(sx as u32);
+        x_right.push((sx + 1).min(sw - 1) as u32);
+        x_weight.push(a);
+    }
     let ys: Vec<(usize, i32)> = (0..dh)
         .map(|y| coef(y, sh as f64 / dh as f64, sh))
         .collect();
     let hrow = |y: usize, out: &mut Vec<i32>| {
         let row = src.row(y);
-        out.clear();
-        out.extend(xs.iter().map(|&(sx, a)| {
-            let x1 = (sx + 1).min(sw - 1);
-            row[sx] as i32 * (2048 - a) + row[x1] as i32 * a
-        }));
+        out.resize(dw, 0);
+        for (((o, &l), &r), &a) in out.iter_mut().zip(&x_left).zip(&x_right).zip(&x_weight) {
+            *o = row[l as usize] as i32 * (2048 - a) + row[r as usize] as i32 * a;
+        }
     };
     let (mut r0, mut r1) = (Vec::with_capacity(dw), Vec::with_capacity(dw));
     let mut cached: (usize, usize) = (usize::MAX, usize::MAX);

@@ -613,7 +613,14 @@ crate::imgops::simd_fn! {
 fn rotated_offsets(a: f32, b: f32, width: i32, out: &mut [i32; 512]) {
     // round half away from zero with a truncating cast: `round_ties_even` is a libm call on
     // baseline x86-64 and differs only on exact .5 ties, which irrational cos/sin never hit
-    let round = |v: f32| (v + 0.5f32.copysign(v)) as i32;
+    // (pattern coordinates are within ±13, so |v| < 20 and the unchecked cast, which LLVM
+    // vectorises unlike the saturating `as`, truncates exactly like it)
+    let round = |v: f32| {
+        let r = v + 0.5f32.copysign(v);
+        debug_assert!(r.abs() < 64.0);
+        // SAFETY: |r| < 20: finite and representable in i32
+        unsafe { r.to_int_unchecked::<i32>() }
+    };
     for ((o, &px), &py) in out.iter_mut().zip(&PATTERN_X).zip(&PATTERN_Y) {
         let dy = round(px * b + py * a);
         let dx = round(px * a - py * b);
