@@ -1,6 +1,6 @@
 //! FAST-9 (16-pixel circle) corners with OpenCV's score and 3x3 non-maximum suppression.
 //!
-//! The full segment test runs 32 pixels at a time as byte masks (blocks where no pixel passes
+//! The full segment test runs 32 pixels at a time as bit masks (blocks where no pixel passes
 //! the opposite-pairs pre-test are skipped); the score runs only on true corners.
 
 use crate::imgops::simd_fn;
@@ -95,39 +95,51 @@ fn score_at(data: &[u8], idx: usize, offsets: &[isize; 16], t: u8) -> u8 {
 /// Lanes processed together by the row test (one AVX2 register of bytes).
 const L: usize = 32;
 
-/// Per lane: 0xFF where 9 contiguous of the 16 circle masks `m` are set (cyclically).
+/// Bit j set where 9 contiguous of the 16 circle masks `m` (one bit per pixel) are set,
+/// cyclically: runs of 2, 4, 8, then one more.
 #[inline(always)]
-fn arc9(m: &[[u8; L]; 16]) -> [u8; L] {
-    let mut a1 = [[0u8; L]; 16];
+fn arc9(m: &[u32; 16]) -> u32 {
+    let a1: [u32; 16] = std::array::from_fn(|k| m[k] & m[(k + 1) & 15]);
+    let a2: [u32; 16] = std::array::from_fn(|k| a1[k] & a1[(k + 2) & 15]);
+    let mut out = 0;
     for k in 0..16 {
-        for j in 0..L {
-            a1[k][j] = m[k][j] & m[(k + 1) & 15][j];
-        }
-    }
-    let mut a2 = [[0u8; L]; 16];
-    for k in 0..16 {
-        for j in 0..L {
-            a2[k][j] = a1[k][j] & a1[(k + 2) & 15][j];
-        }
-    }
-    let mut out = [0u8; L];
-    for k in 0..16 {
-        for j in 0..L {
-            out[j] |= a2[k][j] & a2[(k + 4) & 15][j] & m[(k + 8) & 15][j];
-        }
+        out |= a2[k] & a2[(k + 4) & 15] & m[(k + 8) & 15];
     }
     out
 }
 
+/// Bit j = top bit of byte j (byte masks 0x00 / 0xFF to a bit mask).
+#[inline(always)]
+fn movemask32(m: &[u8; L]) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{__m128i, _mm_loadu_si128, _mm_movemask_epi8};
+        // SAFETY: SSE2 is part of x86-64; both unaligned 16-byte loads lie inside `m`.
+        unsafe {
+            let lo = _mm_loadu_si128(m.as_ptr().cast::<__m128i>());
+            let hi = _mm_loadu_si128(m.as_ptr().add(16).cast::<__m128i>());
+            (_mm_movemask_epi8(lo) as u32 & 0xFFFF) | ((_mm_movemask_epi8(hi) as u32) << 16)
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let mut b = 0u32;
+        for (j, &v) in m.iter().enumerate() {
+            b |= ((v >> 7) as u32) << j;
+        }
+        b
+    }
+}
+
 simd_fn! {
 /// Mark pixels of row `y`, columns `x0..x1`, that are FAST corners at threshold `t` (full
-/// segment test, 32 pixels at a time; blocks where no pixel passes the opposite-pairs pre-test
-/// are skipped).
-fn corner_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<u8>) {
+/// segment test, 32 pixels at a time as bit masks, one `u32` per block in `out`; blocks where
+/// no pixel passes the opposite-pairs pre-test are skipped).
+fn corner_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<u32>) {
     let w = img.width;
     let n = x1 - x0;
     out.clear();
-    out.resize(n.div_ceil(L) * L, 0);
+    out.resize(n.div_ceil(L), 0);
     let base = y * w + x0;
     let offsets: [isize; 16] = std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
     let mut i = 0;
@@ -155,34 +167,30 @@ fn corner_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<
             hi[j] = c[j].saturating_add(t);
             lo[j] = c[j].saturating_sub(t);
         }
-        let mut bright = [[0u8; L]; 16];
-        let mut dark = [[0u8; L]; 16];
+        let mut bright = [0u32; 16];
+        let mut dark = [0u32; 16];
         for k in 0..16 {
+            let mut b = [0u8; L];
+            let mut d = [0u8; L];
             for j in 0..L {
-                bright[k][j] = ((p[k][j] > hi[j]) as u8).wrapping_neg();
-                dark[k][j] = ((p[k][j] < lo[j]) as u8).wrapping_neg();
+                b[j] = ((p[k][j] > hi[j]) as u8).wrapping_neg();
+                d[j] = ((p[k][j] < lo[j]) as u8).wrapping_neg();
             }
+            bright[k] = movemask32(&b);
+            dark[k] = movemask32(&d);
         }
         // a 9-arc holds one pixel of every opposite pair: cheap block rejection
-        let mut any = 0u8;
-        for j in 0..L {
-            let (mut b, mut d) = (0xFFu8, 0xFFu8);
-            for k in 0..8 {
-                b &= bright[k][j] | bright[k + 8][j];
-                d &= dark[k][j] | dark[k + 8][j];
-            }
-            any |= b | d;
+        let (mut b, mut d) = (u32::MAX, u32::MAX);
+        for k in 0..8 {
+            b &= bright[k] | bright[k + 8];
+            d &= dark[k] | dark[k + 8];
         }
-        if any != 0 {
-            let (b, d) = (arc9(&bright), arc9(&dark));
-            let o = &mut out[i..i + L];
-            for j in 0..L {
-                o[j] = b[j] | d[j];
-            }
+        if b | d != 0 {
+            let valid = if lanes == L { u32::MAX } else { (1u32 << lanes) - 1 };
+            out[i / L] = (arc9(&bright) | arc9(&dark)) & valid;
         }
         i += L;
     }
-    out.truncate(n);
 }
 }
 
@@ -227,16 +235,21 @@ pub(crate) fn detect(img: &Gray8, rect: [usize; 4], t: u8, out: &mut Vec<Corner>
     let rw = x1 - x0;
     // three rolling score rows (previous, current, next) with a zero column on each side
     let mut rows = [vec![0u8; rw + 2], vec![0u8; rw + 2], vec![0u8; rw + 2]];
-    let mut mask = Vec::with_capacity(rw);
+    let mut mask = Vec::with_capacity(rw.div_ceil(L));
     let mut fill = |y: usize, row: &mut Vec<u8>| {
         row.iter_mut().for_each(|v| *v = 0);
         if y < y0 || y >= y1 {
             return;
         }
         corner_row(img, y, x0, x1, t, &mut mask);
-        for_each_nonzero(&mask, |j| {
-            row[j + 1] = corner_score(&img.data, y * w + x0 + j, &offsets);
-        });
+        for (block, &bits) in mask.iter().enumerate() {
+            let mut bits = bits;
+            while bits != 0 {
+                let j = block * L + bits.trailing_zeros() as usize;
+                row[j + 1] = corner_score(&img.data, y * w + x0 + j, &offsets);
+                bits &= bits - 1;
+            }
+        }
     };
     fill(y0, &mut rows[1]);
     for y in y0..y1 {

@@ -54,6 +54,7 @@ pub(crate) fn resize_linear(src: &Gray8, dw: usize, dh: usize) -> Gray8 {
     dst
 }
 
+simd_fn! {
 /// [`resize_linear`] into `dst`, reusing its buffer (every pixel is written).
 pub(crate) fn resize_linear_into(src: &Gray8, dw: usize, dh: usize, dst: &mut Gray8) {
     let (sw, sh) = (src.width, src.height);
@@ -119,6 +120,7 @@ pub(crate) fn resize_linear_into(src: &Gray8, dw: usize, dh: usize, dst: &mut Gr
             *o = ((p * b0 + q * b + (1 << 21)) >> 22) as u8;
         }
     }
+}
 }
 
 /// 7-tap Gaussian, sigma 2, in 8-bit fixed point (sum 256), as ORB-SLAM3 blurs each level
