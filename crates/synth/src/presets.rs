@@ -449,9 +449,29 @@ fn random_outfit(s: &mut Scene, rng: &mut Pcg64Mcg) -> Outfit {
         [0.6, 0.45, 0.25],
         [0.35, 0.3, 0.28],
     ];
-    let shirt = random_colour(rng);
-    let g = rng.random_range(0.1..0.4f32);
-    let trousers = [g, g, g + rng.random_range(0.0..0.2f32)];
+    // everyday clothes: muted shirts (white, grey, navy, black, dark red, olive, light blue,
+    // beige) and dark or denim trousers, as in TUM fr3
+    let shirts = [
+        [0.85, 0.85, 0.83],
+        [0.5, 0.5, 0.52],
+        [0.15, 0.2, 0.4],
+        [0.12, 0.12, 0.13],
+        [0.5, 0.12, 0.12],
+        [0.35, 0.38, 0.22],
+        [0.55, 0.68, 0.85],
+        [0.75, 0.65, 0.5],
+    ];
+    let mut shirt = shirts[rng.random_range(0..shirts.len())];
+    let tint = random_colour(rng);
+    for (c, t) in shirt.iter_mut().zip(tint) {
+        *c = 0.85 * *c + 0.15 * t;
+    }
+    let trousers = if rng.random_bool(0.5) {
+        let g = rng.random_range(0.08..0.3f32);
+        [g, g, g * 1.1]
+    } else {
+        [0.2, 0.27, 0.42]
+    };
     let skin = skins[rng.random_range(0..skins.len())];
     let hair = hairs[rng.random_range(0..hairs.len())];
     s.outfit(shirt, trousers, skin, hair, rng)

@@ -520,8 +520,8 @@ impl Scene {
         rng: &mut Pcg64Mcg,
     ) -> Outfit {
         Outfit {
-            shirt: self.paint(Style::Fabric(shirt), 256, 128, rng),
-            trousers: self.paint(Style::Fabric(trousers), 128, 128, rng),
+            shirt: self.paint(Style::Cloth(shirt), 256, 128, rng),
+            trousers: self.paint(Style::Cloth(trousers), 128, 128, rng),
             skin: self.paint(Style::Skin(skin), 64, 64, rng),
             head: self.paint(Style::Head(skin, hair), 128, 128, rng),
             shoes: self.paint(Style::Plain([0.12, 0.1, 0.09]), 32, 32, rng),

@@ -142,6 +142,9 @@ pub enum Style {
     Wood([f32; 3]),
     /// Cloth in a colour, blotchy.
     Fabric([f32; 3]),
+    /// Clothes: a plain colour with soft folds and a fine weave, no printed blobs (the blobs
+    /// of `Fabric` made people look like upholstery to a detector).
+    Cloth([f32; 3]),
     /// Skin with hair on top and a face at u = 0.5.
     Head([f32; 3], [f32; 3]),
     /// Skin.
@@ -451,6 +454,11 @@ pub fn procedural(style: Style, width: usize, height: usize, rng: &mut Pcg64Mcg)
             c = Canvas::new(width, height, base);
             c.fbm(rng, big / 4.0, 0.25);
             c.scatter(rng, (width * height) / 600 + 6, 2.0, big / 6.0, true, false);
+        }
+        Style::Cloth(base) => {
+            c = Canvas::new(width, height, base);
+            c.fbm(rng, big / 3.0, 0.12);
+            c.value_noise(rng, 1.5, 0.05, 1.0);
         }
         Style::Head(skin, hair) => {
             c = Canvas::new(width, height, skin);
