@@ -83,6 +83,21 @@ impl System {
         descriptors: &[Descriptor],
         depth: Option<&DepthMetres>,
     ) -> Result<FrameReport, SlamError> {
+        self.track_rgbd_masked(index, timestamp, features, descriptors, depth, &[])
+    }
+
+    /// [`System::track_rgbd`] with keypoints that may be tracked but must not create map points
+    /// (`no_new_points`, same length as `features`, or empty): the front-end's keypoints inside a
+    /// moving object's box that a static box protects (paper algorithm 3 keeps them).
+    pub fn track_rgbd_masked(
+        &mut self,
+        index: usize,
+        timestamp: f64,
+        features: &[Feature],
+        descriptors: &[Descriptor],
+        depth: Option<&DepthMetres>,
+        no_new_points: &[bool],
+    ) -> Result<FrameReport, SlamError> {
         let t0 = Instant::now();
         if !timestamp.is_finite() {
             return Err(SlamError::BadInput {
@@ -90,13 +105,14 @@ impl System {
                 msg: "timestamp is not finite".into(),
             });
         }
-        let frame = Frame::new(
+        let frame = Frame::new_with_mask(
             index,
             timestamp,
             features,
             descriptors,
             depth,
             &self.settings,
+            no_new_points,
         )?;
         let keypoints = frame.len();
         let (idle, queued) = match &self.mapping {

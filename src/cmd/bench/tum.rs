@@ -34,6 +34,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 frames: args.frames,
                 progress: true,
                 paper_cull: false,
+                box_points_make_map_points: false,
             })?;
             let acc = accuracy(&s);
             rows.push(serde_json::json!({

@@ -120,6 +120,10 @@ pub struct Frame {
     pub map_points: Vec<Option<MpId>>,
     /// Outlier flag from pose optimisation.
     pub outliers: Vec<bool>,
+    /// Keypoints that may be matched to map points but must not create new ones (the dynamic
+    /// front-end kept them only because a static box protects them, inside a moving object's
+    /// box: possibly on the moving object).
+    pub no_new_point: Vec<bool>,
     /// World-to-camera pose once tracked.
     pub pose_cw: Option<Se3>,
     pub grid: KeypointGrid,
@@ -136,6 +140,28 @@ impl Frame {
         descriptors: &[Descriptor],
         depth: Option<&DepthMetres>,
         settings: &SlamSettings,
+    ) -> Result<Self, crate::SlamError> {
+        Self::new_with_mask(
+            index,
+            timestamp,
+            features,
+            descriptors,
+            depth,
+            settings,
+            &[],
+        )
+    }
+
+    /// [`Frame::new`] with a per-keypoint flag (same length as `features`, or empty for none):
+    /// `true` = this keypoint may be tracked but must not create a map point.
+    pub fn new_with_mask(
+        index: usize,
+        timestamp: f64,
+        features: &[Feature],
+        descriptors: &[Descriptor],
+        depth: Option<&DepthMetres>,
+        settings: &SlamSettings,
+        no_new_points: &[bool],
     ) -> Result<Self, crate::SlamError> {
         if features.len() != descriptors.len() {
             return Err(crate::SlamError::BadInput {
@@ -160,10 +186,11 @@ impl Frame {
             u_right: Vec::with_capacity(features.len()),
             map_points: Vec::new(),
             outliers: Vec::new(),
+            no_new_point: Vec::with_capacity(features.len()),
             pose_cw: None,
             grid: KeypointGrid::new(&[], 1.0, 1.0),
         };
-        for (kp, d) in features.iter().zip(descriptors) {
+        for (j, (kp, d)) in features.iter().zip(descriptors).enumerate() {
             if !(kp.x.is_finite() && kp.y.is_finite()) {
                 continue;
             }
@@ -188,6 +215,8 @@ impl Frame {
                 .push(if kp.angle.is_finite() { kp.angle } else { 0.0 });
             f.descriptors.push(*d);
             f.depth.push(z);
+            f.no_new_point
+                .push(no_new_points.get(j).copied().unwrap_or(false));
             f.u_right.push(if z > 0.0 {
                 (un.x - settings.bf / z as f64) as f32
             } else {
@@ -292,5 +321,20 @@ mod tests {
         assert_eq!(f.features_in_area(101.0, 51.0, 3.0, 0, 7), vec![0]);
         assert!(f.features_in_area(101.0, 51.0, 3.0, 1, 7).is_empty());
         assert!(Frame::new(0, 0.0, &feats, &[[0; 32]; 2], None, &s).is_err());
+        assert_eq!(f.no_new_point, vec![false, false]);
+        // The flag follows its keypoint past the dropped NaN one.
+        let mut feats4 = feats.to_vec();
+        feats4.insert(0, feats[2]);
+        let masked = Frame::new_with_mask(
+            0,
+            0.0,
+            &feats4,
+            &[[0; 32]; 4],
+            Some(&depth),
+            &s,
+            &[false, false, true, false],
+        )
+        .unwrap();
+        assert_eq!(masked.no_new_point, vec![false, true]);
     }
 }

@@ -18,6 +18,9 @@ pub struct FilterOutcome {
     pub geometry_ms: f64,
     /// Boxes judged dynamic.
     pub dynamic_boxes: usize,
+    /// Kept keypoints that must not create map points (inside a dynamic box, kept because a
+    /// static box protects them). Same length as the keypoints, or empty for none.
+    pub no_new_points: Vec<bool>,
 }
 
 /// The images of one frame, as the filter needs them.

@@ -199,7 +199,8 @@ impl Tracker {
         let kf = map.add_keyframe(frame)?;
         let scales = self.s.scale_factors();
         for i in 0..frame.len() {
-            if let Some(pw) = frame.unproject_world(i, &self.s.camera)
+            if !frame.no_new_point[i]
+                && let Some(pw) = frame.unproject_world(i, &self.s.camera)
                 && let Some(mp) = map.add_point(pw, kf, i)
             {
                 map.update_point(mp, &scales);
@@ -493,8 +494,10 @@ impl Tracker {
         let th_ref = if n_kfs < 2 { 0.4 } else { self.s.kf_ref_ratio };
         let c1a = frame.index >= self.last_kf_frame + max_frames;
         let c1b = mapper_idle;
-        let c1c = (inliers as f64) < ref_matches as f64 * 0.25 || need_close;
-        let c2 = ((inliers as f64) < ref_matches as f64 * th_ref || need_close) && inliers > 15;
+        let weak = inliers < self.s.kf_weak_tracking_inliers;
+        let c1c = (inliers as f64) < ref_matches as f64 * 0.25 || need_close || weak;
+        let c2 =
+            ((inliers as f64) < ref_matches as f64 * th_ref || need_close || weak) && inliers > 15;
         if (c1a || c1b || c1c) && c2 {
             mapper_idle || mapper_queue < 3
         } else {
@@ -525,6 +528,7 @@ impl Tracker {
         let mut n_points = 0;
         for (z, i) in by_depth {
             if frame.map_points[i].is_none()
+                && !frame.no_new_point[i]
                 && let Some(pw) = frame.unproject_world(i, &self.s.camera)
                 && let Some(mp) = map.add_point(pw, kf, i)
             {

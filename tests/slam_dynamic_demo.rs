@@ -1,0 +1,24 @@
+//! Cross-crate: `stillpoint demo` on a short synthetic walking_xyz sequence. The dynamic
+//! front-end (gt boxes) must keep the trajectory within a few centimetres while the baseline
+//! without it is pulled by the walkers. Bounds from measurements (release, 90 frames, seed 0):
+//! off 10-40 cm, on 0.5-1.0 cm; the debug build gives the same numbers (same code paths).
+
+use std::process::Command;
+
+#[test]
+fn demo_front_end_on_beats_off_on_walking_xyz() {
+    let out = Command::new(env!("CARGO_BIN_EXE_stillpoint"))
+        .args(["demo", "--frames", "90", "--json", "--log", "warn"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let off = summary["ate_rmse_off"].as_f64().unwrap();
+    let on = summary["ate_rmse_on"].as_f64().unwrap();
+    assert!(on < 0.02, "front-end on: ATE {on} m\n{summary}");
+    assert!(off > 0.05, "front-end off: ATE {off} m\n{summary}");
+    assert!(on < 0.25 * off, "on {on} m vs off {off} m\n{summary}");
+    let tracked = summary["on"]["tracked"].as_u64().unwrap();
+    assert!(tracked >= 85, "{summary}");
+}
