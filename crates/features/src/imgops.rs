@@ -94,30 +94,19 @@ pub(crate) fn resize_linear_into(src: &Gray8, dw: usize, dh: usize, dst: &mut Gr
     let ys: Vec<(usize, i32)> = (0..dh)
         .map(|y| coef(y, sh as f64 / dh as f64, sh))
         .collect();
-    let hrow = |y: usize, out: &mut Vec<i32>| {
-        let row = src.row(y);
-        out.resize(dw, 0);
-        for (((o, &l), &r), &a) in out.iter_mut().zip(&x_left).zip(&x_right).zip(&x_weight) {
-            *o = row[l as usize] as i32 * (2048 - a) + row[r as usize] as i32 * a;
-        }
-    };
-    let (mut r0, mut r1) = (Vec::with_capacity(dw), Vec::with_capacity(dw));
-    let mut cached: (usize, usize) = (usize::MAX, usize::MAX);
+    // vertical pass first (contiguous, vectorises), then the horizontal gather once per output
+    // pixel; the integer sums are exact (< 2^31), so the order does not change the result
+    let mut column = vec![0i32; sw];
     for (dy, &(sy, b)) in ys.iter().enumerate() {
-        let sy1 = (sy + 1).min(sh - 1);
-        if cached != (sy, sy1) {
-            if cached.1 == sy {
-                std::mem::swap(&mut r0, &mut r1);
-            } else {
-                hrow(sy, &mut r0);
-            }
-            hrow(sy1, &mut r1);
-            cached = (sy, sy1);
+        let (r0, r1) = (src.row(sy), src.row((sy + 1).min(sh - 1)));
+        let b0 = 2048 - b;
+        for ((v, &p), &q) in column.iter_mut().zip(r0).zip(r1) {
+            *v = p as i32 * b0 + q as i32 * b;
         }
         let out = &mut dst.data[dy * dw..(dy + 1) * dw];
-        let b0 = 2048 - b;
-        for ((o, &p), &q) in out.iter_mut().zip(&r0).zip(&r1) {
-            *o = ((p * b0 + q * b + (1 << 21)) >> 22) as u8;
+        for (((o, &l), &r), &a) in out.iter_mut().zip(&x_left).zip(&x_right).zip(&x_weight) {
+            let v = column[l as usize] * (2048 - a) + column[r as usize] * a;
+            *o = ((v + (1 << 21)) >> 22) as u8;
         }
     }
 }
@@ -156,10 +145,12 @@ pub(crate) fn gaussian_blur7_with(src: &Gray8, dst: &mut Gray8, tmp: &mut Vec<u1
         let out = &mut tmp[y * w..(y + 1) * w];
         for (x, o) in out.iter_mut().enumerate() {
             let s = &padded[x..x + 7];
-            *o = (GAUSS7[0] * (s[0] as u32 + s[6] as u32)
-                + GAUSS7[1] * (s[1] as u32 + s[5] as u32)
-                + GAUSS7[2] * (s[2] as u32 + s[4] as u32)
-                + GAUSS7[3] * s[3] as u32) as u16;
+            // in u16: every partial sum is at most 255 * 256 (16 lanes per vector, not 8)
+            let g = GAUSS7.map(|v| v as u16);
+            *o = g[0] * (s[0] as u16 + s[6] as u16)
+                + g[1] * (s[1] as u16 + s[5] as u16)
+                + g[2] * (s[2] as u16 + s[4] as u16)
+                + g[3] * s[3] as u16;
         }
     }
     // vertical pass
