@@ -79,12 +79,12 @@ fn yolox_finds_most_fully_visible_synthetic_people() {
     let mut detector = YoloxDetector::load(&model, &DetectSettings::default())
         .unwrap_or_else(|e| panic!("{}: {e}", model.display()));
     // (preset, textures, least visible fraction scored, floor on the rate): floors a little
-    // under what was measured (cut-outs 110/110 and 65/65; procedural walkers 42/67, sitters
+    // under what was measured (cut-outs 110/110 and 65/65; procedural walkers 46/66, sitters
     // 5/13, seed 0, 100 frames each)
     let cases = [
         (Preset::WalkingXyz, Some(cutout.clone()), 0.95, 0.9),
         (Preset::SittingXyz, Some(cutout.clone()), 0.5, 0.9),
-        (Preset::WalkingXyz, None, 0.95, 0.5),
+        (Preset::WalkingXyz, None, 0.95, 0.6),
         (Preset::SittingXyz, None, 0.5, 0.2),
     ];
     let mut failures = Vec::new();

@@ -471,6 +471,7 @@ pub struct Outfit {
     pub trousers: u16,
     pub skin: u16,
     pub head: u16,
+    pub hair: u16,
     pub shoes: u16,
 }
 
@@ -524,6 +525,7 @@ impl Scene {
             trousers: self.paint(Style::Cloth(trousers), 128, 128, rng),
             skin: self.paint(Style::Skin(skin), 64, 64, rng),
             head: self.paint(Style::Head(skin, hair), 128, 128, rng),
+            hair: self.paint(Style::Cloth(hair), 64, 64, rng),
             shoes: self.paint(Style::Plain([0.12, 0.1, 0.09]), 32, 32, rng),
         }
     }
@@ -550,8 +552,16 @@ pub fn person_parts(o: &Outfit) -> Vec<Part> {
         Mesh::prism(8, [0.05, 0.05], [0.055, 0.055], 0.06, o.skin)
             .translated(P3::new(0.0, 0.0, 0.6)),
     );
-    let head = Mesh::ellipsoid(P3::new(0.085, 0.1, 0.12), 8, 12, o.head)
-        .translated(P3::new(0.0, 0.0, 0.14));
+    let mut head = Mesh::ellipsoid(P3::new(0.085, 0.1, 0.12), 8, 12, o.head);
+    // a shell of hair over the crown and the back of the head, so that the head has a person's
+    // outline from every side (the face, at +y, stays free below the hairline)
+    let mut hair = Mesh::ellipsoid(P3::new(0.093, 0.109, 0.128), 8, 12, o.hair);
+    hair.tris.retain(|t| {
+        let c = (t.p[0] + t.p[1] + t.p[2]) / 3.0;
+        c.z > 0.045 || (c.y < -0.02 && c.z > -0.07)
+    });
+    head.extend(hair);
+    let head = head.translated(P3::new(0.0, 0.0, 0.14));
     let upper = || Mesh::prism(8, [0.055, 0.055], [0.045, 0.045], 0.3, o.shirt);
     let fore = || {
         let mut m = Mesh::prism(8, [0.042, 0.042], [0.032, 0.032], 0.25, o.skin);
