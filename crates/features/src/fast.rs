@@ -36,7 +36,7 @@ pub(crate) struct Corner {
 
 /// Score of a pixel known to be a corner: the largest margin over the 16 arcs of 9 of the
 /// smallest |difference| on the arc (bright or dark), minus one (OpenCV's convention). Sliding
-/// minima on fixed 32-lane arrays, so LLVM runs it as a handful of vector ops.
+/// minima on fixed-size arrays, so LLVM runs it as a handful of vector ops.
 #[inline]
 fn corner_score(data: &[u8], idx: usize, offsets: &[isize; 16]) -> u8 {
     let c = data[idx] as i16;
@@ -46,23 +46,16 @@ fn corner_score(data: &[u8], idx: usize, offsets: &[isize; 16]) -> u8 {
         d[k] = v;
         d[k + 16] = v;
     }
-    // min / max of d[k..k + 9] for every k by doubling windows: 2, 4, 8, then + 1
-    let (mut lo, mut hi) = ([0i16; 32], [0i16; 32]);
-    for i in 0..31 {
-        lo[i] = d[i].min(d[i + 1]);
-        hi[i] = d[i].max(d[i + 1]);
-    }
-    for step in [2usize, 4] {
-        let (l0, h0) = (lo, hi);
-        for i in 0..32 - step {
-            lo[i] = l0[i].min(l0[i + step]);
-            hi[i] = h0[i].max(h0[i + step]);
-        }
-    }
+    // min / max of d[k..k + 9] for k < 16 by doubling windows (2, 4, 8, then + 1), each step
+    // only as wide as the next one needs: 24, 20, 16 lanes
+    let lo2: [i16; 24] = std::array::from_fn(|i| d[i].min(d[i + 1]));
+    let hi2: [i16; 24] = std::array::from_fn(|i| d[i].max(d[i + 1]));
+    let lo4: [i16; 20] = std::array::from_fn(|i| lo2[i].min(lo2[i + 2]));
+    let hi4: [i16; 20] = std::array::from_fn(|i| hi2[i].max(hi2[i + 2]));
     let mut best = 0i16;
     for k in 0..16 {
-        let mn = lo[k].min(d[k + 8]);
-        let mx = hi[k].max(d[k + 8]);
+        let mn = lo4[k].min(lo4[k + 4]).min(d[k + 8]);
+        let mx = hi4[k].max(hi4[k + 4]).max(d[k + 8]);
         best = best.max(mn).max(-mx);
     }
     (best - 1).clamp(1, 255) as u8
@@ -216,6 +209,7 @@ fn for_each_nonzero(v: &[u8], mut f: impl FnMut(usize)) {
     }
 }
 
+simd_fn! {
 /// FAST corners at threshold `t` inside `[x0, x1) x [y0, y1)` (clipped to 3 px from the image
 /// border), with 3x3 non-maximum suppression among the corners of that rectangle (like OpenCV's
 /// `FAST(roi, t, true)`).
@@ -276,6 +270,7 @@ pub(crate) fn detect(img: &Gray8, rect: [usize; 4], t: u8, out: &mut Vec<Corner>
         });
         rows.rotate_left(1);
     }
+}
 }
 
 #[cfg(test)]
