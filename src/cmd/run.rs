@@ -20,6 +20,10 @@ pub struct Args {
     /// Sequence folder (TUM/Bonn layout, a `stillpoint synth` output, ...).
     #[arg(long)]
     pub dataset: PathBuf,
+    /// YOLOX ONNX model (else the settings, $STILLPOINT_MODEL, models/ beside the binary,
+    /// ../shared/models).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
     /// Dataset kind (tum, bonn, synth, kitti, euroc, folder); detected when omitted.
     #[arg(long)]
     pub kind: Option<String>,
@@ -69,6 +73,8 @@ pub struct RunOptions {
     pub paper_cull: bool,
     /// Let keypoints kept inside a dynamic box create map points (off by default).
     pub box_points_make_map_points: bool,
+    /// YOLOX ONNX file; `None` searches the default places.
+    pub model: Option<PathBuf>,
 }
 
 /// Per-stage times of one frame, ms.
@@ -288,7 +294,10 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             let boxes = seq.boxes();
             let detector = stillpoint_detect::open_detector(
                 name,
-                &DetectSettings::default(),
+                &DetectSettings {
+                    model: o.model.clone(),
+                    ..DetectSettings::default()
+                },
                 boxes.as_deref(),
                 GtDetectorParams::default(),
             )
@@ -653,6 +662,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         detector: (!args.no_dynamic).then(|| args.detector.clone()),
         sequential: args.sequential,
         frames: args.frames,
+        model: args.model.clone(),
         progress: true,
         paper_cull: args.paper_cull,
         box_points_make_map_points: args.box_points_make_map_points,

@@ -18,6 +18,9 @@ pub struct Args {
     pub frames: Option<usize>,
     #[arg(long)]
     pub json: bool,
+    /// YOLOX ONNX model (else the default search).
+    #[arg(long)]
+    pub model: Option<std::path::PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -35,6 +38,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 progress: true,
                 paper_cull: false,
                 box_points_make_map_points: false,
+                model: args.model.clone(),
             })?;
             let acc = accuracy(&s);
             rows.push(serde_json::json!({
