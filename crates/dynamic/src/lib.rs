@@ -38,6 +38,8 @@
 //!   box protects only keypoints that are not at the mover's depth. Box-level culling caps
 //!   precision at the share of the box the object fills (about half for a person), and the
 //!   paper's static-box protection (tables, chairs, screens overlapping a walker) costs recall.
+//! - Box memory ([`memory`]): a box judged dynamic is carried, shifted by the optical flow, into
+//!   up to 5 following frames in which the detector misses the object.
 //!
 //! Measured with `stillpoint bench dynamic --dataset D` on `stillpoint synth --preset P --frames 20
 //! --masks` (ground-truth boxes, precision / recall of the dynamic-keypoint decision against the
@@ -64,16 +66,20 @@
 pub mod cull;
 pub mod depth;
 pub mod judge;
+pub mod memory;
 pub mod motion_consistency;
 pub mod settings;
 
 pub use cull::{cull, cull_with, near_outliers};
 pub use depth::{DepthCullInput, ObjectDepth, cull_frame, cull_with_depth};
 pub use judge::{BoxPart, BoxState, Rule, Verdict, judge_boxes, nhbc_parts};
+pub use memory::{RememberedBox, carried_states, carry_forward, remember};
 pub use motion_consistency::{
     GeometryTimings, MotionCheck, MotionModel, TrackedPoint, motion_consistency,
 };
-pub use settings::{CullParams, DepthParams, DynamicSettings, GeometryParams, JudgeParams};
+pub use settings::{
+    BoxMemoryParams, CullParams, DepthParams, DynamicSettings, GeometryParams, JudgeParams,
+};
 
 #[cfg(test)]
 mod paper_cases;

@@ -11,6 +11,9 @@ pub struct DynamicSettings {
     pub cull: CullParams,
     /// Depth-aware culling for RGB-D frames (ours; see [`crate::depth`]).
     pub depth: DepthParams,
+    /// Temporal propagation of moving-object boxes across missed detections (ours; see
+    /// [`crate::memory`]).
+    pub memory: BoxMemoryParams,
 }
 
 /// The motion consistency check (paper section 2, module 2; DS-SLAM's `ProcessMovingObject`).
@@ -233,6 +236,35 @@ impl Default for DepthParams {
             seated_parts_local: false,
             min_valid_m: 0.05,
             keypoint_window_px: 1,
+        }
+    }
+}
+
+/// Box memory: carry a box judged dynamic into the next frames when the detector misses it
+/// (ours, not in the paper; see [`crate::memory`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoxMemoryParams {
+    /// On by default; off = the paper (a missed detection lets the mover's keypoints through).
+    pub enabled: bool,
+    /// Most consecutive frames a box is carried without a matching detection. 5 frames at
+    /// 30 Hz: long enough for a detector's dropouts (blur, occlusion), short enough that a
+    /// box that left the scene does not blank the background for long.
+    pub max_frames: usize,
+    /// A current detection of the same class with IoU >= this with the remembered box is the
+    /// same object re-detected, and the memory is dropped (the detection is judged instead).
+    pub min_iou: f32,
+    /// ... or when such a detection covers at least this share of the remembered box (so the
+    /// part boxes of a seated person, and boxes that shrank, are re-found by the whole person).
+    pub min_covered: f32,
+}
+
+impl Default for BoxMemoryParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            max_frames: 5,
+            min_iou: 0.3,
+            min_covered: 0.5,
         }
     }
 }
