@@ -65,6 +65,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         progress: true,
         paper_cull: false,
         box_points_make_map_points: false,
+        box_memory: true,
         model: None,
     };
     tracing::info!("run 1/2: dynamic front-end off");

@@ -50,6 +50,10 @@ pub struct Args {
     /// box, or behind the object by depth) create map points. By default they are only tracked.
     #[arg(long)]
     pub box_points_make_map_points: bool,
+    /// Turn off the box memory (ours): by default a box judged dynamic is carried, moved by the
+    /// optical flow, into up to 5 following frames in which the detector misses the object.
+    #[arg(long)]
+    pub no_box_memory: bool,
     /// Only the first N frames.
     #[arg(long)]
     pub frames: Option<usize>,
@@ -73,6 +77,8 @@ pub struct RunOptions {
     pub paper_cull: bool,
     /// Let keypoints kept inside a dynamic box create map points (off by default).
     pub box_points_make_map_points: bool,
+    /// Carry dynamic boxes across missed detections (`DynamicSettings::memory`; on by default).
+    pub box_memory: bool,
     /// YOLOX ONNX file; `None` searches the default places.
     pub model: Option<PathBuf>,
 }
@@ -131,6 +137,9 @@ struct DynamicFrontEnd {
     prev_gray: Option<Gray8>,
     /// Keypoints kept inside a dynamic box create no map points (ours; `--keep-box-points` off).
     no_new_points_in_dynamic_boxes: bool,
+    /// Boxes judged dynamic in the previous frame, or carried into it (ours; see
+    /// `stillpoint_dynamic::memory`).
+    memory: Vec<stillpoint_dynamic::RememberedBox>,
 }
 
 impl DynamicFrontEnd {
@@ -165,6 +174,7 @@ impl DynamicFrontEnd {
             s.verdict = Verdict::Dynamic;
         }
         out.dynamic_boxes = states.iter().filter(|s| s.is_dynamic()).count();
+        self.memory = stillpoint_dynamic::remember(&states, dets.len(), &[]);
         out.dynamic = stillpoint_dynamic::cull_frame(
             kps,
             &mut states,
@@ -217,6 +227,33 @@ impl DynamicFrontEnd {
         out.geometry_ms = geo_ms;
         let mut states =
             stillpoint_dynamic::judge_boxes(&dets.0, &check.points, &self.settings.judge);
+        // Box memory (ours): dynamic boxes of the previous frame that the detector missed now.
+        let carried = stillpoint_dynamic::carry_forward(
+            &self.memory,
+            &dets.0,
+            &check.points,
+            &self.settings.memory,
+        );
+        if !carried.is_empty() {
+            tracing::debug!(
+                "frame {}: carried {:?}; detected {:?}",
+                frame.index,
+                carried
+                    .iter()
+                    .map(|c| (c.class_id, c.age, c.bbox.x1 as i32, c.bbox.x2 as i32))
+                    .collect::<Vec<_>>(),
+                dets.0
+                    .iter()
+                    .map(|d| (d.class_id, d.bbox.x1 as i32, d.bbox.x2 as i32))
+                    .collect::<Vec<_>>()
+            );
+        }
+        states.extend(stillpoint_dynamic::carried_states(
+            &carried,
+            &check.points,
+            dets.0.len(),
+        ));
+        self.memory = stillpoint_dynamic::remember(&states, dets.0.len(), &carried);
         out.dynamic_boxes = states
             .iter()
             .filter(|s| s.verdict == Verdict::Dynamic)
@@ -304,11 +341,13 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             .with_context(|| format!("opening the {name} detector"))?;
             let mut settings = DynamicSettings::default();
             settings.depth.enabled &= !o.paper_cull;
+            settings.memory.enabled &= o.box_memory;
             Some(DynamicFrontEnd {
                 detector,
                 settings,
                 prev_gray: None,
                 no_new_points_in_dynamic_boxes: !o.box_points_make_map_points,
+                memory: Vec::new(),
             })
         }
     };
@@ -666,6 +705,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         progress: true,
         paper_cull: args.paper_cull,
         box_points_make_map_points: args.box_points_make_map_points,
+        box_memory: !args.no_box_memory,
     };
     let s = run_sequence(&o)?;
     tracing::info!(

@@ -38,6 +38,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 progress: true,
                 paper_cull: false,
                 box_points_make_map_points: false,
+                box_memory: true,
                 model: args.model.clone(),
             })?;
             let acc = accuracy(&s);
