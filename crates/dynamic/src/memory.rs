@@ -11,7 +11,8 @@
 //! are none), for at most [`BoxMemoryParams::max_frames`] frames, and culled as a dynamic box.
 //!
 //! Measured (`stillpoint run --sequential`, 300-frame synthetic sequences, ATE RMSE, memory off
-//! -> on): walking_xyz with YOLOX-nano 34.8 -> 28.1 cm (15 frames instead of 5: 30.2 cm); same
+//! -> on): walking_xyz with YOLOX-nano 34.8 -> 28.1 cm (at most 3 / 8 / 15 frames instead of 5:
+//! 29.5 / 27.6 / 30.2 cm, flat); same
 //! with ground-truth boxes 0.63 -> 0.63 cm; walking_xyz with photo cut-out people and YOLOX
 //! 0.63 -> 0.61 cm. Most of the remaining YOLOX error comes from a walker that is never detected
 //! in the first 12 frames (nothing to remember) and one detected as a chair.
