@@ -57,14 +57,7 @@ impl Default for FundamentalRansac {
 /// or a degenerate configuration whose solution is not unique (for example a static camera,
 /// `p2 = p1`, or a purely rotating one, `p2 = H p1`: then every `F = [e]x H` fits).
 pub fn fundamental_8point(p1: &[Vec2], p2: &[Vec2]) -> Option<Mat3> {
-    if p1.len() < 8 || p1.len() != p2.len() {
-        return None;
-    }
-    if !p1
-        .iter()
-        .chain(p2)
-        .all(|p| p.x.is_finite() && p.y.is_finite())
-    {
+    if !usable_pairs(p1, p2, 8) {
         return None;
     }
     let t1 = normalising_transform(p1.iter())?;
@@ -291,6 +284,17 @@ pub(crate) fn normalising_transform<'a>(
 
 /// `T p` for a pixel, in inhomogeneous coordinates (T is affine).
 #[inline]
+/// At least `min` pairs, equal lengths, every coordinate finite: what the minimal solvers need
+/// before they normalise.
+pub(crate) fn usable_pairs(p1: &[Vec2], p2: &[Vec2], min: usize) -> bool {
+    p1.len() >= min
+        && p1.len() == p2.len()
+        && p1
+            .iter()
+            .chain(p2)
+            .all(|p| p.x.is_finite() && p.y.is_finite())
+}
+
 pub(crate) fn apply(t: &Mat3, p: &Vec2) -> Vec2 {
     Vec2::new(
         t[(0, 0)] * p.x + t[(0, 1)] * p.y + t[(0, 2)],

@@ -15,7 +15,9 @@
 //! assert!(transfer_error2(&est, &p1[5], &p2[5]) < 1e-12);
 //! ```
 
-use crate::fundamental::{apply, normalising_transform, ransac, smallest_null_vector};
+use crate::fundamental::{
+    apply, normalising_transform, ransac, smallest_null_vector, usable_pairs,
+};
 use crate::{Mat3, Vec2, Vec3};
 use nalgebra::SMatrix;
 
@@ -49,14 +51,7 @@ impl Default for HomographyRansac {
 /// when possible (unit norm otherwise). `None` for fewer than 4 pairs, non-finite input or a
 /// degenerate configuration (three of four points collinear, coincident points).
 pub fn homography_dlt(p1: &[Vec2], p2: &[Vec2]) -> Option<Mat3> {
-    if p1.len() < 4 || p1.len() != p2.len() {
-        return None;
-    }
-    if !p1
-        .iter()
-        .chain(p2)
-        .all(|p| p.x.is_finite() && p.y.is_finite())
-    {
+    if !usable_pairs(p1, p2, 4) {
         return None;
     }
     let t1 = normalising_transform(p1.iter())?;
