@@ -120,9 +120,13 @@ impl LkPyramid {
                     self.grads.push((Vec::new(), Vec::new()));
                 }
                 let (dx, dy) = &mut self.grads[level];
+                // the border stays zero: only the interior is ever written, so a buffer of
+                // the right size is reused as it is and a new one comes zeroed from the
+                // allocator (no memset pass over the whole level)
                 for d in [&mut *dx, &mut *dy] {
-                    d.clear();
-                    d.resize(sw * sh, 0.0);
+                    if d.len() != sw * sh {
+                        *d = vec![0.0; sw * sh];
+                    }
                 }
                 scharr_into(cur, dx, dy, sw, bd * sw + bd);
             }
@@ -147,7 +151,10 @@ impl LkPyramid {
 fn fill_padded(img: &Gray8, bd: usize, out: &mut Vec<f32>) {
     let (w, h) = (img.width, img.height);
     let sw = w + 2 * bd;
-    out.resize(sw * (h + 2 * bd), 0.0);
+    // every sample is written below, so only a new size needs a (zeroed, not memset) buffer
+    if out.len() != sw * (h + 2 * bd) {
+        *out = vec![0.0; sw * (h + 2 * bd)];
+    }
     let cols: Vec<usize> = (0..sw)
         .map(|i| reflect101(i as isize - bd as isize, w))
         .collect();
@@ -188,11 +195,27 @@ pub fn track_lk(
     pts: &[[f32; 2]],
     p: &LkParams,
 ) -> Vec<Option<[f32; 2]>> {
-    let mut a = LkPyramid::default();
-    a.build(prev, p, true);
-    let mut b = LkPyramid::default();
-    b.build(cur, p, false);
-    track_lk_pyramids(&a, &b, pts, p)
+    thread_local! {
+        /// The two pyramids of the last call on this thread, kept so that their buffers
+        /// (about 12 bytes per pixel) are reused: fresh pages cost more than the tracking
+        /// itself on a 640x480 frame. Only the allocations are reused, never the content.
+        static SCRATCH: std::cell::RefCell<(LkPyramid, LkPyramid)> = Default::default();
+    }
+    SCRATCH.with(|s| match s.try_borrow_mut() {
+        Ok(mut s) => {
+            let (a, b) = &mut *s;
+            a.build(prev, p, true);
+            b.build(cur, p, false);
+            track_lk_pyramids(a, b, pts, p)
+        }
+        // not reachable (tracking does not call back into track_lk), but never panic
+        Err(_) => {
+            let (mut a, mut b) = (LkPyramid::default(), LkPyramid::default());
+            a.build(prev, p, true);
+            b.build(cur, p, false);
+            track_lk_pyramids(&a, &b, pts, p)
+        }
+    })
 }
 
 /// [`track_lk`] on prepared pyramids (`prev` must have been built with [`LkPyramid::new`] or
