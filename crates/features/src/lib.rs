@@ -40,7 +40,7 @@ pub use corners::{CornerParams, corner_sub_pix, good_features_to_track};
 pub use lk::{LkParams, LkPyramid, forward_backward_errors, track_lk, track_lk_pyramids};
 pub use matcher::{
     KeypointGrid, Match, MatchParams, Projected, ProjectionParams, RotationHistogram, hamming,
-    match_brute_force, search_by_projection,
+    match_brute_force, match_keypoints, search_by_projection,
 };
 pub use orb::{KeyPoint, OrbExtractor, OrbFeatures, OrbParams, OrbScore, OrbTimings};
 pub use stillpoint_image::{Gray8, rgb_to_gray};

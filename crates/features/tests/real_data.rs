@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use stillpoint_features::{
     CornerParams, LkParams, LkPyramid, MatchParams, OrbExtractor, OrbParams,
-    forward_backward_errors, good_features_to_track, match_brute_force, track_lk_pyramids,
+    forward_backward_errors, good_features_to_track, match_keypoints, track_lk_pyramids,
 };
 use stillpoint_geometry::Vec2;
 use stillpoint_geometry::fundamental::{FundamentalRansac, fundamental_ransac};
@@ -37,14 +37,18 @@ fn tum_frame(i: usize) -> String {
     format!("tum/fr3_walking_halfsphere_first10_rgb/rgb/{}", f[i])
 }
 
-/// (name, first, second, OpenCV inlier ratio, OpenCV LK points with FB error < 0.5 px)
+/// (name, first, second, OpenCV's inlier ratio, OpenCV LK points with FB error < 0.5 px).
+/// OpenCV's ratio is `inlier_ratio_mean20` of `opencv_features.py quality`: OpenCV's own
+/// pipeline (BFMatcher ratio 0.8 + cross check, findFundamentalMat RANSAC 1 px / 0.99), mean
+/// over the input order and 19 shuffled orders. One order is one draw of a sampler with a
+/// fixed seed: the input order alone gave 0.606, 0.435, 0.756, 0.720, 0.520, 0.674.
 fn pairs() -> Vec<(&'static str, String, String, f64, usize)> {
     vec![
         (
             "tum fr1 desk pair",
             "rgbd_pairs/pair/1.png".into(),
             "rgbd_pairs/pair/2.png".into(),
-            0.606,
+            0.617,
             132,
         ),
         (
@@ -58,87 +62,88 @@ fn pairs() -> Vec<(&'static str, String, String, f64, usize)> {
             "kitti stereo",
             "kitti/stereo_pair/left.png".into(),
             "kitti/stereo_pair/right.png".into(),
-            0.756,
+            0.757,
             308,
         ),
         (
             "kitti seq 1-2",
             "kitti/seq00_5frames/000001.png".into(),
             "kitti/seq00_5frames/000002.png".into(),
-            0.720,
+            0.674,
             379,
         ),
         (
             "euroc mh01",
             "euroc_mh01_2frames/mh01_frame1.png".into(),
             "euroc_mh01_2frames/mh01_frame2.png".into(),
-            0.520,
+            0.534,
             315,
         ),
-        ("tum walking 0-1", tum_frame(0), tum_frame(1), 0.674, 339),
+        ("tum walking 0-1", tum_frame(0), tum_frame(1), 0.699, 339),
     ]
 }
 
-fn inlier_ratio(a: &Gray8, b: &Gray8) -> (usize, usize) {
+/// RANSAC seeds averaged over: one seed is one draw (on the KITTI sequence pair our ratio is
+/// 0.637 with seed 0 and 0.70 on average), the mean compares the matches, not the luck.
+const SEEDS: u64 = 20;
+
+/// Our pipeline on one pair: ORB-SLAM3 ORB, [`match_keypoints`] with its defaults (ratio 0.8,
+/// mutual, ORB-SLAM's rotation check), fundamental RANSAC 1 px / 0.99 (with refit on the
+/// inliers). Returns (matches, inliers with seed 0, mean inlier ratio over [`SEEDS`] seeds).
+fn inlier_ratio(a: &Gray8, b: &Gray8) -> (usize, usize, f64) {
     let mut orb = OrbExtractor::new(OrbParams::default());
     let fa = orb.extract(a);
     let fb = orb.extract(b);
-    let m = match_brute_force(&fa.descriptors, &fb.descriptors, &MatchParams::default());
-    let p1: Vec<Vec2> = m
-        .iter()
-        .map(|m| {
-            let k = fa.keypoints[m.query];
-            Vec2::new(k.x as f64, k.y as f64)
+    let m = match_keypoints(&fa, &fb, &MatchParams::default());
+    let point = |k: &stillpoint_features::KeyPoint| Vec2::new(k.x as f64, k.y as f64);
+    let p1: Vec<Vec2> = m.iter().map(|m| point(&fa.keypoints[m.query])).collect();
+    let p2: Vec<Vec2> = m.iter().map(|m| point(&fb.keypoints[m.train])).collect();
+    let inliers: Vec<usize> = (0..SEEDS)
+        .map(|seed| {
+            let params = FundamentalRansac {
+                threshold_px: 1.0,
+                confidence: 0.99,
+                seed,
+                ..FundamentalRansac::default()
+            };
+            fundamental_ransac(&p1, &p2, &params)
+                .map(|(_, mask)| mask.iter().filter(|&&b| b).count())
+                .unwrap_or(0)
         })
         .collect();
-    let p2: Vec<Vec2> = m
-        .iter()
-        .map(|m| {
-            let k = fb.keypoints[m.train];
-            Vec2::new(k.x as f64, k.y as f64)
-        })
-        .collect();
-    let params = FundamentalRansac {
-        threshold_px: 1.0,
-        confidence: 0.99,
-        ..FundamentalRansac::default()
-    };
-    let inliers = fundamental_ransac(&p1, &p2, &params)
-        .map(|(_, mask)| mask.iter().filter(|&&b| b).count())
-        .unwrap_or(0);
-    (m.len(), inliers)
+    let mean = inliers.iter().sum::<usize>() as f64 / (SEEDS as f64 * m.len().max(1) as f64);
+    (m.len(), inliers[0], mean)
 }
 
 #[test]
 #[ignore = "needs ../shared/data"]
-fn orb_fundamental_inlier_ratio_near_opencv() {
-    // Goal: at least OpenCV's on every pair. Measured: above on 4 of 6 pairs, below on the
-    // wide-baseline bow pair (35 matches) and KITTI forward motion (ORB-SLAM's quadtree spends
-    // features on weak sky/road corners); pooled over all pairs 0.663 vs OpenCV 0.666. The
-    // assertion holds the line at 70 % of OpenCV's per pair and at par on the pooled ratio.
+fn orb_fundamental_inlier_ratio_at_least_opencv() {
+    // Each system's own pipeline (ours: match_keypoints + our RANSAC; OpenCV: BFMatcher ratio +
+    // cross check + findFundamentalMat), both as means over 20 RANSAC draws. Measured, ours /
+    // OpenCV: TUM desk 0.621 / 0.617, bow loop 1-2 0.578 / 0.435, KITTI stereo 0.823 / 0.757,
+    // KITTI seq 0.698 / 0.674, EuRoC 0.626 / 0.534, TUM walking 0.714 / 0.699. With the same
+    // matcher (rotation check on both) and the same RANSAC (ours) OpenCV's ORB is ahead on TUM
+    // desk (0.660) and the bow pair (0.600): ORB-SLAM's quadtree keeps weaker, less precisely
+    // placed corners (bench/README.md has the table).
     let mut worse = Vec::new();
-    let (mut all_m, mut all_i, mut cv_pooled) = (0usize, 0usize, 0.0f64);
+    let (mut sum, mut cv_sum) = (0.0f64, 0.0f64);
     for (name, a, b, cv_ratio, _) in pairs() {
-        let (matches, inliers) = inlier_ratio(&load(&a), &load(&b));
-        let ratio = inliers as f64 / matches.max(1) as f64;
+        let (matches, inliers, ratio) = inlier_ratio(&load(&a), &load(&b));
         eprintln!(
-            "{name}: {matches} matches, {inliers} inliers, ratio {ratio:.3} (OpenCV {cv_ratio:.3})"
+            "{name}: {matches} matches, {inliers} inliers with seed 0, mean ratio {ratio:.3} (OpenCV {cv_ratio:.3})"
         );
-        if ratio + 1e-9 < 0.7 * cv_ratio {
-            worse.push(format!("{name}: {ratio:.3} < 0.7 x {cv_ratio:.3}"));
+        if ratio + 1e-9 < cv_ratio {
+            worse.push(format!("{name}: {ratio:.3} < {cv_ratio:.3}"));
         }
-        all_m += matches;
-        all_i += inliers;
-        cv_pooled += cv_ratio;
+        sum += ratio;
+        cv_sum += cv_ratio;
     }
-    let pooled = all_i as f64 / all_m.max(1) as f64;
-    // OpenCV's pooled ratio over the same pairs: 1097 inliers / 1646 matches
     eprintln!(
-        "pooled: ours {pooled:.3}, OpenCV 0.666 (mean of ratios {:.3})",
-        cv_pooled / 6.0
+        "mean over pairs: ours {:.3}, OpenCV {:.3}",
+        sum / 6.0,
+        cv_sum / 6.0
     );
-    assert!(worse.is_empty(), "well below OpenCV: {worse:?}");
-    assert!(pooled >= 0.66, "pooled inlier ratio {pooled:.3}");
+    assert!(worse.is_empty(), "below OpenCV: {worse:?}");
 }
 
 #[test]
