@@ -316,6 +316,140 @@ fn weights(a: f32, b: f32) -> [f32; 4] {
     [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b]
 }
 
+/// A `rows` x `width` window of a bordered level (`width` a multiple of 8): sample (r, c) is
+/// `src[base + r * stride + c]`; bilinear sampling reads one more row and column.
+struct Window<'a> {
+    src: &'a [f32],
+    base: usize,
+    stride: usize,
+    rows: usize,
+    width: usize,
+}
+
+impl Window<'_> {
+    /// The window and its extra row and column lie inside `src`, and `rows * width` samples
+    /// fit the patch buffers of length `patch_len`.
+    fn fits(&self, patch_len: usize) -> bool {
+        self.rows > 0
+            && self.width.is_multiple_of(8)
+            && self.rows * self.width <= patch_len
+            && self.base + self.rows * self.stride + self.width < self.src.len()
+    }
+}
+
+/// Lanes of an 8-lane sum, added in a fixed order (the same in every code path).
+#[inline(always)]
+fn lane_sum(v: &[f32; 8]) -> f32 {
+    ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]))
+}
+
+/// The right-hand side of the LK step: sums over the window of `(J - I) Ix` and `(J - I) Iy`,
+/// `J` sampled bilinearly (weights `jw`) from `j`, `I`, `Ix`, `Iy` the prepared patches (row
+/// stride `j.width`). Even and odd rows go to separate 8-lane sums so consecutive adds do not
+/// wait for each other; the x86-64 AVX2 path is bit-identical to the portable one (same
+/// operations in the same order, no fused multiply-add).
+fn mismatch_sums(j: &Window, jw: [f32; 4], ip: &[f32], gx: &[f32], gy: &[f32]) -> [f32; 2] {
+    let patch = ip.len().min(gx.len()).min(gy.len());
+    if !j.fits(patch) {
+        return [0.0; 2];
+    }
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 is available; `fits` bounds every read.
+        return unsafe { mismatch_sums_avx2(j, jw, ip, gx, gy) };
+    }
+    mismatch_sums_portable(j, jw, ip, gx, gy)
+}
+
+// lanes indexed as in the AVX2 path, on purpose
+#[allow(clippy::needless_range_loop)]
+fn mismatch_sums_portable(
+    j: &Window,
+    jw: [f32; 4],
+    ip: &[f32],
+    gx: &[f32],
+    gy: &[f32],
+) -> [f32; 2] {
+    // [x even rows, y even rows, x odd rows, y odd rows]
+    let mut acc = [[0f32; 8]; 4];
+    for r in 0..j.rows {
+        let o = j.base + r * j.stride;
+        let (r0, r1) = (&j.src[o..], &j.src[o + j.stride..]);
+        let k = r * j.width;
+        let a = (r % 2) * 2;
+        for c in (0..j.width).step_by(8) {
+            for l in 0..8 {
+                let x = c + l;
+                let v = jw[0] * r0[x] + jw[1] * r0[x + 1] + jw[2] * r1[x] + jw[3] * r1[x + 1];
+                let d = v - ip[k + x];
+                acc[a][l] += d * gx[k + x];
+                acc[a + 1][l] += d * gy[k + x];
+            }
+        }
+    }
+    [
+        lane_sum(&acc[0]) + lane_sum(&acc[2]),
+        lane_sum(&acc[1]) + lane_sum(&acc[3]),
+    ]
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn mismatch_sums_avx2(
+    j: &Window,
+    jw: [f32; 4],
+    ip: &[f32],
+    gx: &[f32],
+    gy: &[f32],
+) -> [f32; 2] {
+    use std::arch::x86_64::*;
+    let w = jw.map(|v| _mm256_set1_ps(v));
+    let mut acc = [_mm256_setzero_ps(); 4];
+    let (src, ip, gx, gy) = (j.src.as_ptr(), ip.as_ptr(), gx.as_ptr(), gy.as_ptr());
+    // SAFETY (all reads): the caller checked `Window::fits`.
+    macro_rules! row {
+        ($r:expr, $x:expr, $y:expr) => {{
+            let p0 = src.add(j.base + $r * j.stride);
+            let p1 = p0.add(j.stride);
+            let k = $r * j.width;
+            let mut c = 0;
+            while c < j.width {
+                let mut v = _mm256_mul_ps(w[0], _mm256_loadu_ps(p0.add(c)));
+                v = _mm256_add_ps(v, _mm256_mul_ps(w[1], _mm256_loadu_ps(p0.add(c + 1))));
+                v = _mm256_add_ps(v, _mm256_mul_ps(w[2], _mm256_loadu_ps(p1.add(c))));
+                v = _mm256_add_ps(v, _mm256_mul_ps(w[3], _mm256_loadu_ps(p1.add(c + 1))));
+                let d = _mm256_sub_ps(v, _mm256_loadu_ps(ip.add(k + c)));
+                $x = _mm256_add_ps($x, _mm256_mul_ps(d, _mm256_loadu_ps(gx.add(k + c))));
+                $y = _mm256_add_ps($y, _mm256_mul_ps(d, _mm256_loadu_ps(gy.add(k + c))));
+                c += 8;
+            }
+        }};
+    }
+    let [mut xe, mut ye, mut xo, mut yo] = acc;
+    let mut r = 0;
+    while r + 1 < j.rows {
+        unsafe {
+            row!(r, xe, ye);
+            row!(r + 1, xo, yo);
+        }
+        r += 2;
+    }
+    if r < j.rows {
+        unsafe { row!(r, xe, ye) };
+    }
+    acc = [xe, ye, xo, yo];
+    let lanes = acc.map(|v| {
+        let mut out = [0f32; 8];
+        // SAFETY: `out` holds 8 floats.
+        unsafe { _mm256_storeu_ps(out.as_mut_ptr(), v) };
+        out
+    });
+    [
+        lane_sum(&lanes[0]) + lane_sum(&lanes[2]),
+        lane_sum(&lanes[1]) + lane_sum(&lanes[3]),
+    ]
+}
+
 simd_fn! {
 fn track_all(
     prev: &LkPyramid,
@@ -338,7 +472,6 @@ fn track_all(
     let mut gy = vec![0f32; win * pw];
     // per-lane sums (float sums are not reassociated, so each column keeps its own)
     let (mut a11, mut a12, mut a22) = (vec![0f32; pw], vec![0f32; pw], vec![0f32; pw]);
-    let (mut b1, mut b2) = (vec![0f32; pw], vec![0f32; pw]);
     let mut out = Vec::with_capacity(pts.len());
     for pt in pts {
         if !(pt[0].is_finite() && pt[1].is_finite()) {
@@ -433,29 +566,17 @@ fn track_all(
                 }
                 let jw = weights(next[0] - fx, next[1] - fy);
                 let jbase = (jy + bd) as usize * stride + (jx + bd) as usize;
-                for acc in [&mut b1, &mut b2] {
-                    acc.iter_mut().for_each(|v| *v = 0.0);
-                }
-                for r in 0..win {
-                    let o = jbase + r * stride;
-                    let (j0, j1) = two_rows(jl, o, stride, pw + 1);
-                    let k = r * pw;
-                    for c in (0..pw / 8).map(|b| b * 8) {
-                        let jv = bilinear8(j0, j1, c, jw);
-                        let (iv, xv, yv) = (ld(&ip, k + c), ld(&gx, k + c), ld(&gy, k + c));
-                        let (mut s1, mut s2) = (ld(&b1, c), ld(&b2, c));
-                        for l in 0..8 {
-                            let d = jv[l] - iv[l];
-                            s1[l] += d * xv[l];
-                            s2[l] += d * yv[l];
-                        }
-                        st(&mut b1, c, &s1);
-                        st(&mut b2, c, &s2);
-                    }
-                }
+                let win_j = Window {
+                    src: jl,
+                    base: jbase,
+                    stride,
+                    rows: win,
+                    width: pw,
+                };
+                let [b1, b2] = mismatch_sums(&win_j, jw, &ip, &gx, &gy);
                 // OpenCV scales intensities by 32 and products by 2^-20
-                let b1 = b1.iter().sum::<f32>() * 32.0 * flt_scale;
-                let b2 = b2.iter().sum::<f32>() * 32.0 * flt_scale;
+                let b1 = b1 * 32.0 * flt_scale;
+                let b2 = b2 * 32.0 * flt_scale;
                 let delta = [
                     (a12 * b2 - a22 * b1) * inv_det,
                     (a12 * b1 - a11 * b2) * inv_det,
@@ -520,6 +641,37 @@ mod tests {
             }
         }
         img
+    }
+
+    #[test]
+    fn mismatch_sums_are_the_same_on_every_code_path() {
+        let (stride, rows, width) = (40usize, 22usize, 24usize);
+        let mut seed = 7u32;
+        let mut rnd = || {
+            seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
+            (seed >> 8) as f32 / (1u32 << 24) as f32 * 255.0
+        };
+        let src: Vec<f32> = (0..stride * 30).map(|_| rnd()).collect();
+        let ip: Vec<f32> = (0..rows * width).map(|_| rnd()).collect();
+        let gx: Vec<f32> = (0..rows * width).map(|_| rnd() - 128.0).collect();
+        let gy: Vec<f32> = (0..rows * width).map(|_| rnd() - 128.0).collect();
+        let win = Window {
+            src: &src,
+            base: 3 * stride + 5,
+            stride,
+            rows,
+            width,
+        };
+        let jw = weights(0.3, 0.71);
+        let portable = mismatch_sums_portable(&win, jw, &ip, &gx, &gy);
+        assert_eq!(mismatch_sums(&win, jw, &ip, &gx, &gy), portable);
+        assert!(portable.iter().all(|v| v.is_finite() && *v != 0.0));
+        // a window reaching past the buffer is refused, not read
+        let outside = Window {
+            base: src.len() - 10,
+            ..win
+        };
+        assert_eq!(mismatch_sums(&outside, jw, &ip, &gx, &gy), [0.0, 0.0]);
     }
 
     #[test]
