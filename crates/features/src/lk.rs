@@ -269,48 +269,6 @@ fn padded(win: usize) -> usize {
     win.div_ceil(8) * 8
 }
 
-/// Eight lanes, kept in registers by LLVM (loads and stores are whole-vector copies).
-type V8 = [f32; 8];
-
-#[inline(always)]
-fn ld(s: &[f32], i: usize) -> V8 {
-    let mut v = [0f32; 8];
-    v.copy_from_slice(&s[i..i + 8]);
-    v
-}
-
-#[inline(always)]
-fn st(s: &mut [f32], i: usize, v: &V8) {
-    s[i..i + 8].copy_from_slice(v);
-}
-
-/// Bilinear row: `out[c] = w00 r0[c] + w01 r0[c + 1] + w10 r1[c] + w11 r1[c + 1]`
-/// (`r0`, `r1` hold `out.len() + 1` samples; `out.len()` is a multiple of 8). Fixed 8-lane
-/// blocks, so a 24-wide row runs as three vectors instead of a scalar remainder loop.
-#[inline(always)]
-fn bilinear_row(r0: &[f32], r1: &[f32], wts: [f32; 4], out: &mut [f32]) {
-    for c in (0..out.len() / 8).map(|b| b * 8) {
-        st(out, c, &bilinear8(r0, r1, c, wts));
-    }
-}
-
-#[inline(always)]
-fn bilinear8(r0: &[f32], r1: &[f32], c: usize, wts: [f32; 4]) -> V8 {
-    let [w00, w01, w10, w11] = wts;
-    let (a0, a1, b0, b1) = (ld(r0, c), ld(r0, c + 1), ld(r1, c), ld(r1, c + 1));
-    let mut o = [0f32; 8];
-    for l in 0..8 {
-        o[l] = w00 * a0[l] + w01 * a1[l] + w10 * b0[l] + w11 * b1[l];
-    }
-    o
-}
-
-/// `n` samples from `o` and the `n` one row (`stride`) below.
-#[inline(always)]
-fn two_rows(src: &[f32], o: usize, stride: usize, n: usize) -> (&[f32], &[f32]) {
-    (&src[o..o + n], &src[o + stride..o + stride + n])
-}
-
 #[inline(always)]
 fn weights(a: f32, b: f32) -> [f32; 4] {
     [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b]
@@ -450,6 +408,161 @@ unsafe fn mismatch_sums_avx2(
     ]
 }
 
+/// The patches of the image tracked from, sampled once per level: intensities and the two
+/// gradients (`rows * width` each, gradients zero past the window).
+struct Patches<'a> {
+    ip: &'a mut [f32],
+    gx: &'a mut [f32],
+    gy: &'a mut [f32],
+}
+
+/// Sample the window of the previous level (`i`) and of its gradients (`dx`, `dy`, laid out
+/// like `i.src`) bilinearly with weights `wts` into `out`, gradients multiplied by `lane_mask`
+/// (1 inside the window, 0 in the padding lanes), and return the gradient matrix sums
+/// `[Σ Ix², Σ Ix Iy, Σ Iy²]`. Same scheme and guarantees as [`mismatch_sums`].
+fn prepare_patch(
+    i: &Window,
+    dx: &[f32],
+    dy: &[f32],
+    wts: [f32; 4],
+    lane_mask: &[f32],
+    out: Patches,
+) -> [f32; 3] {
+    let patch = out.ip.len().min(out.gx.len()).min(out.gy.len());
+    if !i.fits(patch)
+        || dx.len() < i.src.len()
+        || dy.len() < i.src.len()
+        || lane_mask.len() < i.width
+    {
+        return [0.0; 3];
+    }
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 is available; the checks above bound every read and write.
+        return unsafe { prepare_patch_avx2(i, dx, dy, wts, lane_mask, out) };
+    }
+    prepare_patch_portable(i, dx, dy, wts, lane_mask, out)
+}
+
+// lanes indexed as in the AVX2 path, on purpose
+#[allow(clippy::needless_range_loop)]
+fn prepare_patch_portable(
+    i: &Window,
+    dx: &[f32],
+    dy: &[f32],
+    wts: [f32; 4],
+    lane_mask: &[f32],
+    out: Patches,
+) -> [f32; 3] {
+    let w = wts;
+    // [xx, xy, yy] of even rows, then of odd rows
+    let mut acc = [[0f32; 8]; 6];
+    for r in 0..i.rows {
+        let o = i.base + r * i.stride;
+        let s = i.stride;
+        let k = r * i.width;
+        let a = (r % 2) * 3;
+        for c in (0..i.width).step_by(8) {
+            for l in 0..8 {
+                let x = c + l;
+                let at = |src: &[f32]| {
+                    w[0] * src[o + x]
+                        + w[1] * src[o + x + 1]
+                        + w[2] * src[o + s + x]
+                        + w[3] * src[o + s + x + 1]
+                };
+                let xs = at(dx) * lane_mask[x];
+                let ys = at(dy) * lane_mask[x];
+                out.ip[k + x] = at(i.src);
+                out.gx[k + x] = xs;
+                out.gy[k + x] = ys;
+                acc[a][l] += xs * xs;
+                acc[a + 1][l] += xs * ys;
+                acc[a + 2][l] += ys * ys;
+            }
+        }
+    }
+    [
+        lane_sum(&acc[0]) + lane_sum(&acc[3]),
+        lane_sum(&acc[1]) + lane_sum(&acc[4]),
+        lane_sum(&acc[2]) + lane_sum(&acc[5]),
+    ]
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn prepare_patch_avx2(
+    i: &Window,
+    dx: &[f32],
+    dy: &[f32],
+    wts: [f32; 4],
+    lane_mask: &[f32],
+    out: Patches,
+) -> [f32; 3] {
+    use std::arch::x86_64::*;
+    let w = wts.map(|v| _mm256_set1_ps(v));
+    let (src, dx, dy, mask) = (i.src.as_ptr(), dx.as_ptr(), dy.as_ptr(), lane_mask.as_ptr());
+    let (ip, gx, gy) = (
+        out.ip.as_mut_ptr(),
+        out.gx.as_mut_ptr(),
+        out.gy.as_mut_ptr(),
+    );
+    // SAFETY (all reads and writes): the caller checked the window and the buffers.
+    macro_rules! bilinear {
+        ($p:expr, $o:expr) => {{
+            let p0 = $p.add($o);
+            let p1 = p0.add(i.stride);
+            let mut v = _mm256_mul_ps(w[0], _mm256_loadu_ps(p0));
+            v = _mm256_add_ps(v, _mm256_mul_ps(w[1], _mm256_loadu_ps(p0.add(1))));
+            v = _mm256_add_ps(v, _mm256_mul_ps(w[2], _mm256_loadu_ps(p1)));
+            _mm256_add_ps(v, _mm256_mul_ps(w[3], _mm256_loadu_ps(p1.add(1))))
+        }};
+    }
+    macro_rules! row {
+        ($r:expr, $xx:expr, $xy:expr, $yy:expr) => {{
+            let o = i.base + $r * i.stride;
+            let k = $r * i.width;
+            let mut c = 0;
+            while c < i.width {
+                let m = _mm256_loadu_ps(mask.add(c));
+                let xs = _mm256_mul_ps(bilinear!(dx, o + c), m);
+                let ys = _mm256_mul_ps(bilinear!(dy, o + c), m);
+                _mm256_storeu_ps(ip.add(k + c), bilinear!(src, o + c));
+                _mm256_storeu_ps(gx.add(k + c), xs);
+                _mm256_storeu_ps(gy.add(k + c), ys);
+                $xx = _mm256_add_ps($xx, _mm256_mul_ps(xs, xs));
+                $xy = _mm256_add_ps($xy, _mm256_mul_ps(xs, ys));
+                $yy = _mm256_add_ps($yy, _mm256_mul_ps(ys, ys));
+                c += 8;
+            }
+        }};
+    }
+    let z = _mm256_setzero_ps();
+    let (mut xxe, mut xye, mut yye, mut xxo, mut xyo, mut yyo) = (z, z, z, z, z, z);
+    let mut r = 0;
+    while r + 1 < i.rows {
+        unsafe {
+            row!(r, xxe, xye, yye);
+            row!(r + 1, xxo, xyo, yyo);
+        }
+        r += 2;
+    }
+    if r < i.rows {
+        unsafe { row!(r, xxe, xye, yye) };
+    }
+    let lanes = [xxe, xye, yye, xxo, xyo, yyo].map(|v| {
+        let mut out = [0f32; 8];
+        // SAFETY: `out` holds 8 floats.
+        unsafe { _mm256_storeu_ps(out.as_mut_ptr(), v) };
+        out
+    });
+    [
+        lane_sum(&lanes[0]) + lane_sum(&lanes[3]),
+        lane_sum(&lanes[1]) + lane_sum(&lanes[4]),
+        lane_sum(&lanes[2]) + lane_sum(&lanes[5]),
+    ]
+}
+
 simd_fn! {
 fn track_all(
     prev: &LkPyramid,
@@ -471,7 +584,6 @@ fn track_all(
     let mut gx = vec![0f32; win * pw];
     let mut gy = vec![0f32; win * pw];
     // per-lane sums (float sums are not reassociated, so each column keeps its own)
-    let (mut a11, mut a12, mut a22) = (vec![0f32; pw], vec![0f32; pw], vec![0f32; pw]);
     let mut out = Vec::with_capacity(pts.len());
     for pt in pts {
         if !(pt[0].is_finite() && pt[1].is_finite()) {
@@ -503,39 +615,20 @@ fn track_all(
             let (dxl, dyl) = &prev.grads[level];
             let il = &prev.levels[level];
             let base = (iy + bd) as usize * stride + (ix + bd) as usize;
-            for acc in [&mut a11, &mut a12, &mut a22] {
-                acc.iter_mut().for_each(|v| *v = 0.0);
-            }
-            for r in 0..win {
-                let o = base + r * stride;
-                let orow = r * pw;
-                let (i0, i1) = two_rows(il, o, stride, pw + 1);
-                bilinear_row(i0, i1, wts, &mut ip[orow..orow + pw]);
-                let (x0, x1) = two_rows(dxl, o, stride, pw + 1);
-                bilinear_row(x0, x1, wts, &mut gx[orow..orow + pw]);
-                let (y0, y1) = two_rows(dyl, o, stride, pw + 1);
-                bilinear_row(y0, y1, wts, &mut gy[orow..orow + pw]);
-                for c in (0..pw / 8).map(|b| b * 8) {
-                    let m = ld(&lane_mask, c);
-                    let (mut xs, mut ys) = (ld(&gx, orow + c), ld(&gy, orow + c));
-                    let (mut s11, mut s12, mut s22) = (ld(&a11, c), ld(&a12, c), ld(&a22, c));
-                    for l in 0..8 {
-                        xs[l] *= m[l];
-                        ys[l] *= m[l];
-                        s11[l] += xs[l] * xs[l];
-                        s12[l] += xs[l] * ys[l];
-                        s22[l] += ys[l] * ys[l];
-                    }
-                    st(&mut gx, orow + c, &xs);
-                    st(&mut gy, orow + c, &ys);
-                    st(&mut a11, c, &s11);
-                    st(&mut a12, c, &s12);
-                    st(&mut a22, c, &s22);
-                }
-            }
-            let a11: f32 = a11.iter().sum::<f32>() * flt_scale;
-            let a12: f32 = a12.iter().sum::<f32>() * flt_scale;
-            let a22: f32 = a22.iter().sum::<f32>() * flt_scale;
+            let win_i = Window {
+                src: il,
+                base,
+                stride,
+                rows: win,
+                width: pw,
+            };
+            let patches = Patches {
+                ip: &mut ip,
+                gx: &mut gx,
+                gy: &mut gy,
+            };
+            let [a11, a12, a22] = prepare_patch(&win_i, dxl, dyl, wts, &lane_mask, patches);
+            let (a11, a12, a22) = (a11 * flt_scale, a12 * flt_scale, a22 * flt_scale);
             let det = a11 * a22 - a12 * a12;
             let min_eig = (a22 + a11 - ((a11 - a22) * (a11 - a22) + 4.0 * a12 * a12).sqrt())
                 / (2.0 * (win * win) as f32);
@@ -666,6 +759,41 @@ mod tests {
         let portable = mismatch_sums_portable(&win, jw, &ip, &gx, &gy);
         assert_eq!(mismatch_sums(&win, jw, &ip, &gx, &gy), portable);
         assert!(portable.iter().all(|v| v.is_finite() && *v != 0.0));
+        let (mut pi, mut px, mut py) = (ip.clone(), gx.clone(), gy.clone());
+        let (mut qi, mut qx, mut qy) = (ip.clone(), gx.clone(), gy.clone());
+        let mask: Vec<f32> = (0..width).map(|c| if c < 22 { 1.0 } else { 0.0 }).collect();
+        // gradients laid out like the level
+        let dx: Vec<f32> = src.iter().map(|v| v - 100.0).collect();
+        let dy: Vec<f32> = src.iter().rev().map(|v| 50.0 - v).collect();
+        let a = prepare_patch_portable(
+            &win,
+            &dx,
+            &dy,
+            jw,
+            &mask,
+            Patches {
+                ip: &mut pi,
+                gx: &mut px,
+                gy: &mut py,
+            },
+        );
+        let b = prepare_patch(
+            &win,
+            &dx,
+            &dy,
+            jw,
+            &mask,
+            Patches {
+                ip: &mut qi,
+                gx: &mut qx,
+                gy: &mut qy,
+            },
+        );
+        assert_eq!(a, b);
+        assert!(a[0] > 0.0 && a[2] > 0.0 && a[1].is_finite());
+        // padding lanes carry no gradient
+        assert!((0..rows).all(|r| px[r * width + 22] == 0.0 && py[r * width + 23] == 0.0));
+        assert_eq!((&pi, &px, &py), (&qi, &qx, &qy));
         // a window reaching past the buffer is refused, not read
         let outside = Window {
             base: src.len() - 10,
