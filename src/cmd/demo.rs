@@ -67,6 +67,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         box_points_make_map_points: false,
         box_memory: true,
         model: None,
+        overrides: Default::default(),
     };
     tracing::info!("run 1/2: dynamic front-end off");
     let off = run_sequence(&base)?;

@@ -7,11 +7,11 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use stillpoint_datasets::{DatasetKind, Sequence};
-use stillpoint_detect::{DetectInput, DetectSettings, Detector, GtDetectorParams};
-use stillpoint_dynamic::{DynamicSettings, Verdict};
+use stillpoint_detect::{DetectSettings, GtDetectorParams};
 use stillpoint_features::{OrbExtractor, OrbParams};
+use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
 use stillpoint_image::Gray8;
-use stillpoint_slam::module::frontend::{FilterOutcome, remove_dynamic};
+use stillpoint_slam::module::frontend::{FilterInput, KeypointFilter, remove_dynamic};
 use stillpoint_slam::{Feature, SlamSettings, System};
 use stillpoint_trajectory::{Alignment, AteOptions, RpeOptions, Trajectory, TumWriter};
 
@@ -57,6 +57,21 @@ pub struct Args {
     /// Only the first N frames.
     #[arg(long)]
     pub frames: Option<usize>,
+    /// Map hygiene (ours): kept keypoints within this many pixels of a geometric outlier create
+    /// no map points (0 = off; `FrontEndSettings::outlier_guard_radius_px`).
+    #[arg(long)]
+    pub outlier_guard_px: Option<f32>,
+    /// Outliers needed within `--outlier-guard-px`.
+    #[arg(long)]
+    pub outlier_guard_min: Option<usize>,
+    /// Map hygiene (ours): erase a map point rejected this many times by tracking's chi-square
+    /// test (0 = off; `SlamSettings::point_max_rejections`).
+    #[arg(long)]
+    pub point_max_rejections: Option<u32>,
+    /// Map hygiene (ours): whether keypoints rejected by the final pose optimisation may create
+    /// map points in a new keyframe (`SlamSettings::no_points_from_pose_outliers`).
+    #[arg(long)]
+    pub points_from_pose_outliers: Option<bool>,
     /// Print a JSON summary on stdout instead of the tables.
     #[arg(long)]
     pub json: bool,
@@ -81,6 +96,17 @@ pub struct RunOptions {
     pub box_memory: bool,
     /// YOLOX ONNX file; `None` searches the default places.
     pub model: Option<PathBuf>,
+    /// Settings changed from their defaults on the command line.
+    pub overrides: Overrides,
+}
+
+/// Map-hygiene settings given on the command line; `None` keeps the default.
+#[derive(Clone, Debug, Default)]
+pub struct Overrides {
+    pub outlier_guard_px: Option<f32>,
+    pub outlier_guard_min: Option<usize>,
+    pub point_max_rejections: Option<u32>,
+    pub points_from_pose_outliers: Option<bool>,
 }
 
 /// Per-stage times of one frame, ms.
@@ -126,173 +152,6 @@ fn on_mask(mask: &Gray8, x: f64, y: f64) -> bool {
         .is_some_and(|v| v > 127)
 }
 
-/// COCO's person class: a-priori dynamic when there is no motion evidence yet.
-const PERSON_CLASS: u16 = 0;
-
-/// The dynamic front-end: motion consistency on (previous, current) gray while the detector works
-/// on the same frame in a scoped thread; then box judgement and culling.
-struct DynamicFrontEnd {
-    detector: Box<dyn Detector>,
-    settings: DynamicSettings,
-    prev_gray: Option<Gray8>,
-    /// Keypoints kept inside a dynamic box create no map points (ours; `--keep-box-points` off).
-    no_new_points_in_dynamic_boxes: bool,
-    /// Boxes judged dynamic in the previous frame, or carried into it (ours; see
-    /// `stillpoint_dynamic::memory`).
-    memory: Vec<stillpoint_dynamic::RememberedBox>,
-}
-
-impl DynamicFrontEnd {
-    /// The first frame has no previous one, so no motion evidence: people (COCO class 0, the
-    /// a-priori dynamic class) are taken as moving, so that the map is not initialised on them.
-    /// Measured: without this ~200 of the ~1000 initial map points of walking_xyz lay on the
-    /// walkers and stayed in the map for the whole sequence.
-    fn judge_first(
-        &mut self,
-        frame: &stillpoint_datasets::Frame,
-        kps: &[[f32; 2]],
-        mut out: FilterOutcome,
-    ) -> FilterOutcome {
-        let Some(rgb) = &frame.rgb else {
-            return out;
-        };
-        let t0 = Instant::now();
-        let dets = self
-            .detector
-            .detect(&DetectInput {
-                index: frame.index,
-                timestamp: frame.timestamp,
-                rgb,
-            })
-            .unwrap_or_else(|e| {
-                tracing::warn!("frame {}: detector failed: {e}", frame.index);
-                Vec::new()
-            });
-        out.semantic_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let mut states = stillpoint_dynamic::judge_boxes(&dets, &[], &self.settings.judge);
-        for s in states.iter_mut().filter(|s| s.class_id == PERSON_CLASS) {
-            s.verdict = Verdict::Dynamic;
-        }
-        out.dynamic_boxes = states.iter().filter(|s| s.is_dynamic()).count();
-        self.memory = stillpoint_dynamic::remember(&states, dets.len(), &[]);
-        out.dynamic = stillpoint_dynamic::cull_frame(
-            kps,
-            &mut states,
-            &[],
-            frame.depth.as_ref(),
-            &self.settings,
-        );
-        if self.no_new_points_in_dynamic_boxes {
-            out.no_new_points = in_dynamic_box(kps, &out.dynamic, &states);
-        }
-        out
-    }
-
-    fn judge(&mut self, frame: &stillpoint_datasets::Frame, kps: &[[f32; 2]]) -> FilterOutcome {
-        let mut out = FilterOutcome {
-            dynamic: vec![false; kps.len()],
-            ..Default::default()
-        };
-        let Some(prev) = self.prev_gray.replace(frame.gray.clone()) else {
-            return self.judge_first(frame, kps, out);
-        };
-        let detector = &mut self.detector;
-        let geometry = &self.settings.geometry;
-        let (dets, check) = std::thread::scope(|s| {
-            let det = s.spawn(|| {
-                let t0 = Instant::now();
-                let dets = match &frame.rgb {
-                    Some(rgb) => detector
-                        .detect(&DetectInput {
-                            index: frame.index,
-                            timestamp: frame.timestamp,
-                            rgb,
-                        })
-                        .unwrap_or_else(|e| {
-                            tracing::warn!("frame {}: detector failed: {e}", frame.index);
-                            Vec::new()
-                        }),
-                    None => Vec::new(),
-                };
-                (dets, t0.elapsed().as_secs_f64() * 1e3)
-            });
-            let t0 = Instant::now();
-            let check = stillpoint_dynamic::motion_consistency(&prev, &frame.gray, geometry);
-            let geo_ms = t0.elapsed().as_secs_f64() * 1e3;
-            let dets = det.join().unwrap_or_else(|_| (Vec::new(), 0.0));
-            (dets, (check, geo_ms))
-        });
-        let (check, geo_ms) = check;
-        out.semantic_ms = dets.1;
-        out.geometry_ms = geo_ms;
-        let mut states =
-            stillpoint_dynamic::judge_boxes(&dets.0, &check.points, &self.settings.judge);
-        // Box memory (ours): dynamic boxes of the previous frame that the detector missed now.
-        let carried = stillpoint_dynamic::carry_forward(
-            &self.memory,
-            &dets.0,
-            &check.points,
-            &self.settings.memory,
-        );
-        if !carried.is_empty() {
-            tracing::debug!(
-                "frame {}: carried {:?}; detected {:?}",
-                frame.index,
-                carried
-                    .iter()
-                    .map(|c| (c.class_id, c.age, c.bbox.x1 as i32, c.bbox.x2 as i32))
-                    .collect::<Vec<_>>(),
-                dets.0
-                    .iter()
-                    .map(|d| (d.class_id, d.bbox.x1 as i32, d.bbox.x2 as i32))
-                    .collect::<Vec<_>>()
-            );
-        }
-        states.extend(stillpoint_dynamic::carried_states(
-            &carried,
-            &check.points,
-            dets.0.len(),
-        ));
-        self.memory = stillpoint_dynamic::remember(&states, dets.0.len(), &carried);
-        out.dynamic_boxes = states
-            .iter()
-            .filter(|s| s.verdict == Verdict::Dynamic)
-            .count();
-        // Depth-aware culling when the frame has depth and `settings.depth.enabled` (ours);
-        // the paper's algorithm 3 otherwise (`--paper-cull`).
-        out.dynamic = stillpoint_dynamic::cull_frame(
-            kps,
-            &mut states,
-            &check.points,
-            frame.depth.as_ref(),
-            &self.settings,
-        );
-        if self.no_new_points_in_dynamic_boxes {
-            out.no_new_points = in_dynamic_box(kps, &out.dynamic, &states);
-        }
-        out
-    }
-}
-
-/// Kept keypoints inside a dynamic box and inside a box that protects them (static or unknown
-/// verdict; paper algorithm 3 keeps them): tracked, but they create no map points. Measured on
-/// synthetic walking_halfsphere with gt boxes and the paper's culling: map points on walkers
-/// 675 -> 48, ATE 5.3 -> 1.0 cm.
-fn in_dynamic_box(
-    kps: &[[f32; 2]],
-    dynamic: &[bool],
-    states: &[stillpoint_dynamic::BoxState],
-) -> Vec<bool> {
-    kps.iter()
-        .zip(dynamic)
-        .map(|(&[x, y], &d)| {
-            let inside = |s: &&stillpoint_dynamic::BoxState| s.bbox.contains_strict(x, y);
-            !d && states.iter().filter(inside).any(|s| s.is_dynamic())
-                && states.iter().filter(inside).any(|s| !s.is_dynamic())
-        })
-        .collect()
-}
-
 /// SLAM settings from a dataset's settings (RGB-D; `bf` defaults to ORB-SLAM's TUM 40).
 pub fn slam_settings(s: &stillpoint_datasets::Settings) -> SlamSettings {
     let mut out = SlamSettings::rgbd(s.camera, s.bf.unwrap_or(40.0), s.fps);
@@ -318,6 +177,12 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     let ds = seq.settings().clone();
     let mut settings = slam_settings(&ds);
     settings.local_mapping_thread = !o.sequential;
+    if let Some(n) = o.overrides.point_max_rejections {
+        settings.point_max_rejections = n;
+    }
+    if let Some(b) = o.overrides.points_from_pose_outliers {
+        settings.no_points_from_pose_outliers = !b;
+    }
     let mut orb = OrbExtractor::new(OrbParams {
         n_features: ds.orb.n_features,
         scale_factor: ds.orb.scale_factor,
@@ -339,16 +204,17 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
                 GtDetectorParams::default(),
             )
             .with_context(|| format!("opening the {name} detector"))?;
-            let mut settings = DynamicSettings::default();
-            settings.depth.enabled &= !o.paper_cull;
-            settings.memory.enabled &= o.box_memory;
-            Some(DynamicFrontEnd {
-                detector,
-                settings,
-                prev_gray: None,
-                no_new_points_in_dynamic_boxes: !o.box_points_make_map_points,
-                memory: Vec::new(),
-            })
+            let mut settings = FrontEndSettings::default();
+            settings.dynamic.depth.enabled &= !o.paper_cull;
+            settings.dynamic.memory.enabled &= o.box_memory;
+            settings.no_new_points_in_dynamic_boxes = !o.box_points_make_map_points;
+            if let Some(r) = o.overrides.outlier_guard_px {
+                settings.outlier_guard_radius_px = r;
+            }
+            if let Some(m) = o.overrides.outlier_guard_min {
+                settings.outlier_guard_min = m;
+            }
+            Some(DynamicFrontEnd::new(detector, settings))
         }
     };
     let detector_name = o.detector.clone().unwrap_or_else(|| "off".into());
@@ -407,7 +273,14 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         let mut no_new_points = Vec::new();
         if let Some(f) = front.as_mut() {
             let kps: Vec<[f32; 2]> = features.iter().map(|k| [k.x, k.y]).collect();
-            let outcome = f.judge(&frame, &kps);
+            let input = FilterInput {
+                index: frame.index,
+                timestamp: frame.timestamp,
+                gray: &frame.gray,
+                rgb: frame.rgb.as_ref(),
+                depth: frame.depth.as_ref(),
+            };
+            let outcome = f.judge(&input, &kps);
             t.semantic = outcome.semantic_ms;
             t.geometry = outcome.geometry_ms;
             if outcome.no_new_points.len() == outcome.dynamic.len() {
@@ -706,6 +579,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         paper_cull: args.paper_cull,
         box_points_make_map_points: args.box_points_make_map_points,
         box_memory: !args.no_box_memory,
+        overrides: Overrides {
+            outlier_guard_px: args.outlier_guard_px,
+            outlier_guard_min: args.outlier_guard_min,
+            point_max_rejections: args.point_max_rejections,
+            points_from_pose_outliers: args.points_from_pose_outliers,
+        },
     };
     let s = run_sequence(&o)?;
     tracing::info!(

@@ -60,6 +60,16 @@ pub struct SlamSettings {
     /// presets unchanged; 70 inserted keyframes on poorly tracked frames (walking_xyz 2.6 cm).
     /// 0 gives ORB-SLAM3's rule.
     pub kf_weak_tracking_inliers: usize,
+    /// Ours: keypoints whose match failed the chi-square test of the frame's final pose
+    /// optimisation (local-map tracking) create no map points if the frame becomes a keyframe.
+    /// ORB-SLAM3 drops the match and lets the keypoint create a fresh point; in a dynamic scene
+    /// such a keypoint is most often on a mover the front-end missed.
+    pub no_points_from_pose_outliers: bool,
+    /// Ours: a map point rejected by the chi-square test of local-map tracking this many times,
+    /// and at least as often as it was found, is erased at once (0 = off). ORB-SLAM3 only culls
+    /// points by found/visible during their first 3 keyframes; a point on a mover that the
+    /// front-end missed keeps failing afterwards.
+    pub point_max_rejections: u32,
     /// New RGB-D keyframes create map points from depth for at least this many closest keypoints
     /// (ORB-SLAM3 `CreateNewKeyFrame`: 100).
     pub kf_new_points_min: usize,
@@ -117,6 +127,8 @@ impl SlamSettings {
             kf_close_tracked_max: 100,
             kf_close_untracked_min: 70,
             kf_weak_tracking_inliers: 50,
+            no_points_from_pose_outliers: false,
+            point_max_rejections: 0,
             kf_new_points_min: 100,
             covisibility_min_shared: 15,
             local_neighbours: 10,

@@ -40,6 +40,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 box_points_make_map_points: false,
                 box_memory: true,
                 model: args.model.clone(),
+                overrides: Default::default(),
             })?;
             let acc = accuracy(&s);
             rows.push(serde_json::json!({

@@ -106,6 +106,8 @@ pub struct MapPoint {
     /// Frames in whose frustum the point fell / frames in which it was matched.
     pub visible: u32,
     pub found: u32,
+    /// Frames in which the matched point failed the chi-square test of local-map tracking.
+    pub rejected: u32,
     pub bad: bool,
 }
 
@@ -197,6 +199,7 @@ impl Map {
                 first_kf: kf,
                 visible: 1,
                 found: 1,
+                rejected: 0,
                 bad: false,
             },
         );

@@ -1,9 +1,9 @@
 //! The one place where the dynamic front-end plugs in: after ORB extraction, before anything
-//! else (paper figure 2). The slam crate does not know how keypoints are judged; the binary
-//! implements [`KeypointFilter`] with `dynamic::motion_consistency` + the detector +
-//! `judge_boxes` + `cull`.
+//! else (paper figure 2). The slam crate does not know how keypoints are judged; the
+//! `stillpoint-frontend` crate implements [`KeypointFilter`] with `dynamic::motion_consistency` +
+//! the detector + `judge_boxes` + `cull_frame`.
 
-use stillpoint_image::{Gray8, Rgb8};
+use stillpoint_image::{DepthMetres, Gray8, Rgb8};
 
 use crate::{Descriptor, Feature};
 
@@ -29,6 +29,8 @@ pub struct FilterInput<'a> {
     pub timestamp: f64,
     pub gray: &'a Gray8,
     pub rgb: Option<&'a Rgb8>,
+    /// Depth in metres (RGB-D), for depth-aware culling.
+    pub depth: Option<&'a DepthMetres>,
 }
 
 /// Decides which keypoints lie on moving objects.

@@ -415,11 +415,24 @@ impl Tracker {
         search_by_projection_local(frame, &projected, map, th, &self.s);
         self.optimize_frame(frame, map);
         let mut inliers = 0;
+        let mut erase = Vec::new();
         for i in 0..frame.len() {
             let Some(mp) = frame.map_points[i] else {
                 continue;
             };
             if frame.outliers[i] {
+                // The final pose rejects this match: the keypoint (ours) creates no new point
+                // and a point that keeps failing (ours) goes.
+                if self.s.no_points_from_pose_outliers {
+                    frame.no_new_point[i] = true;
+                }
+                if let Some(p) = map.points.get_mut(&mp) {
+                    p.rejected += 1;
+                    let max = self.s.point_max_rejections;
+                    if max > 0 && p.rejected >= max && p.rejected >= p.found {
+                        erase.push(mp);
+                    }
+                }
                 continue;
             }
             if let Some(p) = map.points.get_mut(&mp) {
@@ -427,6 +440,16 @@ impl Tracker {
                 if !p.observations.is_empty() {
                     inliers += 1;
                 }
+            }
+        }
+        if !erase.is_empty() {
+            debug!(
+                frame = frame.index,
+                erased = erase.len(),
+                "points rejected too often"
+            );
+            for mp in erase {
+                map.erase_point(mp);
             }
         }
         inliers
