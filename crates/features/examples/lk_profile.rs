@@ -1,6 +1,7 @@
-//! Time the LK stages on the bench images: `cargo run --release -p stillpoint-features
+//! Time the corner and LK stages on the bench images: `cargo run --release -p stillpoint-features
 //! --example lk_profile -- IMG...` (pyramid of the image tracked from, pyramid of the image
-//! tracked into, tracking; fresh and reused buffers). For profiling, not a benchmark.
+//! tracked into, tracking; the per-thread buffers of `track_lk` and reused pyramids), and corners with and
+//! without sub-pixel refinement. For profiling, not a benchmark.
 
 use std::time::Instant;
 
@@ -24,11 +25,23 @@ fn main() {
         .iter()
         .map(|i| good_features_to_track(i, &CornerParams::default()))
         .collect();
+    let no_subpix = CornerParams {
+        subpix_half_window: 0,
+        ..CornerParams::default()
+    };
+    let (mut t_corners, mut t_nosub) = (vec![], vec![]);
     let (mut t_full, mut t_pa, mut t_pb, mut t_track) = (vec![], vec![], vec![], vec![]);
     let (mut pa, mut pb) = (LkPyramid::default(), LkPyramid::default());
     for _ in 0..reps {
         for (i, img) in imgs.iter().enumerate() {
             let next = &imgs[(i + 1) % imgs.len()];
+            let c0 = Instant::now();
+            let _ = good_features_to_track(img, &CornerParams::default());
+            let c1 = Instant::now();
+            let _ = good_features_to_track(img, &no_subpix);
+            let c2 = Instant::now();
+            t_corners.push((c1 - c0).as_secs_f64() * 1e3);
+            t_nosub.push((c2 - c1).as_secs_f64() * 1e3);
             let t0 = Instant::now();
             let r = track_lk(img, next, &corners[i], &lp);
             let t1 = Instant::now();
@@ -47,7 +60,9 @@ fn main() {
         }
     }
     for (name, v) in [
-        ("track_lk (fresh)", &mut t_full),
+        ("corners + subpix", &mut t_corners),
+        ("corners, no subpix", &mut t_nosub),
+        ("track_lk (cached)", &mut t_full),
         ("pyramid+grads (reused)", &mut t_pa),
         ("pyramid (reused)", &mut t_pb),
         ("tracking only", &mut t_track),

@@ -47,15 +47,40 @@ impl Default for CornerParams {
     }
 }
 
+/// Per-pixel buffers of [`corner_response`], kept per thread by [`good_features_to_track`]:
+/// seven f32 images of a 640x480 frame are 8.6 MB, whose fresh pages cost about as much as the
+/// arithmetic. Every buffer is fully written before it is read, so reuse changes no result.
+#[derive(Default)]
+struct ResponseScratch {
+    xx: Vec<f32>,
+    xy: Vec<f32>,
+    yy: Vec<f32>,
+    /// Horizontal box sums (one product at a time).
+    tmp: Vec<f32>,
+    /// Box sums of xx, xy, yy.
+    sums: [Vec<f32>; 3],
+    /// The response.
+    resp: Vec<f32>,
+}
+
+/// `v` with `n` elements, reusing its buffer (new ones come zeroed from the allocator).
+fn sized(v: &mut Vec<f32>, n: usize) -> &mut [f32] {
+    if v.len() != n {
+        *v = vec![0.0; n];
+    }
+    v
+}
+
 simd_fn! {
-/// Corner response of every pixel: Sobel 3x3 gradients (scaled like OpenCV's `cornerHarris` on
-/// 8-bit input), products summed over `block` x `block` (reflect-101), then Harris or min-eig.
-fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32) -> Vec<f32> {
+/// Corner response of every pixel into `s.resp`: Sobel 3x3 gradients (scaled like OpenCV's
+/// `cornerHarris` on 8-bit input), products summed over `block` x `block` (reflect-101), then
+/// Harris or min-eig.
+fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32, s: &mut ResponseScratch) {
     let (w, h) = (img.width, img.height);
     let scale = 1.0 / (4.0 * block as f32 * 255.0);
-    let mut xx = vec![0f32; w * h];
-    let mut xy = vec![0f32; w * h];
-    let mut yy = vec![0f32; w * h];
+    let xx = sized(&mut s.xx, w * h);
+    let xy = sized(&mut s.xy, w * h);
+    let yy = sized(&mut s.yy, w * h);
     let mut sm = vec![0i16; w + 2]; // [1 2 1] vertical smoothing, for dx
     let mut df = vec![0i16; w + 2]; // vertical difference, for dy
     for y in 0..h {
@@ -86,9 +111,9 @@ fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32) -> Vec<f32> 
     }
     // unnormalised box sum over block x block
     let half = (block / 2) as isize;
-    let box_sum = |src: &[f32]| -> Vec<f32> {
-        let mut tmp = vec![0f32; w * h];
-        let mut pad = vec![0f32; w + block];
+    let tmp = sized(&mut s.tmp, w * h);
+    let mut pad = vec![0f32; w + block];
+    let mut box_sum = |src: &[f32], tmp: &mut [f32], dst: &mut [f32]| {
         for y in 0..h {
             let row = &src[y * w..(y + 1) * w];
             // reflect-101 only on the `half` border samples; the middle is a copy
@@ -106,22 +131,26 @@ fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32) -> Vec<f32> 
                 }
             }
         }
-        let mut dst = vec![0f32; w * h];
         for y in 0..h {
             let out = &mut dst[y * w..(y + 1) * w];
-            for dy in 0..block as isize {
+            let first = &tmp[reflect101(y as isize - half, h) * w..][..w];
+            out.copy_from_slice(first);
+            for dy in 1..block as isize {
                 let r = &tmp[reflect101(y as isize + dy - half, h) * w..][..w];
                 for (o, v) in out.iter_mut().zip(r) {
                     *o += v;
                 }
             }
         }
-        dst
     };
-    let (a, b, c) = (box_sum(&xx), box_sum(&xy), box_sum(&yy));
-    let mut resp = xx;
+    let [sa, sb, sc] = &mut s.sums;
+    let (sa, sb, sc) = (sized(sa, w * h), sized(sb, w * h), sized(sc, w * h));
+    box_sum(xx, tmp, sa);
+    box_sum(xy, tmp, sb);
+    box_sum(yy, tmp, sc);
+    let resp = sized(&mut s.resp, w * h);
     for i in 0..w * h {
-        let (a, b, c) = (a[i], b[i], c[i]);
+        let (a, b, c) = (sa[i], sb[i], sc[i]);
         resp[i] = if harris {
             a * c - b * b - k * (a + c) * (a + c)
         } else {
@@ -129,7 +158,6 @@ fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32) -> Vec<f32> 
             (a + c) - ((a - c) * (a - c) + b * b).sqrt()
         };
     }
-    resp
 }
 }
 
@@ -141,8 +169,20 @@ pub fn good_features_to_track(img: &Gray8, p: &CornerParams) -> Vec<[f32; 2]> {
     if !valid(img) || img.width < 3 || img.height < 3 || p.max_corners == 0 {
         return Vec::new();
     }
+    thread_local! {
+        static SCRATCH: std::cell::RefCell<ResponseScratch> = Default::default();
+    }
+    SCRATCH.with(|s| match s.try_borrow_mut() {
+        Ok(mut s) => corners_with(img, p, &mut s),
+        // not reachable (nothing here calls back in), but never panic
+        Err(_) => corners_with(img, p, &mut ResponseScratch::default()),
+    })
+}
+
+fn corners_with(img: &Gray8, p: &CornerParams, scratch: &mut ResponseScratch) -> Vec<[f32; 2]> {
     let (w, h) = (img.width, img.height);
-    let resp = corner_response(img, p.block_size.max(1), p.use_harris, p.harris_k);
+    corner_response(img, p.block_size.max(1), p.use_harris, p.harris_k, scratch);
+    let resp = &scratch.resp;
     let max = resp.iter().copied().fold(0f32, f32::max);
     if max.is_nan() || max <= 0.0 {
         return Vec::new();
