@@ -311,6 +311,22 @@ pub fn cull_with_depth(input: &DepthCullInput, cull: &CullParams, p: &DepthParam
             (pts, radius)
         })
         .collect();
+    // Unknown-object option: the outliers in no box, with their depths.
+    let boxless: Vec<DepthPoint> = if cull.unknown_objects {
+        tracked
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| {
+                t.outlier
+                    && !states
+                        .iter()
+                        .any(|s| s.bbox.contains_strict(t.cur[0], t.cur[1]))
+            })
+            .map(|(j, t)| (t.cur, tracked_depths.get(j).copied().unwrap_or(0.0)))
+            .collect()
+    } else {
+        Vec::new()
+    };
     keypoints
         .iter()
         .enumerate()
@@ -322,8 +338,25 @@ pub fn cull_with_depth(input: &DepthCullInput, cull: &CullParams, p: &DepthParam
                 .filter(|(s, _)| inside(s) && s.is_dynamic())
                 .peekable();
             if dynamic.peek().is_none() {
-                // In no dynamic box: the paper's decision (kept, or the unknown-object option).
-                return paper[i];
+                // In no dynamic box: the paper's decision (kept, or the unknown-object option,
+                // counting only outliers at the keypoint's depth when both have one).
+                let d = keypoint_depths.get(i).copied().unwrap_or(0.0);
+                if !cull.unknown_objects || !valid(d, p) || !paper[i] {
+                    return paper[i];
+                }
+                let r2 = cull.unknown_radius_px * cull.unknown_radius_px;
+                let near = boxless
+                    .iter()
+                    .filter(|&&(at, od)| {
+                        let (dx, dy) = (at[0] - x, at[1] - y);
+                        let same_depth = !valid(od, p) || {
+                            let (near, far) = depth_band(od, p);
+                            d >= near && d <= far
+                        };
+                        dx * dx + dy * dy <= r2 && same_depth
+                    })
+                    .count();
+                return near >= cull.unknown_min_outliers.max(1);
             }
             let d = keypoint_depths.get(i).copied().unwrap_or(0.0);
             let protected = || states.iter().filter(|s| inside(s)).any(protects);
@@ -546,6 +579,39 @@ mod tests {
         ] {
             assert!(object_depth(&b, &tracked, &depth, &DepthParams::default()).is_none());
         }
+    }
+
+    #[test]
+    fn unknown_objects_count_only_outliers_at_the_keypoints_depth() {
+        // A walker the detector missed (no box) at 2 m before a wall at 4 m; a static chair box.
+        let depth = depth_map(4.0, &[([300, 100, 360, 400], 2.0)]);
+        let chair = det(CHAIR, 50.0, 300.0, 150.0, 440.0);
+        let tracked: Vec<TrackedPoint> = [
+            [320.0, 200.0],
+            [340.0, 210.0],
+            [330.0, 230.0],
+            [310.0, 250.0],
+        ]
+        .iter()
+        .map(|&[x, y]| pt(x, y, true))
+        .chain((0..10).map(|i| pt(60.0 + 8.0 * i as f32, 350.0, false)))
+        .collect();
+        let mut states = judge_boxes(&[chair], &tracked, &JudgeParams::default());
+        let keypoints = [
+            [335.0, 215.0], // on the walker: culled
+            [296.0, 220.0], // wall beside him, within the radius: kept (another depth)
+            [500.0, 100.0], // far from every outlier: kept
+        ];
+        let mut s = settings();
+        s.cull.unknown_objects = true;
+        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &s);
+        assert_eq!(removed, vec![true, false, false]);
+        // Without depth the wall point goes too (the paper's image-only rule).
+        let removed = cull_frame(&keypoints, &mut states, &tracked, None, &s);
+        assert_eq!(removed, vec![true, true, false]);
+        // Off by default: nothing outside a box is culled.
+        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &settings());
+        assert_eq!(removed, vec![false; 3]);
     }
 
     #[test]

@@ -66,6 +66,7 @@
 pub mod cull;
 pub mod depth;
 pub mod judge;
+pub mod keypoint_motion;
 pub mod memory;
 pub mod motion_consistency;
 pub mod settings;
@@ -73,12 +74,17 @@ pub mod settings;
 pub use cull::{cull, cull_with, near_outliers};
 pub use depth::{DepthCullInput, ObjectDepth, cull_frame, cull_with_depth};
 pub use judge::{BoxPart, BoxState, Rule, Verdict, judge_boxes, nhbc_parts};
+pub use keypoint_motion::{
+    KeypointMotion, apply_keypoint_motion, cull_frame_with_motion, in_dynamic_box, keypoint_motion,
+};
 pub use memory::{RememberedBox, carried_states, carry_forward, remember};
 pub use motion_consistency::{
     GeometryTimings, MotionCheck, MotionModel, TrackedPoint, motion_consistency,
+    motion_consistency_pyramids,
 };
 pub use settings::{
     BoxMemoryParams, CullParams, DepthParams, DynamicSettings, GeometryParams, JudgeParams,
+    KeypointMotionParams,
 };
 
 #[cfg(test)]

@@ -21,7 +21,7 @@
 
 use crate::settings::GeometryParams;
 use serde::Serialize;
-use stillpoint_features::{good_features_to_track, track_lk};
+use stillpoint_features::{LkPyramid, good_features_to_track, track_lk, track_lk_pyramids};
 use stillpoint_geometry::fundamental::fundamental_ransac;
 use stillpoint_geometry::homography::{HomographyRansac, homography_ransac, transfer_error2};
 use stillpoint_geometry::{Mat3, Vec2, epipolar_distance};
@@ -128,16 +128,76 @@ impl MotionCheck {
 /// assert_eq!(check.outliers(), 0);
 /// ```
 pub fn motion_consistency(prev: &Gray8, cur: &Gray8, p: &GeometryParams) -> MotionCheck {
-    if prev.is_empty() || cur.is_empty() {
-        return MotionCheck::empty("empty image");
-    }
-    if prev.width != cur.width || prev.height != cur.height {
-        return MotionCheck::empty("previous and current frames differ in size");
+    if let Some(reason) = bad_pair(prev, cur) {
+        return MotionCheck::empty(reason);
     }
     let clock = std::time::Instant::now();
     let corners = good_features_to_track(prev, &p.corners);
     let t_corners = clock.elapsed();
     let tracks = track_lk(prev, cur, &corners, &p.lk);
+    judge_tracks(prev, cur, &corners, &tracks, p, clock, t_corners)
+}
+
+/// [`motion_consistency`] on LK pyramids the caller already built, so that a streaming caller
+/// builds each frame's pyramid once ([`LkPyramid::new`], with gradients) and keeps the current
+/// one as the next frame's previous one; the same pyramids serve
+/// [`crate::keypoint_motion()`]. Same result as [`motion_consistency`]. Pyramids that do not
+/// match the images (other size, built empty) give [`MotionModel::None`], never a panic.
+///
+/// ```
+/// use stillpoint_dynamic::{GeometryParams, motion_consistency, motion_consistency_pyramids};
+/// use stillpoint_features::LkPyramid;
+/// use stillpoint_image::Gray8;
+/// let mut img = Gray8::new(160, 120, 0);
+/// for y in 0..120 { for x in 0..160 {
+///     img.set(x, y, ((x / 8 * 37 + y / 8 * 91) % 200 + 20) as u8);
+/// }}
+/// let p = GeometryParams::default();
+/// let pyr = LkPyramid::new(&img, &p.lk); // keep it: next frame's previous pyramid
+/// let check = motion_consistency_pyramids(&img, &img, &pyr, &pyr, &p);
+/// assert_eq!(check.points, motion_consistency(&img, &img, &p).points);
+/// ```
+pub fn motion_consistency_pyramids(
+    prev: &Gray8,
+    cur: &Gray8,
+    prev_pyr: &LkPyramid,
+    cur_pyr: &LkPyramid,
+    p: &GeometryParams,
+) -> MotionCheck {
+    if let Some(reason) = bad_pair(prev, cur) {
+        return MotionCheck::empty(reason);
+    }
+    let size = (prev.width, prev.height);
+    if prev_pyr.size() != size || cur_pyr.size() != size {
+        return MotionCheck::empty("LK pyramids do not match the frames");
+    }
+    let clock = std::time::Instant::now();
+    let corners = good_features_to_track(prev, &p.corners);
+    let t_corners = clock.elapsed();
+    let tracks = track_lk_pyramids(prev_pyr, cur_pyr, &corners, &p.lk);
+    judge_tracks(prev, cur, &corners, &tracks, p, clock, t_corners)
+}
+
+fn bad_pair(prev: &Gray8, cur: &Gray8) -> Option<&'static str> {
+    if prev.is_empty() || cur.is_empty() {
+        return Some("empty image");
+    }
+    if prev.width != cur.width || prev.height != cur.height {
+        return Some("previous and current frames differ in size");
+    }
+    None
+}
+
+/// Steps 3-5: border and patch checks, the model, the residuals.
+fn judge_tracks(
+    prev: &Gray8,
+    cur: &Gray8,
+    corners: &[[f32; 2]],
+    tracks: &[Option<[f32; 2]>],
+    p: &GeometryParams,
+    clock: std::time::Instant,
+    t_corners: std::time::Duration,
+) -> MotionCheck {
     let t_lk = clock.elapsed();
 
     let mut check = MotionCheck::empty("");
@@ -146,7 +206,7 @@ pub fn motion_consistency(prev: &Gray8, cur: &Gray8, p: &GeometryParams) -> Moti
         Vec::with_capacity(corners.len()),
         Vec::with_capacity(corners.len()),
     );
-    for (c, t) in corners.iter().zip(&tracks) {
+    for (c, t) in corners.iter().zip(tracks) {
         let Some(t) = t else {
             check.lk_failed += 1;
             continue;
@@ -468,6 +528,23 @@ mod tests {
             still >= 100 && still_out == 0,
             "{still_out}/{still} static flagged"
         );
+    }
+
+    #[test]
+    fn prebuilt_pyramids_give_the_same_check() {
+        let mover = [120, 80, 200, 160];
+        let prev = render(320, 240, &[(1, None, [0, 0]), (2, Some(mover), [0, 0])]);
+        let cur = render(320, 240, &[(1, None, [1, 0]), (2, Some(mover), [4, -3])]);
+        let p = GeometryParams::default();
+        let (a, b) = (LkPyramid::new(&prev, &p.lk), LkPyramid::new(&cur, &p.lk));
+        let streamed = motion_consistency_pyramids(&prev, &cur, &a, &b, &p);
+        let once = motion_consistency(&prev, &cur, &p);
+        assert!(once.outliers() > 10);
+        assert_eq!((streamed.points, streamed.model), (once.points, once.model));
+        // Pyramids of other frames' size: no model, no panic.
+        let other = LkPyramid::new(&Gray8::new(64, 48, 7), &p.lk);
+        let bad = motion_consistency_pyramids(&prev, &cur, &a, &other, &p);
+        assert_eq!((bad.model, bad.points.len()), (MotionModel::None, 0));
     }
 
     #[test]

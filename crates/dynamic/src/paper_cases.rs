@@ -219,6 +219,7 @@ fn unknown_dynamic_objects_option() {
     let pts = [
         pt(50.0, 50.0, true),
         pt(58.0, 52.0, true),
+        pt(48.0, 64.0, true),
         pt(400.0, 400.0, true), // isolated: a single bad track
         pt(250.0, 250.0, true), // inside a box: ATA's business, not this option's
         pt(255.0, 250.0, false),

@@ -15,10 +15,10 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 use stillpoint_detect::{DetectInput, DetectSettings, GtDetectorParams, open_detector};
 use stillpoint_dynamic::{
-    CullParams, DynamicSettings, MotionModel, cull_frame, cull_with, judge_boxes,
-    motion_consistency, near_outliers,
+    CullParams, DynamicSettings, MotionModel, apply_keypoint_motion, cull_frame, cull_with,
+    in_dynamic_box, judge_boxes, keypoint_motion, motion_consistency_pyramids, near_outliers,
 };
-use stillpoint_features::{OrbExtractor, OrbParams};
+use stillpoint_features::{LkPyramid, OrbExtractor, OrbParams};
 use stillpoint_image::{DepthMetres, Gray8, read_depth_metres, read_gray, read_rgb, rgb_to_gray};
 
 #[derive(clap::Args)]
@@ -62,6 +62,38 @@ pub struct Args {
     /// residual in pixels (default 0.5; 0 turns it off, as the paper).
     #[arg(long)]
     person_subpixel: Option<f32>,
+    /// Per-keypoint motion (ours_kp): a culled keypoint whose residual is at most this is kept.
+    #[arg(long)]
+    kp_keep_px: Option<f32>,
+    /// Per-keypoint motion (ours_kp): a kept keypoint in a dynamic box whose residual exceeds
+    /// this is culled.
+    #[arg(long)]
+    kp_cull_px: Option<f32>,
+    /// Per-keypoint motion (ours_kp): largest forward-backward error of a usable track.
+    #[arg(long)]
+    kp_fb_px: Option<f32>,
+    /// Per-keypoint motion (ours_kp): LK window in pixels (default: the geometry module's 22).
+    #[arg(long)]
+    kp_window: Option<usize>,
+    /// Per-keypoint motion (ours_kp): where a small residual may keep a keypoint: whole (boxes
+    /// of standing people and other classes), seated (a seated person's parts), both, none.
+    #[arg(long)]
+    kp_keep_in: Option<String>,
+    /// Per-keypoint motion (ours_kp): a small epipolar distance may keep a keypoint too (by
+    /// default only a homography's transfer error does).
+    #[arg(long)]
+    kp_keep_fundamental: bool,
+    /// Write one CSV line per keypoint inside a dynamic box (frame, x, y, octave, truth,
+    /// support truth, depth-aware decision, residual, forward-backward error, model, seated) to
+    /// this file, for studying the per-keypoint evidence.
+    #[arg(long)]
+    dump_keypoints: Option<PathBuf>,
+    /// Unknown-object option: radius around box-less outliers, pixels (default 20).
+    #[arg(long)]
+    unknown_radius: Option<f32>,
+    /// Unknown-object option: fewest box-less outliers within the radius (default 2).
+    #[arg(long)]
+    unknown_min: Option<usize>,
     /// Ignore the sequence's depth (ours_depth then culls by the paper's rule).
     #[arg(long)]
     no_depth: bool,
@@ -78,6 +110,26 @@ pub struct Args {
     #[arg(long)]
     json: bool,
 }
+
+/// FAST's 16-pixel Bresenham circle of radius 3 (the "7-pixel circle").
+const FAST_CIRCLE: [[i32; 2]; 16] = [
+    [0, 3],
+    [1, 3],
+    [2, 2],
+    [3, 1],
+    [3, 0],
+    [3, -1],
+    [2, -2],
+    [1, -3],
+    [0, -3],
+    [-1, -3],
+    [-2, -2],
+    [-3, -1],
+    [-3, 0],
+    [-3, 1],
+    [-2, 2],
+    [-1, 3],
+];
 
 /// Confusion counts of one method.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
@@ -111,9 +163,11 @@ impl Counts {
     }
 }
 
-const METHODS: [&str; 7] = [
+const METHODS: [&str; 9] = [
     "ours",
     "ours_depth",
+    "ours_kp",
+    "ours_depth+unknown",
     "ours+unknown",
     "ours_no_protect",
     "ours_ata_own_points",
@@ -143,6 +197,14 @@ struct MethodReport {
     counts: Counts,
     precision: Option<f64>,
     recall: Option<f64>,
+    /// The same against the occlusion ground truth (module docs).
+    support_counts: Counts,
+    support_precision: Option<f64>,
+    support_recall: Option<f64>,
+    /// The same on the keypoints whose FAST circle does not straddle a moving silhouette.
+    clear_counts: Counts,
+    clear_precision: Option<f64>,
+    clear_recall: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -152,6 +214,10 @@ struct Report {
     frames: usize,
     /// Frames that had a depth map (ours_depth is ours on the others).
     depth_frames: usize,
+    /// Keypoints judged, and of those the ones whose FAST circle straddles a moving silhouette
+    /// (not scored by the clear metric).
+    keypoints: usize,
+    straddling: usize,
     methods: Vec<MethodReport>,
     models: Vec<(MotionModel, usize)>,
     geometry_ms_mean: f64,
@@ -314,6 +380,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let factor = depth_factor(&args.dataset);
     let mut depth_frames = 0usize;
+    if let Some(v) = args.unknown_radius {
+        settings.cull.unknown_radius_px = v;
+    }
+    if let Some(v) = args.unknown_min {
+        settings.cull.unknown_min_outliers = v;
+    }
     let no_protect = CullParams {
         static_box_protects: false,
         unknown_box_protects: false,
@@ -323,9 +395,56 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         unknown_objects: true,
         ..settings.cull.clone()
     };
+    if let Some(v) = args.kp_keep_px {
+        settings.keypoint_motion.keep_below_px = v;
+    }
+    if let Some(v) = args.kp_cull_px {
+        settings.keypoint_motion.cull_above_px = v;
+    }
+    if let Some(v) = args.kp_fb_px {
+        settings.keypoint_motion.max_fb_error_px = v;
+    }
+    if let Some(v) = args.kp_window {
+        settings.keypoint_motion.lk.window = v;
+    }
+    if let Some(v) = &args.kp_keep_in {
+        let (whole, seated) = match v.as_str() {
+            "whole" => (true, false),
+            "seated" => (false, true),
+            "both" => (true, true),
+            "none" => (false, false),
+            other => bail!("--kp-keep-in {other:?}: expected whole, seated, both or none"),
+        };
+        settings.keypoint_motion.keep_in_whole_boxes = whole;
+        settings.keypoint_motion.keep_in_seated_parts = seated;
+    }
+    settings.keypoint_motion.keep_with_fundamental |= args.kp_keep_fundamental;
+    let depth_unknown = DynamicSettings {
+        cull: unknown.clone(),
+        ..settings.clone()
+    };
     let mut orb = OrbExtractor::new(OrbParams::default());
+    let scales = orb.scale_factors().to_vec();
 
     let mut totals = [Counts::default(); METHODS.len()];
+    let mut support_totals = [Counts::default(); METHODS.len()];
+    let mut clear_totals = [Counts::default(); METHODS.len()];
+    let mut straddling = 0usize;
+    let mut prev_pyr = LkPyramid::default();
+    let mut dump = match &args.dump_keypoints {
+        Some(path) => Some(std::io::BufWriter::new(
+            std::fs::File::create(path)
+                .with_context(|| format!("{}: cannot create", path.display()))?,
+        )),
+        None => None,
+    };
+    if let Some(w) = dump.as_mut() {
+        use std::io::Write;
+        writeln!(
+            w,
+            "frame,x,y,octave,truth,support,removed,residual,fb,model,seated"
+        )?;
+    }
     let mut per_frame = Vec::new();
     let (mut geometry_ms, mut orb_ms) = (Vec::new(), Vec::new());
     let mut stages = [0.0f64; 4];
@@ -334,6 +453,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for (index, (t, rgb_path, mask_path)) in frames.iter().take(n).enumerate() {
         let rgb = read_rgb(rgb_path).with_context(|| format!("frame {index}"))?;
         let gray = rgb_to_gray(&rgb);
+        // Each frame's pyramid is built once and serves as the next frame's previous one.
+        let cur_pyr = LkPyramid::new(&gray, &settings.geometry.lk);
+        let prev_pyr = std::mem::replace(&mut prev_pyr, cur_pyr.clone());
         let Some(prev_gray) = prev.replace(gray.clone()) else {
             continue;
         };
@@ -356,8 +478,38 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 })
             })
             .collect();
+        // The FAST test of each keypoint: its centre and 16-pixel circle (radius 3 at its
+        // pyramid level), how many of those 17 pixels are moving.
+        let fast_moving: Vec<usize> = features
+            .keypoints
+            .iter()
+            .map(|k| {
+                let scale = scales.get(k.octave as usize).copied().unwrap_or(1.0);
+                std::iter::once([0, 0])
+                    .chain(FAST_CIRCLE)
+                    .filter(|&[dx, dy]| {
+                        let x = (k.x + dx as f32 * scale).round() as isize;
+                        let y = (k.y + dy as f32 * scale).round() as isize;
+                        mask.get_checked(x, y).is_some_and(|m| m > 0)
+                    })
+                    .count()
+            })
+            .collect();
+        // Occlusion ground truth: a corner whose FAST circle touches the mover is formed by it.
+        let support: Vec<bool> = fast_moving.iter().map(|&m| m > 0).collect();
+        // Clear ground truth: corners whose circle straddles a moving silhouette are not scored.
+        let clear: Vec<Option<bool>> = fast_moving
+            .iter()
+            .map(|&m| match m {
+                0 => Some(false),
+                17 => Some(true),
+                _ => None,
+            })
+            .collect();
+        straddling += clear.iter().filter(|c| c.is_none()).count();
 
-        let check = motion_consistency(&prev_gray, &gray, &settings.geometry);
+        let check =
+            motion_consistency_pyramids(&prev_gray, &gray, &prev_pyr, &cur_pyr, &settings.geometry);
         geometry_ms.push(check.timings.total_ms());
         let tm = check.timings;
         for (s, v) in stages
@@ -387,14 +539,66 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..paper_judge.clone()
         };
         let own_states = judge_boxes(&dets, &check.points, &own_judge);
+        let depth_removed = cull_frame(
+            &kps,
+            &mut depth_states,
+            &check.points,
+            depth.as_ref(),
+            &settings,
+        );
+        let candidates = in_dynamic_box(&kps, &depth_states);
+        let motion = keypoint_motion(
+            &prev_pyr,
+            &cur_pyr,
+            &kps,
+            &candidates,
+            &check,
+            &settings.keypoint_motion,
+        );
+        let kp_removed = apply_keypoint_motion(
+            &kps,
+            &depth_removed,
+            &depth_states,
+            &motion,
+            &settings.keypoint_motion,
+        );
+        if let Some(w) = dump.as_mut() {
+            use std::io::Write;
+            for (i, k) in features.keypoints.iter().enumerate() {
+                if !candidates[i] {
+                    continue;
+                }
+                let seated = depth_states.iter().any(|s| {
+                    s.is_dynamic()
+                        && s.part != stillpoint_dynamic::BoxPart::Whole
+                        && s.bbox.contains_strict(k.x, k.y)
+                });
+                let (r, fb) = motion[i].map_or((f32::NAN, f32::NAN), |m| (m.residual, m.fb_error));
+                writeln!(
+                    w,
+                    "{index},{:.2},{:.2},{},{},{},{},{r:.4},{fb:.4},{:?},{}",
+                    k.x,
+                    k.y,
+                    k.octave,
+                    u8::from(truth[i]),
+                    u8::from(support[i]),
+                    u8::from(depth_removed[i]),
+                    check.model,
+                    u8::from(seated)
+                )?;
+            }
+        }
+        let mut unknown_states = judge_boxes(&dets, &check.points, &settings.judge);
         let predictions = [
             cull_with(&kps, &states, &check.points, &settings.cull),
+            depth_removed,
+            kp_removed,
             cull_frame(
                 &kps,
-                &mut depth_states,
+                &mut unknown_states,
                 &check.points,
                 depth.as_ref(),
-                &settings,
+                &depth_unknown,
             ),
             cull_with(&kps, &states, &check.points, &unknown),
             cull_with(&kps, &states, &check.points, &no_protect),
@@ -437,6 +641,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             c.add(p, &truth);
             total.add(p, &truth);
         }
+        for (total, p) in support_totals.iter_mut().zip(&predictions) {
+            total.add(p, &support);
+        }
+        for (total, p) in clear_totals.iter_mut().zip(&predictions) {
+            let (pc, tc): (Vec<bool>, Vec<bool>) = p
+                .iter()
+                .zip(&clear)
+                .filter_map(|(&p, c)| c.map(|t| (p, t)))
+                .unzip();
+            total.add(&pc, &tc);
+        }
         let report = FrameReport {
             frame: index,
             keypoints: kps.len(),
@@ -476,14 +691,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         detector: detector.name().to_string(),
         frames: per_frame.len(),
         depth_frames,
+        keypoints: per_frame.iter().map(|f| f.keypoints).sum(),
+        straddling,
         methods: METHODS
             .iter()
-            .zip(&totals)
-            .map(|(&method, c)| MethodReport {
+            .zip(totals.iter().zip(support_totals.iter().zip(&clear_totals)))
+            .map(|(&method, (c, (sc, cc)))| MethodReport {
                 method,
                 counts: *c,
                 precision: c.precision(),
                 recall: c.recall(),
+                support_counts: *sc,
+                support_precision: sc.precision(),
+                support_recall: sc.recall(),
+                clear_counts: *cc,
+                clear_precision: cc.precision(),
+                clear_recall: cc.recall(),
             })
             .collect(),
         models,
@@ -499,22 +722,36 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Ok(());
     }
     println!(
-        "{}: {} frames judged ({} with depth), detector {}",
-        report.dataset, report.frames, report.depth_frames, report.detector
+        "{}: {} frames judged ({} with depth), detector {}; {} keypoints, {} straddle a moving silhouette",
+        report.dataset,
+        report.frames,
+        report.depth_frames,
+        report.detector,
+        report.keypoints,
+        report.straddling
     );
     println!(
-        "{:<20} {:>9} {:>9} {:>7} {:>7} {:>7}",
-        "method", "precision", "recall", "tp", "fp", "fn"
+        "strict: the keypoint's pixel is moving; occl: any pixel of its FAST test (centre and \
+         16-pixel circle at its level) is; clear: keypoints whose FAST test straddles a moving \
+         silhouette are not scored"
+    );
+    println!(
+        "{:<20} {:>9} {:>9} {:>7} {:>7} {:>7}   {:>9} {:>9}   {:>9} {:>9}",
+        "method", "precision", "recall", "tp", "fp", "fn", "P occl", "R occl", "P clear", "R clear"
     );
     for m in &report.methods {
         println!(
-            "{:<20} {:>9} {:>9} {:>7} {:>7} {:>7}",
+            "{:<20} {:>9} {:>9} {:>7} {:>7} {:>7}   {:>9} {:>9}   {:>9} {:>9}",
             m.method,
             fmt_opt(m.precision),
             fmt_opt(m.recall),
             m.counts.tp,
             m.counts.fp,
-            m.counts.fn_
+            m.counts.fn_,
+            fmt_opt(m.support_precision),
+            fmt_opt(m.support_recall),
+            fmt_opt(m.clear_precision),
+            fmt_opt(m.clear_recall)
         );
     }
     println!("motion models: {:?}", report.models);
