@@ -311,7 +311,6 @@ pub fn corner_sub_pix(
     }
     let px: Vec<f32> = (0..gw).map(|j| j as f32 - win as f32).collect();
     let mut patch = vec![0f32; ps * pst];
-    let mut acc = vec![[0f32; 8]; 5 * gw / 8];
     let eps2 = (epsilon * epsilon) as f64;
     let (w, h) = (img.width as f32, img.height as f32);
     for pt in pts.iter_mut() {
@@ -346,45 +345,15 @@ pub fn corner_sub_pix(
                     }
                 }
             }
-            // per-lane sums of gxx, gxy, gyy, gxx px + gxy py, gxy px + gyy py
-            acc.iter_mut().for_each(|v| *v = [0.0; 8]);
-            for i in 0..side {
-                let py = i as f32 - win as f32;
-                let mid = &patch[(i + 1) * pst..(i + 2) * pst];
-                let up = &patch[i * pst..(i + 1) * pst];
-                let down = &patch[(i + 2) * pst..(i + 3) * pst];
-                for k in 0..gw / 8 {
-                    let j = k * 8;
-                    let m = ld8(&weight, i * gw + j);
-                    let (l, r) = (ld8(mid, j), ld8(mid, j + 2));
-                    let (u, d) = (ld8(up, j + 1), ld8(down, j + 1));
-                    let x = ld8(&px, j);
-                    let mut t = [[0f32; 8]; 5];
-                    for q in 0..8 {
-                        let (tgx, tgy) = (r[q] - l[q], d[q] - u[q]);
-                        let (gxx, gxy, gyy) = (tgx * tgx * m[q], tgx * tgy * m[q], tgy * tgy * m[q]);
-                        t[0][q] = gxx;
-                        t[1][q] = gxy;
-                        t[2][q] = gyy;
-                        t[3][q] = gxx * x[q] + gxy * py;
-                        t[4][q] = gxy * x[q] + gyy * py;
-                    }
-                    for (s, tv) in t.iter().enumerate() {
-                        let a = &mut acc[s * gw / 8 + k];
-                        for q in 0..8 {
-                            a[q] += tv[q];
-                        }
-                    }
-                }
-            }
-            let total = |s: usize| -> f64 {
-                acc[s * gw / 8..(s + 1) * gw / 8]
-                    .iter()
-                    .flatten()
-                    .map(|&v| v as f64)
-                    .sum()
+            let sums = SubpixWindow {
+                patch: &patch,
+                stride: pst,
+                side,
+                lanes: gw,
+                weight: &weight,
+                px: &px,
             };
-            let (sa, sb, sc, bb1, bb2) = (total(0), total(1), total(2), total(3), total(4));
+            let [sa, sb, sc, bb1, bb2] = subpix_sums(&sums);
             let det = sa * sc - sb * sb;
             if det.abs() <= f64::EPSILON * f64::EPSILON {
                 break;
@@ -405,12 +374,123 @@ pub fn corner_sub_pix(
 }
 }
 
-/// Eight f32 lanes from `s[i..i + 8]`.
-#[inline(always)]
-fn ld8(s: &[f32], i: usize) -> [f32; 8] {
-    let mut v = [0f32; 8];
-    v.copy_from_slice(&s[i..i + 8]);
-    v
+/// The sampled window of one [`corner_sub_pix`] iteration: `side + 2` rows of `stride`
+/// samples (`patch`), gradient lanes per row `lanes` (a multiple of 8, at least `side`),
+/// Gaussian weights per lane (`weight`, `side * lanes`, zero on padding lanes) and the x
+/// offset of each lane (`px`).
+struct SubpixWindow<'a> {
+    patch: &'a [f32],
+    stride: usize,
+    side: usize,
+    lanes: usize,
+    weight: &'a [f32],
+    px: &'a [f32],
+}
+
+impl SubpixWindow<'_> {
+    fn fits(&self) -> bool {
+        self.lanes.is_multiple_of(8)
+            && self.lanes + 2 <= self.stride
+            && self.patch.len() >= (self.side + 2) * self.stride
+            && self.weight.len() >= self.side * self.lanes
+            && self.px.len() >= self.lanes
+    }
+}
+
+/// Sums over the window of `gxx, gxy, gyy, gxx px + gxy py, gxy px + gyy py` (gradients by
+/// central differences, Gaussian-weighted), in f64 at the end. The lanes are summed in f32 in
+/// registers and added up in a fixed order; the x86-64 AVX2 path is bit-identical to the
+/// portable one (same operations, same order, no fused multiply-add).
+fn subpix_sums(win: &SubpixWindow) -> [f64; 5] {
+    if !win.fits() {
+        return [0.0; 5];
+    }
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 is available; `fits` bounds every read.
+        return unsafe { subpix_sums_avx2(win) };
+    }
+    subpix_sums_portable(win)
+}
+
+fn lanes_total(acc: &[[f32; 8]; 5]) -> [f64; 5] {
+    acc.map(|a| a.iter().map(|&v| v as f64).sum())
+}
+
+// lanes indexed as in the AVX2 path, on purpose
+#[allow(clippy::needless_range_loop)]
+fn subpix_sums_portable(win: &SubpixWindow) -> [f64; 5] {
+    let mut acc = [[0f32; 8]; 5];
+    let half = (win.side / 2) as f32;
+    for i in 0..win.side {
+        let py = i as f32 - half;
+        let up = &win.patch[i * win.stride..];
+        let mid = &win.patch[(i + 1) * win.stride..];
+        let down = &win.patch[(i + 2) * win.stride..];
+        for j in (0..win.lanes).step_by(8) {
+            for q in 0..8 {
+                let c = j + q;
+                let m = win.weight[i * win.lanes + c];
+                let (tgx, tgy) = (mid[c + 2] - mid[c], down[c + 1] - up[c + 1]);
+                let (gxx, gxy, gyy) = (tgx * tgx * m, tgx * tgy * m, tgy * tgy * m);
+                let x = win.px[c];
+                acc[0][q] += gxx;
+                acc[1][q] += gxy;
+                acc[2][q] += gyy;
+                acc[3][q] += gxx * x + gxy * py;
+                acc[4][q] += gxy * x + gyy * py;
+            }
+        }
+    }
+    lanes_total(&acc)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn subpix_sums_avx2(win: &SubpixWindow) -> [f64; 5] {
+    use std::arch::x86_64::*;
+    let half = (win.side / 2) as f32;
+    let (patch, weight, pxs) = (win.patch.as_ptr(), win.weight.as_ptr(), win.px.as_ptr());
+    let z = _mm256_setzero_ps();
+    let (mut a0, mut a1, mut a2, mut a3, mut a4) = (z, z, z, z, z);
+    for i in 0..win.side {
+        let py = _mm256_set1_ps(i as f32 - half);
+        // SAFETY (all reads): the caller checked `SubpixWindow::fits`.
+        unsafe {
+            let up = patch.add(i * win.stride);
+            let mid = patch.add((i + 1) * win.stride);
+            let down = patch.add((i + 2) * win.stride);
+            let mut j = 0;
+            while j < win.lanes {
+                let m = _mm256_loadu_ps(weight.add(i * win.lanes + j));
+                let tgx =
+                    _mm256_sub_ps(_mm256_loadu_ps(mid.add(j + 2)), _mm256_loadu_ps(mid.add(j)));
+                let tgy = _mm256_sub_ps(
+                    _mm256_loadu_ps(down.add(j + 1)),
+                    _mm256_loadu_ps(up.add(j + 1)),
+                );
+                let gxx = _mm256_mul_ps(_mm256_mul_ps(tgx, tgx), m);
+                let gxy = _mm256_mul_ps(_mm256_mul_ps(tgx, tgy), m);
+                let gyy = _mm256_mul_ps(_mm256_mul_ps(tgy, tgy), m);
+                let x = _mm256_loadu_ps(pxs.add(j));
+                a0 = _mm256_add_ps(a0, gxx);
+                a1 = _mm256_add_ps(a1, gxy);
+                a2 = _mm256_add_ps(a2, gyy);
+                let t3 = _mm256_add_ps(_mm256_mul_ps(gxx, x), _mm256_mul_ps(gxy, py));
+                let t4 = _mm256_add_ps(_mm256_mul_ps(gxy, x), _mm256_mul_ps(gyy, py));
+                a3 = _mm256_add_ps(a3, t3);
+                a4 = _mm256_add_ps(a4, t4);
+                j += 8;
+            }
+        }
+    }
+    let acc = [a0, a1, a2, a3, a4].map(|v| {
+        let mut out = [0f32; 8];
+        // SAFETY: `out` holds 8 floats.
+        unsafe { _mm256_storeu_ps(out.as_mut_ptr(), v) };
+        out
+    });
+    lanes_total(&acc)
 }
 
 /// Bilinear sample of 8 lanes at columns `c..c + 8` between the 8-bit rows `r0`, `r1`.
@@ -433,6 +513,37 @@ fn bilinear8_u8(r0: &[u8], r1: &[u8], c: usize, wts: [f32; 4]) -> [f32; 8] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn subpix_sums_are_the_same_on_every_code_path() {
+        let (side, lanes, stride) = (21usize, 24usize, 32usize);
+        let mut seed = 11u32;
+        let mut rnd = || {
+            seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
+            (seed >> 8) as f32 / (1u32 << 24) as f32 * 255.0
+        };
+        let patch: Vec<f32> = (0..(side + 2) * stride).map(|_| rnd()).collect();
+        let weight: Vec<f32> = (0..side * lanes)
+            .map(|i| if i % lanes < side { rnd() / 255.0 } else { 0.0 })
+            .collect();
+        let px: Vec<f32> = (0..lanes).map(|j| j as f32 - 10.0).collect();
+        let win = SubpixWindow {
+            patch: &patch,
+            stride,
+            side,
+            lanes,
+            weight: &weight,
+            px: &px,
+        };
+        let portable = subpix_sums_portable(&win);
+        assert_eq!(subpix_sums(&win), portable);
+        assert!(portable[0] > 0.0 && portable[2] > 0.0);
+        let short = SubpixWindow {
+            patch: &patch[..stride * side],
+            ..win
+        };
+        assert_eq!(subpix_sums(&short), [0.0; 5]);
+    }
 
     /// A blurred checkerboard whose inner corners sit at (x0 + i*sq, y0 + j*sq) exactly.
     fn checker(w: usize, h: usize, sq: f32, x0: f32, y0: f32) -> Gray8 {
