@@ -264,7 +264,23 @@ fn corners_with(img: &Gray8, p: &CornerParams, scratch: &mut ResponseScratch) ->
     corners
 }
 
+/// The two taps (clamped to `0..n`) and the weight of the second for a bilinear sample at `v`,
+/// as [`sample_clamped`] computes them.
+#[inline(always)]
+fn clamped_taps(v: f32, n: usize) -> (usize, usize, f32) {
+    let v0 = v.floor();
+    let a = v - v0;
+    let i = v0 as isize;
+    let last = n as isize - 1;
+    (
+        i.clamp(0, last) as usize,
+        (i + 1).clamp(0, last) as usize,
+        a,
+    )
+}
+
 /// Bilinear sample with replicated borders (OpenCV `getRectSubPix` behaviour at the edge).
+#[cfg(test)]
 #[inline(always)]
 fn sample_clamped(img: &Gray8, x: f32, y: f32) -> f32 {
     let (w, h) = (img.width as isize, img.height as isize);
@@ -311,6 +327,7 @@ pub fn corner_sub_pix(
     }
     let px: Vec<f32> = (0..gw).map(|j| j as f32 - win as f32).collect();
     let mut patch = vec![0f32; ps * pst];
+    let mut border_cols = vec![(0usize, 0usize, 0f32); pst];
     let eps2 = (epsilon * epsilon) as f64;
     let (w, h) = (img.width as f32, img.height as f32);
     for pt in pts.iter_mut() {
@@ -339,9 +356,17 @@ pub fn corner_sub_pix(
                     }
                 }
             } else {
+                // near the border: `sample_clamped` with its floors and clamps hoisted out of
+                // the pixel loop (per column and per row; the same arithmetic)
+                for (x, c) in border_cols.iter_mut().enumerate() {
+                    *c = clamped_taps(ox + x as f32, img.width);
+                }
                 for r in 0..ps {
-                    for x in 0..pst {
-                        patch[r * pst + x] = sample_clamped(img, ox + x as f32, oy + r as f32);
+                    let (y0, y1, b) = clamped_taps(oy + r as f32, img.height);
+                    let (r0, r1) = (img.row(y0), img.row(y1));
+                    for (o, &(x0, x1, a)) in patch[r * pst..(r + 1) * pst].iter_mut().zip(&border_cols) {
+                        *o = (1.0 - b) * ((1.0 - a) * r0[x0] as f32 + a * r0[x1] as f32)
+                            + b * ((1.0 - a) * r1[x0] as f32 + a * r1[x1] as f32);
                     }
                 }
             }
@@ -513,6 +538,28 @@ fn bilinear8_u8(r0: &[u8], r1: &[u8], c: usize, wts: [f32; 4]) -> [f32; 8] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn hoisted_border_taps_match_sample_clamped() {
+        let mut img = Gray8::new(37, 23, 0);
+        for (i, v) in img.data.iter_mut().enumerate() {
+            *v = (i * 97 % 251) as u8;
+        }
+        for &(x, y) in &[
+            (-3.7f32, -1.2f32),
+            (35.6, 21.9),
+            (0.25, 10.5),
+            (40.1, 30.3),
+            (17.0, 5.0),
+        ] {
+            let (x0, x1, a) = clamped_taps(x, img.width);
+            let (y0, y1, b) = clamped_taps(y, img.height);
+            let (r0, r1) = (img.row(y0), img.row(y1));
+            let v = (1.0 - b) * ((1.0 - a) * r0[x0] as f32 + a * r0[x1] as f32)
+                + b * ((1.0 - a) * r1[x0] as f32 + a * r1[x1] as f32);
+            assert_eq!(v, sample_clamped(&img, x, y), "at ({x}, {y})");
+        }
+    }
 
     #[test]
     fn subpix_sums_are_the_same_on_every_code_path() {
