@@ -143,6 +143,17 @@ impl Drop for OpenCvServer {
     }
 }
 
+/// The 1-minute load average (Linux `/proc/loadavg`), printed with the results: absolute ms on a
+/// shared machine mean little without it (the ratios are measured interleaved).
+fn load_average() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
 fn median(xs: &[f64]) -> Option<f64> {
     let mut v = xs.to_vec();
     v.sort_by(f64::total_cmp);
@@ -168,6 +179,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bail!("no images given");
     }
     let imgs = load(&images)?;
+    let load_before = load_average();
     tracing::info!(
         "{} images, {} repeats, {} ORB features",
         imgs.len(),
@@ -302,6 +314,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Value::Object(m)
     });
     drop(cv);
+    let load_after = load_average();
     // ratio = ours / OpenCV (below 1 = faster than OpenCV): the median over rounds of the
     // ratio of the two sides' medians within the round, so slow patches of load cancel out
     let ratios: serde_json::Map<String, Value> = compare
@@ -316,6 +329,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "stillpoint": ours,
             "opencv": opencv,
             "ratio_vs_opencv": ratios,
+            "load_average_1min": [load_before, load_after],
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
@@ -357,6 +371,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             r
         );
     }
+    let fmt_load = |l: Option<f64>| l.map_or_else(|| "?".to_string(), |l| format!("{l:.2}"));
+    println!(
+        "load average (1 min) before / after: {} / {}",
+        fmt_load(load_before),
+        fmt_load(load_after)
+    );
     println!(
         "features/frame {:.0}, corners/frame {:.0}, tracked/frame {:.0}{}",
         nfeat as f64 / runs as f64,
