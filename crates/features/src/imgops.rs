@@ -216,12 +216,13 @@ pub(crate) fn pyr_down_into(src: &Gray8, dst: &mut Gray8) {
 }
 
 /// Scharr derivatives as OpenCV's LK computes them (`[3 10 3]` smoothing × `[-1 0 1]`,
-/// reflect-101), unscaled, as f32: returns (dx, dy), each `w*h`.
+/// reflect-101), unscaled, as i16 (|value| <= 16 x 255, as OpenCV's `CV_16S` derivatives):
+/// returns (dx, dy), each `w*h`.
 #[cfg(test)]
-pub(crate) fn scharr(src: &Gray8) -> (Vec<f32>, Vec<f32>) {
+pub(crate) fn scharr(src: &Gray8) -> (Vec<i16>, Vec<i16>) {
     let (w, h) = (src.width, src.height);
-    let mut dx = vec![0f32; w * h];
-    let mut dy = vec![0f32; w * h];
+    let mut dx = vec![0i16; w * h];
+    let mut dy = vec![0i16; w * h];
     scharr_into(src, &mut dx, &mut dy, w, 0);
     (dx, dy)
 }
@@ -229,7 +230,7 @@ pub(crate) fn scharr(src: &Gray8) -> (Vec<f32>, Vec<f32>) {
 simd_fn! {
 /// Scharr derivatives (see [`scharr`]) written into `dx`, `dy` at row stride `stride`, pixel
 /// (0, 0) at index `origin` (so the outputs can carry a border).
-pub(crate) fn scharr_into(src: &Gray8, dx: &mut [f32], dy: &mut [f32], stride: usize, origin: usize) {
+pub(crate) fn scharr_into(src: &Gray8, dx: &mut [i16], dy: &mut [i16], stride: usize, origin: usize) {
     let (w, h) = (src.width, src.height);
     if w == 0 || h == 0 {
         return;
@@ -258,8 +259,8 @@ pub(crate) fn scharr_into(src: &Gray8, dx: &mut [f32], dy: &mut [f32], stride: u
         let ox = &mut dx[o..o + w];
         let oy = &mut dy[o..o + w];
         for x in 0..w {
-            ox[x] = (trow[x + 2] - trow[x]) as f32;
-            oy[x] = (3 * (drow[x] + drow[x + 2]) + 10 * drow[x + 1]) as f32;
+            ox[x] = trow[x + 2] - trow[x];
+            oy[x] = 3 * (drow[x] + drow[x + 2]) + 10 * drow[x + 1];
         }
     }
 }
@@ -288,7 +289,7 @@ mod tests {
         let r = resize_linear(&img, 10, 7);
         assert!(r.data.iter().all(|&v| v == 77));
         let (gx, gy) = scharr(&img);
-        assert!(gx.iter().chain(&gy).all(|&v| v == 0.0));
+        assert!(gx.iter().chain(&gy).all(|&v| v == 0));
     }
 
     #[test]
@@ -301,7 +302,7 @@ mod tests {
         }
         let (gx, gy) = scharr(&img);
         // (10 - (-10)) ... central difference of 2 steps * 10 * (3 + 10 + 3) = 320
-        assert_eq!(gx[3 * 8 + 4], 320.0);
-        assert_eq!(gy[3 * 8 + 4], 0.0);
+        assert_eq!(gx[3 * 8 + 4], 320);
+        assert_eq!(gy[3 * 8 + 4], 0);
     }
 }

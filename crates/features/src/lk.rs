@@ -47,7 +47,8 @@ pub struct LkPyramid {
     /// Border on each side of every level, in pixels.
     border: usize,
     levels: Vec<Vec<f32>>,
-    grads: Vec<(Vec<f32>, Vec<f32>)>,
+    /// Scharr derivatives as i16 (exact; half the memory of f32), zero on the border.
+    grads: Vec<(Vec<i16>, Vec<i16>)>,
     /// The 8-bit levels (scratch for `pyrDown`, kept to reuse the allocations).
     gray: Vec<Gray8>,
 }
@@ -125,7 +126,7 @@ impl LkPyramid {
                 // allocator (no memset pass over the whole level)
                 for d in [&mut *dx, &mut *dy] {
                     if d.len() != sw * sh {
-                        *d = vec![0.0; sw * sh];
+                        *d = vec![0; sw * sh];
                     }
                 }
                 scharr_into(cur, dx, dy, sw, bd * sw + bd);
@@ -422,8 +423,8 @@ struct Patches<'a> {
 /// `[Σ Ix², Σ Ix Iy, Σ Iy²]`. Same scheme and guarantees as [`mismatch_sums`].
 fn prepare_patch(
     i: &Window,
-    dx: &[f32],
-    dy: &[f32],
+    dx: &[i16],
+    dy: &[i16],
     wts: [f32; 4],
     lane_mask: &[f32],
     out: Patches,
@@ -448,8 +449,8 @@ fn prepare_patch(
 #[allow(clippy::needless_range_loop)]
 fn prepare_patch_portable(
     i: &Window,
-    dx: &[f32],
-    dy: &[f32],
+    dx: &[i16],
+    dy: &[i16],
     wts: [f32; 4],
     lane_mask: &[f32],
     out: Patches,
@@ -465,15 +466,11 @@ fn prepare_patch_portable(
         for c in (0..i.width).step_by(8) {
             for l in 0..8 {
                 let x = c + l;
-                let at = |src: &[f32]| {
-                    w[0] * src[o + x]
-                        + w[1] * src[o + x + 1]
-                        + w[2] * src[o + s + x]
-                        + w[3] * src[o + s + x + 1]
-                };
-                let xs = at(dx) * lane_mask[x];
-                let ys = at(dy) * lane_mask[x];
-                out.ip[k + x] = at(i.src);
+                let taps = [o + x, o + x + 1, o + s + x, o + s + x + 1];
+                let at = |v: [f32; 4]| w[0] * v[0] + w[1] * v[1] + w[2] * v[2] + w[3] * v[3];
+                let xs = at(taps.map(|j| dx[j] as f32)) * lane_mask[x];
+                let ys = at(taps.map(|j| dy[j] as f32)) * lane_mask[x];
+                out.ip[k + x] = at(taps.map(|j| i.src[j]));
                 out.gx[k + x] = xs;
                 out.gy[k + x] = ys;
                 acc[a][l] += xs * xs;
@@ -493,8 +490,8 @@ fn prepare_patch_portable(
 #[target_feature(enable = "avx2")]
 unsafe fn prepare_patch_avx2(
     i: &Window,
-    dx: &[f32],
-    dy: &[f32],
+    dx: &[i16],
+    dy: &[i16],
     wts: [f32; 4],
     lane_mask: &[f32],
     out: Patches,
@@ -508,15 +505,26 @@ unsafe fn prepare_patch_avx2(
         out.gy.as_mut_ptr(),
     );
     // SAFETY (all reads and writes): the caller checked the window and the buffers.
+    // eight i16 as f32 (exact)
+    macro_rules! ld16 {
+        ($p:expr) => {
+            _mm256_cvtepi32_ps(_mm256_cvtepi16_epi32(_mm_loadu_si128($p.cast::<__m128i>())))
+        };
+    }
     macro_rules! bilinear {
-        ($p:expr, $o:expr) => {{
+        ($p:expr, $o:expr, $ld:ident) => {{
             let p0 = $p.add($o);
             let p1 = p0.add(i.stride);
-            let mut v = _mm256_mul_ps(w[0], _mm256_loadu_ps(p0));
-            v = _mm256_add_ps(v, _mm256_mul_ps(w[1], _mm256_loadu_ps(p0.add(1))));
-            v = _mm256_add_ps(v, _mm256_mul_ps(w[2], _mm256_loadu_ps(p1)));
-            _mm256_add_ps(v, _mm256_mul_ps(w[3], _mm256_loadu_ps(p1.add(1))))
+            let mut v = _mm256_mul_ps(w[0], $ld!(p0));
+            v = _mm256_add_ps(v, _mm256_mul_ps(w[1], $ld!(p0.add(1))));
+            v = _mm256_add_ps(v, _mm256_mul_ps(w[2], $ld!(p1)));
+            _mm256_add_ps(v, _mm256_mul_ps(w[3], $ld!(p1.add(1))))
         }};
+    }
+    macro_rules! ld32 {
+        ($p:expr) => {
+            _mm256_loadu_ps($p)
+        };
     }
     macro_rules! row {
         ($r:expr, $xx:expr, $xy:expr, $yy:expr) => {{
@@ -525,9 +533,9 @@ unsafe fn prepare_patch_avx2(
             let mut c = 0;
             while c < i.width {
                 let m = _mm256_loadu_ps(mask.add(c));
-                let xs = _mm256_mul_ps(bilinear!(dx, o + c), m);
-                let ys = _mm256_mul_ps(bilinear!(dy, o + c), m);
-                _mm256_storeu_ps(ip.add(k + c), bilinear!(src, o + c));
+                let xs = _mm256_mul_ps(bilinear!(dx, o + c, ld16), m);
+                let ys = _mm256_mul_ps(bilinear!(dy, o + c, ld16), m);
+                _mm256_storeu_ps(ip.add(k + c), bilinear!(src, o + c, ld32));
                 _mm256_storeu_ps(gx.add(k + c), xs);
                 _mm256_storeu_ps(gy.add(k + c), ys);
                 $xx = _mm256_add_ps($xx, _mm256_mul_ps(xs, xs));
@@ -763,8 +771,8 @@ mod tests {
         let (mut qi, mut qx, mut qy) = (ip.clone(), gx.clone(), gy.clone());
         let mask: Vec<f32> = (0..width).map(|c| if c < 22 { 1.0 } else { 0.0 }).collect();
         // gradients laid out like the level
-        let dx: Vec<f32> = src.iter().map(|v| v - 100.0).collect();
-        let dy: Vec<f32> = src.iter().rev().map(|v| 50.0 - v).collect();
+        let dx: Vec<i16> = src.iter().map(|v| (v * 16.0) as i16 - 2000).collect();
+        let dy: Vec<i16> = src.iter().rev().map(|v| 1000 - (v * 12.0) as i16).collect();
         let a = prepare_patch_portable(
             &win,
             &dx,
