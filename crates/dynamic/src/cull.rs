@@ -6,7 +6,8 @@ use crate::judge::{BoxState, Verdict};
 use crate::motion_consistency::TrackedPoint;
 use crate::settings::CullParams;
 
-/// The paper's culling with default [`CullParams`]: `true` = dynamic, remove the keypoint.
+/// The paper's culling, algorithm 3 exactly (no tracked points are passed, so the unknown-object
+/// rule of [`CullParams`] never fires): `true` = dynamic, remove the keypoint.
 ///
 /// ```
 /// use stillpoint_dynamic::{BoxPart, BoxState, Rule, Verdict, cull};

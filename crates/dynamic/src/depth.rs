@@ -602,15 +602,16 @@ mod tests {
             [296.0, 220.0], // wall beside him, within the radius: kept (another depth)
             [500.0, 100.0], // far from every outlier: kept
         ];
-        let mut s = settings();
-        s.cull.unknown_objects = true;
+        let s = settings(); // unknown objects on by default
         let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &s);
         assert_eq!(removed, vec![true, false, false]);
         // Without depth the wall point goes too (the paper's image-only rule).
         let removed = cull_frame(&keypoints, &mut states, &tracked, None, &s);
         assert_eq!(removed, vec![true, true, false]);
-        // Off by default: nothing outside a box is culled.
-        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &settings());
+        // Off (the paper): nothing outside a box is culled.
+        let mut off = settings();
+        off.cull.unknown_objects = false;
+        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &off);
         assert_eq!(removed, vec![false; 3]);
     }
 

@@ -300,3 +300,26 @@ fn subpixel_hand_motion_makes_a_seated_top_part_dynamic_ours() {
         Verdict::Static
     );
 }
+
+#[test]
+fn paper_settings_cull_as_algorithm_3() {
+    // Our defaults add the unknown-object rule (and, on RGB-D, depth); `paper()` takes them off.
+    let chair = det(CHAIR, 200.0, 200.0, 300.0, 300.0);
+    let walker = det(PERSON, 400.0, 40.0, 460.0, 400.0);
+    let pts = [
+        pt(50.0, 50.0, true),
+        pt(58.0, 52.0, true),
+        pt(48.0, 64.0, true),
+        pt(430.0, 200.0, true),
+        pt(250.0, 250.0, false),
+    ];
+    let kp = [[54.0, 60.0], [430.0, 100.0], [250.0, 255.0], [120.0, 120.0]];
+    let paper = crate::DynamicSettings::paper();
+    let mut states = judge_boxes(&[chair, walker], &pts, &paper.judge);
+    let removed = crate::cull_frame(&kp, &mut states, &pts, None, &paper);
+    assert_eq!(removed, cull(&kp, &states));
+    assert_eq!(removed, vec![false, true, false, false]);
+    let ours = crate::DynamicSettings::default();
+    let removed = crate::cull_frame(&kp, &mut states, &pts, None, &ours);
+    assert_eq!(removed, vec![true, true, false, false]);
+}
