@@ -74,3 +74,97 @@ fn blank_black_and_depthless_frames_do_not_abort() {
     let ate = summary["ate"]["rmse"].as_f64().unwrap();
     assert!(ate < 0.02, "{summary}");
 }
+
+/// Truly lost: 15 frames from another place (the same room with other textures: no descriptor
+/// matches the map) spliced into a sequence. Tracking must not follow the foreign frames onto the
+/// map, must come back by relocalisation (or a new map) once the sequence returns, and the
+/// trajectory file must stay valid and accurate.
+#[test]
+fn frames_from_another_place_are_lost_then_relocalised() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (seq, other) = (tmp.path().join("seq"), tmp.path().join("other"));
+    for (dir, seed) in [(&seq, "0"), (&other, "7")] {
+        let st = stillpoint()
+            .args([
+                "synth", "--preset", "static", "--frames", "75", "--seed", seed,
+            ])
+            .arg("--out")
+            .arg(dir)
+            .output()
+            .unwrap();
+        assert!(
+            st.status.success(),
+            "{}",
+            String::from_utf8_lossy(&st.stderr)
+        );
+    }
+    let sorted = |d: &Path| {
+        let mut v: Vec<String> = std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    };
+    let names = sorted(&seq.join("rgb"));
+    let foreign = 30..45;
+    for sub in ["rgb", "depth"] {
+        let theirs = sorted(&other.join(sub));
+        let ours = sorted(&seq.join(sub));
+        for i in foreign.clone() {
+            std::fs::copy(
+                other.join(sub).join(&theirs[i]),
+                seq.join(sub).join(&ours[i]),
+            )
+            .unwrap();
+        }
+    }
+    let traj = tmp.path().join("traj.txt");
+    let out = stillpoint()
+        .args([
+            "run",
+            "--detector",
+            "none",
+            "--sequential",
+            "--json",
+            "--dataset",
+        ])
+        .arg(&seq)
+        .arg("--out")
+        .arg(&traj)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let recovered =
+        summary["relocalisations"].as_u64().unwrap() + summary["new_maps"].as_u64().unwrap();
+    assert!(recovered >= 1, "{summary}");
+    let t = stillpoint_trajectory::read_tum(&traj).unwrap();
+    assert_eq!(t.len() as u64, summary["tracked"].as_u64().unwrap());
+    assert!(t.stamps.windows(2).all(|w| w[0] < w[1]), "stamps in order");
+    // The frames of the sequence are tracked (all but a few around the splice) ...
+    let stamp = |n: &str| n.trim_end_matches(".png").parse::<f64>().unwrap();
+    let ours_tracked = names
+        .iter()
+        .enumerate()
+        .filter(|(i, n)| {
+            !foreign.contains(i) && t.stamps.iter().any(|s| (s - stamp(n)).abs() < 1e-4)
+        })
+        .count();
+    assert!(
+        ours_tracked >= 55,
+        "{ours_tracked} of 60 tracked: {summary}"
+    );
+    // ... and the foreign ones, whose poses would be wrong, are not (at most a couple).
+    let foreign_tracked = foreign
+        .clone()
+        .filter(|&i| t.stamps.iter().any(|s| (s - stamp(&names[i])).abs() < 1e-4))
+        .count();
+    assert!(
+        foreign_tracked <= 2,
+        "{foreign_tracked} foreign frames tracked: {summary}"
+    );
+    let ate = summary["ate"]["rmse"].as_f64().unwrap();
+    assert!(ate < 0.02, "{summary}");
+}
