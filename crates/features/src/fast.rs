@@ -174,6 +174,60 @@ fn movemask32(m: &[u8; L]) -> u32 {
     }
 }
 
+/// The whole 32-pixel blocks of [`corner_row`] (`n / 32` of them from `data[base]`) with AVX2
+/// compares and movemasks, written to `out`; returns how many pixels it covered. Same masks as
+/// the portable loop (unsigned compares as signed ones after flipping the top bit).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn corner_blocks_avx2(
+    data: &[u8],
+    base: usize,
+    n: usize,
+    t: u8,
+    offsets: &[isize; 16],
+    out: &mut [u32],
+) -> usize {
+    use std::arch::x86_64::*;
+    let blocks = n / L;
+    // bounds of every read, checked once: the lowest and highest circle offsets
+    let (lo_off, hi_off) = (offsets[8], offsets[0] + 1);
+    let first = base as isize + lo_off;
+    let last = (base + blocks * L) as isize + hi_off;
+    if blocks == 0 || first < 0 || last > data.len() as isize || out.len() < blocks {
+        return 0;
+    }
+    let sign = _mm256_set1_epi8(i8::MIN);
+    let tv = _mm256_set1_epi8(t as i8);
+    let ptr = data.as_ptr();
+    for (b, slot) in out[..blocks].iter_mut().enumerate() {
+        let at = base + b * L;
+        // SAFETY: `first..last` bounds every load (the circle spans rows -3..=3 and columns
+        // -3..=3, offsets[8] the lowest, offsets[0] + 1 above the highest).
+        unsafe {
+            let c = _mm256_loadu_si256(ptr.add(at).cast::<__m256i>());
+            let hi = _mm256_xor_si256(_mm256_adds_epu8(c, tv), sign);
+            let lo = _mm256_xor_si256(_mm256_subs_epu8(c, tv), sign);
+            let mut bright = [0u32; 16];
+            let mut dark = [0u32; 16];
+            for k in 0..16 {
+                let q = ptr.offset(at as isize + offsets[k]).cast::<__m256i>();
+                let p = _mm256_xor_si256(_mm256_loadu_si256(q), sign);
+                bright[k] = _mm256_movemask_epi8(_mm256_cmpgt_epi8(p, hi)) as u32;
+                dark[k] = _mm256_movemask_epi8(_mm256_cmpgt_epi8(lo, p)) as u32;
+            }
+            let (mut bm, mut dm) = (u32::MAX, u32::MAX);
+            for k in 0..8 {
+                bm &= bright[k] | bright[k + 8];
+                dm &= dark[k] | dark[k + 8];
+            }
+            if bm | dm != 0 {
+                *slot = arc9(&bright) | arc9(&dark);
+            }
+        }
+    }
+    blocks * L
+}
+
 simd_fn! {
 /// Mark pixels of row `y`, columns `x0..x1`, that are FAST corners at threshold `t` (full
 /// segment test, 32 pixels at a time as bit masks, one `u32` per block in `out`; blocks where
@@ -186,6 +240,13 @@ fn corner_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<
     let base = y * w + x0;
     let offsets: [isize; 16] = std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
     let mut i = 0;
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // whole blocks in AVX2 registers; the row's tail block below
+        // SAFETY: AVX2 is available; `detect` keeps rows and columns 3 px inside the image,
+        // so every circle pixel of a whole block lies in `img.data`.
+        i = unsafe { corner_blocks_avx2(&img.data, base, n, t, &offsets, out) };
+    }
     while i < n {
         let lanes = L.min(n - i);
         let mut c = [0u8; L];
@@ -375,6 +436,40 @@ mod tests {
             best = best.max(-arc.max().unwrap_or(0));
         }
         (best - 1).clamp(1, 255) as u8
+    }
+
+    #[test]
+    fn corner_row_marks_exactly_the_segment_test_corners() {
+        let (w, h) = (101usize, 12usize);
+        let mut seed = 5u32;
+        let mut img = Gray8::new(w, h, 0);
+        for v in img.data.iter_mut() {
+            seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
+            *v = (seed >> 24) as u8;
+        }
+        // a flat patch, so some blocks fail the pre-test
+        for y in 0..h {
+            for x in 40..80 {
+                img.set(x, y, 128);
+            }
+        }
+        for t in [1u8, 7, 20, 60, 250] {
+            for y in 3..h - 3 {
+                let mut fast = Vec::new();
+                corner_row(&img, y, 3, w - 3, t, &mut fast);
+                // the segment test, pixel by pixel
+                let offsets: [isize; 16] =
+                    std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
+                let expect: Vec<usize> = (3..w - 3)
+                    .filter(|&x| score_at(&img.data, y * w + x, &offsets, t) > 0)
+                    .map(|x| x - 3)
+                    .collect();
+                let got: Vec<usize> = (0..w - 6)
+                    .filter(|&j| fast[j / L] >> (j % L) & 1 == 1)
+                    .collect();
+                assert_eq!(got, expect, "t {t} row {y}");
+            }
+        }
     }
 
     #[test]
