@@ -256,7 +256,17 @@ pub fn cull_frame_with_motion(
     let Some((prev_pyr, cur_pyr)) = pyramids.filter(|_| s.keypoint_motion.enabled) else {
         return removed;
     };
-    let candidates = in_dynamic_box(keypoints, states);
+    // Track only the keypoints a rule could change: culled ones, when the model may keep them;
+    // kept ones, when the cull rule is on.
+    let km = &s.keypoint_motion;
+    let may_keep = (km.keep_in_whole_boxes || km.keep_in_seated_parts)
+        && (check.model != MotionModel::Fundamental || km.keep_with_fundamental);
+    let may_cull = km.cull_above_px.is_finite();
+    let candidates: Vec<bool> = in_dynamic_box(keypoints, states)
+        .iter()
+        .zip(&removed)
+        .map(|(&inside, &r)| inside && if r { may_keep } else { may_cull })
+        .collect();
     if !candidates.contains(&true) {
         return removed;
     }
