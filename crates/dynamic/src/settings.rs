@@ -309,7 +309,7 @@ pub struct KeypointMotionParams {
     pub enabled: bool,
     /// LK for the backward and forward tracks: the geometry module's pyramids with a 7x7 window
     /// (ours; the paper's 22x22 window straddles the silhouette of a person for keypoints just
-    /// outside it: 22 vs 7 on walking_static 0.935 vs 0.945 precision at the same recall).
+    /// outside it: on walking_static, clear ground truth, 22 gives 0.935 / 0.968, 7 0.945 / 0.977).
     pub lk: LkParams,
     /// Drop a track whose previous position is closer than this to the border, pixels (the
     /// geometry module's 5 px).
