@@ -17,10 +17,13 @@
 //!
 //! Speed (`stillpoint bench features --repeat 20`, 6 TUM 640x480 images, 1 thread each, our
 //! rounds and OpenCV's alternating, ratio = median of per-round ratios ours / OpenCV, three
-//! runs): ORB 0.99-1.00 (5.6 ms each), Harris + sub-pixel 0.82-0.88, LK 0.34-0.50 (2.2-2.9 ms
-//! vs 5.8-6.4 ms for ~294 corners, both pyramids built per call), Harris + LK 0.59-0.68. LK
-//! is fast because [`track_lk`] reuses its pyramid buffers per thread (fresh pages cost more
-//! than the tracking) and its two inner loops keep their sums in AVX2 registers.
+//! runs at load 4.2-4.4 on 2 cores): ORB 0.93-0.95 (5.3 vs 5.7 ms), Harris + sub-pixel
+//! 0.30-0.31 (3.0 vs 9.8-11 ms, ~294 corners), LK 0.38-0.41 (2.3-2.5 vs 5.6-8.9 ms, both
+//! pyramids built per call), Harris + LK 0.31-0.35. What makes it: [`track_lk`] and
+//! [`good_features_to_track`] keep their per-pixel buffers per thread (fresh pages of ~8 MB
+//! per call cost more than the arithmetic), and the inner loops of LK, sub-pixel refinement and
+//! the FAST segment test run in AVX2 registers, each with a portable path that gives the same
+//! bits (tested).
 //!
 //! Inlier ratio of a fundamental-matrix RANSAC (1 px, 0.99) on the ORB matches of the real
 //! pairs in `../shared/data`, mean over 20 RANSAC draws on both sides
