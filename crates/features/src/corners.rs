@@ -48,7 +48,7 @@ impl Default for CornerParams {
 }
 
 /// Per-pixel buffers of [`corner_response`], kept per thread by [`good_features_to_track`]:
-/// seven f32 images of a 640x480 frame are 8.6 MB, whose fresh pages cost about as much as the
+/// eight f32 images of a 640x480 frame are 9.8 MB, whose fresh pages cost about as much as the
 /// arithmetic. Every buffer is fully written before it is read, so reuse changes no result.
 #[derive(Default)]
 struct ResponseScratch {
@@ -164,7 +164,8 @@ fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32, s: &mut Resp
 /// Strongest corners of `img` (OpenCV `goodFeaturesToTrack`: response above
 /// `quality_level` x max, 3x3 local maxima, strongest first, `min_distance` apart, at most
 /// `max_corners`), refined to sub-pixel accuracy with [`corner_sub_pix`]. Blank, tiny or
-/// malformed images give no corners.
+/// malformed images give no corners. The per-pixel response buffers (32 bytes per pixel) are
+/// kept per thread and reused by the next call.
 pub fn good_features_to_track(img: &Gray8, p: &CornerParams) -> Vec<[f32; 2]> {
     if !valid(img) || img.width < 3 || img.height < 3 || p.max_corners == 0 {
         return Vec::new();

@@ -176,7 +176,9 @@ fn fill_padded(img: &Gray8, bd: usize, out: &mut Vec<f32>) {
 }
 
 /// Track `pts` from `prev` into `cur`; `None` where tracking failed (flat window, left the
-/// image, NaN input). Same-size images required (else all `None`).
+/// image, NaN input). Same-size images required (else all `None`). Builds both pyramids into
+/// buffers kept per thread (about 16 bytes per pixel over all levels, reused by the next call),
+/// so only the first call allocates.
 ///
 /// ```
 /// use stillpoint_features::{track_lk, LkParams};
