@@ -189,10 +189,12 @@ unsafe fn corner_blocks_avx2(
 ) -> usize {
     use std::arch::x86_64::*;
     let blocks = n / L;
-    // bounds of every read, checked once: the lowest and highest circle offsets
-    let (lo_off, hi_off) = (offsets[8], offsets[0] + 1);
+    // bounds of every read, checked once: block b reads data[base + b L + off ..][..L] for
+    // each circle offset (and the centre, offset 0)
+    let lo_off = offsets.iter().copied().min().unwrap_or(0).min(0);
+    let hi_off = offsets.iter().copied().max().unwrap_or(0).max(0);
     let first = base as isize + lo_off;
-    let last = (base + blocks * L) as isize + hi_off;
+    let last = (base + blocks * L) as isize + hi_off; // one past the last byte read
     if blocks == 0 || first < 0 || last > data.len() as isize || out.len() < blocks {
         return 0;
     }
@@ -201,8 +203,7 @@ unsafe fn corner_blocks_avx2(
     let ptr = data.as_ptr();
     for (b, slot) in out[..blocks].iter_mut().enumerate() {
         let at = base + b * L;
-        // SAFETY: `first..last` bounds every load (the circle spans rows -3..=3 and columns
-        // -3..=3, offsets[8] the lowest, offsets[0] + 1 above the highest).
+        // SAFETY: `first..last` bounds every load.
         unsafe {
             let c = _mm256_loadu_si256(ptr.add(at).cast::<__m256i>());
             let hi = _mm256_xor_si256(_mm256_adds_epu8(c, tv), sign);
