@@ -10,8 +10,9 @@
 //!   [`object_depth`]): the depth with the best score "share of the box's central depth samples
 //!   within the band + w x (the box's geometric outliers within the band) / (outliers + k)"
 //!   ([`DepthParams::outlier_weight`], [`DepthParams::outlier_half_count`]: many outliers
-//!   outweigh the centre, a single one does not), refined to the median of the central samples
-//!   in that band;
+//!   outweigh the centre, a single one does not), minus the share of the central samples in
+//!   front of the band ([`DepthParams::occluder_weight`]: the mover is in front of what it
+//!   hides), refined to the median of the central samples in that band;
 //! - the band is that depth ± max([`DepthParams::band_min_m`],
 //!   [`DepthParams::band_relative`] x depth);
 //! - a keypoint with a valid depth is culled when its depth lies in the band of a dynamic box
@@ -144,7 +145,11 @@ pub fn object_depth(
         } else {
             in_band(&outliers, d) as f32 / (outliers.len() as f32 + p.outlier_half_count.max(0.0))
         };
-        c + p.outlier_weight * o
+        // The mover is in front of what it hides: a depth with much of the centre in front of
+        // it is more likely background seen past the object.
+        let (near, _) = depth_band(d, p);
+        let in_front = central.partition_point(|&v| v < near) as f32 / central.len() as f32;
+        c + p.outlier_weight * o - p.occluder_weight * in_front
     };
     // Candidates: the central samples (thinned to at most ~256) and the outliers' depths.
     let step = (central.len() / 256).max(1);
@@ -613,6 +618,30 @@ mod tests {
         off.cull.unknown_objects = false;
         let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &off);
         assert_eq!(removed, vec![false; 3]);
+    }
+
+    #[test]
+    fn background_outliers_beside_a_seated_person_do_not_pull_the_depth_behind_him() {
+        // A seated person at 1.4 m fills two thirds of the box's centre; the room behind at
+        // 2.3 m. Three outliers on the room beside him (noise, occlusion), one on his hand.
+        let bbox = BBox::new(0.0, 76.0, 240.0, 310.0);
+        let depth = depth_map(2.3, &[([40, 76, 140, 310], 1.4)]);
+        let tracked = [
+            pt(20.0, 100.0, true),
+            pt(25.0, 200.0, true),
+            pt(215.0, 150.0, true),
+            pt(120.0, 200.0, true),
+        ];
+        let p = DepthParams::default();
+        let o = object_depth(&bbox, &tracked, &depth, &p).expect("depth");
+        assert_eq!(o.metres, 1.4, "{o:?}");
+        // Without the occluder rule the three background outliers win.
+        let off = DepthParams {
+            occluder_weight: 0.0,
+            ..p
+        };
+        let o = object_depth(&bbox, &tracked, &depth, &off).expect("depth");
+        assert_eq!(o.metres, 2.3, "{o:?}");
     }
 
     #[test]

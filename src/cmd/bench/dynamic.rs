@@ -54,6 +54,10 @@ pub struct Args {
     /// Depth-aware culling: half width of the band, at least this share of the depth.
     #[arg(long)]
     depth_band_rel: Option<f32>,
+    /// Depth-aware culling: penalty per share of the box's centre in front of a candidate
+    /// object depth.
+    #[arg(long)]
+    occluder_weight: Option<f32>,
     /// Depth-aware culling: a keypoint's depth is the nearest within this many pixels.
     #[arg(long)]
     depth_window: Option<usize>,
@@ -392,6 +396,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         settings.depth.local_radius_fraction = v;
     }
     settings.depth.seated_parts_local = args.seated_local;
+    if let Some(v) = args.occluder_weight {
+        settings.depth.occluder_weight = v;
+    }
     if let Some(v) = args.depth_window {
         settings.depth.keypoint_window_px = v;
     }
