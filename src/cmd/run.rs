@@ -72,6 +72,18 @@ pub struct Args {
     /// map points in a new keyframe (`SlamSettings::no_points_from_pose_outliers`).
     #[arg(long)]
     pub points_from_pose_outliers: Option<bool>,
+    /// Per-keypoint motion evidence inside dynamic boxes (`dynamic::keypoint_motion`, ours):
+    /// true / false; the dynamic crate's default when omitted.
+    #[arg(long)]
+    pub keypoint_motion: Option<bool>,
+    /// Seated people (NHBC's split parts): cull only around their geometric outliers, not the
+    /// whole part at the person's depth (`dynamic::DepthParams::seated_parts_local`).
+    #[arg(long)]
+    pub seated_local: Option<bool>,
+    /// Seated people's parts: track, create no map points, instead of culling
+    /// (`FrontEndSettings::seated_track_only`).
+    #[arg(long)]
+    pub seated_track_only: Option<bool>,
     /// Print a JSON summary on stdout instead of the tables.
     #[arg(long)]
     pub json: bool,
@@ -107,6 +119,9 @@ pub struct Overrides {
     pub outlier_guard_min: Option<usize>,
     pub point_max_rejections: Option<u32>,
     pub points_from_pose_outliers: Option<bool>,
+    pub keypoint_motion: Option<bool>,
+    pub seated_local: Option<bool>,
+    pub seated_track_only: Option<bool>,
 }
 
 /// Per-stage times of one frame, ms.
@@ -213,6 +228,15 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             }
             if let Some(m) = o.overrides.outlier_guard_min {
                 settings.outlier_guard_min = m;
+            }
+            if let Some(k) = o.overrides.keypoint_motion {
+                settings.dynamic.keypoint_motion.enabled = k;
+            }
+            if let Some(k) = o.overrides.seated_local {
+                settings.dynamic.depth.seated_parts_local = k;
+            }
+            if let Some(k) = o.overrides.seated_track_only {
+                settings.seated_track_only = k;
             }
             Some(DynamicFrontEnd::new(detector, settings))
         }
@@ -584,6 +608,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             outlier_guard_min: args.outlier_guard_min,
             point_max_rejections: args.point_max_rejections,
             points_from_pose_outliers: args.points_from_pose_outliers,
+            keypoint_motion: args.keypoint_motion,
+            seated_local: args.seated_local,
+            seated_track_only: args.seated_track_only,
         },
     };
     let s = run_sequence(&o)?;

@@ -63,12 +63,17 @@ pub struct SlamSettings {
     /// Ours: keypoints whose match failed the chi-square test of the frame's final pose
     /// optimisation (local-map tracking) create no map points if the frame becomes a keyframe.
     /// ORB-SLAM3 drops the match and lets the keypoint create a fresh point; in a dynamic scene
-    /// such a keypoint is most often on a mover the front-end missed.
+    /// such a keypoint is most often on a mover the front-end missed. Off: measured on 300-frame
+    /// synth (`stillpoint run --sequential`), static 0.42 -> 0.45 cm ATE, walking_halfsphere gt
+    /// 0.83 -> 0.74, YOLOX walking_xyz 28.1 -> 24.7 (with the front-end's outlier guard the
+    /// gain is gone: 1.45 -> 1.37 cm at 40 px), so not worth a worse static scene.
     pub no_points_from_pose_outliers: bool,
     /// Ours: a map point rejected by the chi-square test of local-map tracking this many times,
     /// and at least as often as it was found, is erased at once (0 = off). ORB-SLAM3 only culls
     /// points by found/visible during their first 3 keyframes; a point on a mover that the
-    /// front-end missed keeps failing afterwards.
+    /// front-end missed keeps failing afterwards. Off: measured erratic on YOLOX walking_xyz
+    /// (300-frame synth, before the outlier guard) 28.1 cm -> 19.6 (2), 29.8 (3), 35.9 (5); with
+    /// the guard (3): gt walking_xyz 0.62 -> 0.78, YOLOX sitting_xyz 0.46 -> 0.60.
     pub point_max_rejections: u32,
     /// New RGB-D keyframes create map points from depth for at least this many closest keypoints
     /// (ORB-SLAM3 `CreateNewKeyFrame`: 100).
