@@ -4,9 +4,10 @@
 //! Per frame, [`DynamicFrontEnd`] runs the object detector in a scoped thread while
 //! `dynamic::motion_consistency` tracks corners from the previous frame, then judges the boxes
 //! (`dynamic::judge_boxes`), carries boxes judged dynamic through detector misses
-//! (`dynamic::memory`) and culls keypoints (`dynamic::cull_frame`: depth-aware on RGB-D frames,
-//! the paper's algorithm 3 otherwise). Rules of ours on top, each measured (numbers in the
-//! field docs of [`FrontEndSettings`]):
+//! (`dynamic::memory`) and culls keypoints (`dynamic::cull_frame_with_motion`: depth-aware on
+//! RGB-D frames, the paper's algorithm 3 otherwise, then per-keypoint motion evidence inside
+//! dynamic boxes). Each frame's LK pyramid is built once and serves two frames. Rules of ours on
+//! top, each measured (numbers in the field docs of [`FrontEndSettings`]):
 //!
 //! - first frame: no motion evidence yet, so people (COCO class 0) count as moving;
 //! - keypoints kept inside a moving object's box (a static box protects them) are tracked but
