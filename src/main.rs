@@ -38,6 +38,7 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    die_quietly_on_closed_stdout();
     let cli = Cli::parse();
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(&cli.log));
@@ -79,4 +80,15 @@ fn error_chain(e: &anyhow::Error) -> String {
         line.push_str(&msg);
     }
     line
+}
+
+/// `stillpoint bench ... | head` closes stdout early. Rust ignores SIGPIPE, so the next
+/// `println!` would panic; like other Unix filters we let the signal end the process instead.
+/// Files written so far (trajectories are flushed line by line) stay valid.
+fn die_quietly_on_closed_stdout() {
+    #[cfg(unix)]
+    // SAFETY: called first in main, before any thread exists; SIG_DFL is a valid action.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
 }
