@@ -84,6 +84,22 @@ pub struct Args {
     /// (`FrontEndSettings::seated_track_only`).
     #[arg(long)]
     pub seated_track_only: Option<bool>,
+    /// Seated people's culled keypoints: 3D reprojection test with depth, keep the still ones
+    /// (`FrontEndSettings::seated_motion`, `dynamic::seated_motion`).
+    #[arg(long)]
+    pub seated_motion: Option<bool>,
+    /// Reprojection residual (px) above which a seated keypoint moved
+    /// (`SeatedMotionParams::dynamic_above_px`).
+    #[arg(long)]
+    pub seated_motion_px: Option<f32>,
+    /// Seated people's parts are not taken as moving on the first frame
+    /// (`FrontEndSettings::seated_kept_on_first_frame`).
+    #[arg(long)]
+    pub seated_first_frame: Option<bool>,
+    /// Keypoints kept by the seated motion test may create map points
+    /// (`FrontEndSettings::seated_kept_make_points`).
+    #[arg(long)]
+    pub seated_kept_points: Option<bool>,
     /// Print a JSON summary on stdout instead of the tables.
     #[arg(long)]
     pub json: bool,
@@ -122,6 +138,10 @@ pub struct Overrides {
     pub keypoint_motion: Option<bool>,
     pub seated_local: Option<bool>,
     pub seated_track_only: Option<bool>,
+    pub seated_motion: Option<bool>,
+    pub seated_motion_px: Option<f32>,
+    pub seated_first_frame: Option<bool>,
+    pub seated_kept_points: Option<bool>,
 }
 
 /// Per-stage times of one frame, ms.
@@ -237,6 +257,19 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             }
             if let Some(k) = o.overrides.seated_track_only {
                 settings.seated_track_only = k;
+            }
+            settings.seated_motion.camera = Some(ds.camera);
+            if let Some(k) = o.overrides.seated_motion {
+                settings.seated_motion.enabled = k;
+            }
+            if let Some(px) = o.overrides.seated_motion_px {
+                settings.seated_motion.dynamic_above_px = px;
+            }
+            if let Some(k) = o.overrides.seated_first_frame {
+                settings.seated_kept_on_first_frame = k;
+            }
+            if let Some(k) = o.overrides.seated_kept_points {
+                settings.seated_kept_make_points = k;
             }
             Some(DynamicFrontEnd::new(detector, settings))
         }
@@ -611,6 +644,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             keypoint_motion: args.keypoint_motion,
             seated_local: args.seated_local,
             seated_track_only: args.seated_track_only,
+            seated_motion: args.seated_motion,
+            seated_motion_px: args.seated_motion_px,
+            seated_first_frame: args.seated_first_frame,
+            seated_kept_points: args.seated_kept_points,
         },
     };
     let s = run_sequence(&o)?;

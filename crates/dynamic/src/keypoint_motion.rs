@@ -27,7 +27,8 @@
 //! moved by the camera's relative pose from a 3-point Umeyama RANSAC on the static tracks with
 //! depth) would let F frames keep keypoints too: it gained at most 0.004 clear precision
 //! (walking_xyz 0.949 → 0.953) and, used for homography frames too, cost walking_static
-//! 0.945 → 0.904, so it was not kept. Most remaining false positives on walkers are keypoints whose FAST circle
+//! 0.945 → 0.904, so it was not kept here; for the culled keypoints of seated people's parts
+//! it is [`crate::seated_motion`], judged by ATE. Most remaining false positives on walkers are keypoints whose FAST circle
 //! straddles the silhouette: occlusion corners that do move with the person, which no motion
 //! evidence can (or should) keep.
 

@@ -1,0 +1,346 @@
+//! Per-keypoint 3D motion test inside seated people's parts (ours, RGB-D only).
+//!
+//! NHBC splits a seated person into a top and a bottom part, and a part holding one outlier
+//! (a hand) is dynamic as a whole: its still torso and legs are culled with it. On synth
+//! sitting_xyz that cull made the trajectory worse than no front-end at all. The two-view
+//! models of [`crate::keypoint_motion`] cannot tell which keypoints moved: the epipolar distance
+//! is blind along the epipolar line. With depth it is not: the camera's motion between the two
+//! frames comes from the static tracks (inliers of the geometry check outside every dynamic
+//! box, lifted with the depth of both frames; a rigid 3D-3D fit, [`umeyama`], in a 3-point
+//! RANSAC scored by reprojection), and each culled keypoint of a seated part, lifted with its
+//! depth and moved back into the previous frame, must land where backward LK found it.
+//! A keypoint whose reprojection residual exceeds [`SeatedMotionParams::dynamic_above_px`]
+//! moved in the world; one below it is kept. Keypoints without a reliable track or depth,
+//! frames without depth or without a camera estimate keep the box decision. Standing people
+//! and other classes (whole boxes) keep today's rule.
+
+use crate::judge::{BoxPart, BoxState};
+use crate::keypoint_motion::KeypointMotion;
+use crate::motion_consistency::TrackedPoint;
+use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3, umeyama};
+use stillpoint_image::DepthMetres;
+
+/// Parameters of the seated-part 3D motion test (all ours).
+#[derive(Clone, Debug)]
+pub struct SeatedMotionParams {
+    /// Run the test (needs depth on both frames and [`Self::camera`]). On: synth sitting_xyz
+    /// with gt boxes ATE 0.64 / 0.45 / 0.53 -> 0.35 / 0.26 / 0.20 cm (seeds 0 / 1 / 2; no
+    /// front-end 0.38 / 0.24 / 0.22), walkers unchanged (numbers in `stillpoint_frontend`).
+    pub enabled: bool,
+    /// The camera that took the frames (intrinsics for lifting and projecting).
+    pub camera: Option<PinholeCamera>,
+    /// A keypoint whose reprojection residual exceeds this moved (pixels). 0.5 px: on synth
+    /// sitting_xyz still torsos measure a median 0.1-0.3 px; 1.0 px kept ~10 more moving
+    /// keypoints a frame for the same ATE; 0.3 / 0.7 px were measured worse on walkers
+    /// before the cut-box rule (see `stillpoint_frontend`).
+    pub dynamic_above_px: f32,
+    /// A static track is an inlier of the camera motion within this reprojection error (px).
+    pub inlier_px: f32,
+    /// Fewer inliers than this: no camera motion, the box decision stands.
+    pub min_inliers: usize,
+    /// RANSAC iterations of the 3-point rigid fit.
+    pub iterations: usize,
+    /// Depth values outside this range (metres) are not used.
+    pub depth_range: [f32; 2],
+    /// A keypoint needs smooth depth (no depth edge in its 3x3 window) to be tested: keypoints on
+    /// a silhouette, whose pixel may take the background's depth, keep the box decision.
+    pub keypoint_smooth_depth: bool,
+    /// Backward-forward LK error above this makes a track unreliable (pixels).
+    pub max_fb_error_px: f32,
+}
+
+impl Default for SeatedMotionParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            camera: None,
+            dynamic_above_px: 0.5,
+            inlier_px: 1.0,
+            min_inliers: 12,
+            iterations: 64,
+            depth_range: [0.1, 10.0],
+            max_fb_error_px: 0.5,
+            keypoint_smooth_depth: true,
+        }
+    }
+}
+
+/// Depth at the pixel nearest `p`, when valid and smooth: every pixel of the 3x3 window within
+/// [`DEPTH_EDGE_SHARE`] of the centre (corners sit on depth edges, where rounding the position
+/// picks either side).
+fn smooth_depth_at(depth: &DepthMetres, p: [f32; 2], range: [f32; 2]) -> Option<f64> {
+    let z = depth_at(depth, p, range)? as f32;
+    let (x, y) = (p[0].round() as isize, p[1].round() as isize);
+    for dy in -1..=1 {
+        for dx in -1..=1 {
+            let n = depth.get_checked(x + dx, y + dy)?;
+            let smooth = (n - z).abs() <= DEPTH_EDGE_SHARE * z; // false for NaN too
+            if !smooth {
+                return None;
+            }
+        }
+    }
+    Some(z as f64)
+}
+
+/// Depth at the pixel nearest `p`, when valid.
+fn depth_at(depth: &DepthMetres, p: [f32; 2], range: [f32; 2]) -> Option<f64> {
+    let z = depth.get_checked(p[0].round() as isize, p[1].round() as isize)?;
+    (z.is_finite() && z >= range[0] && z <= range[1]).then_some(z as f64)
+}
+
+/// Largest relative depth step inside a 3x3 window that still counts as smooth.
+const DEPTH_EDGE_SHARE: f32 = 0.02;
+
+fn lift(cam: &PinholeCamera, p: [f32; 2], z: f64) -> Vec3 {
+    cam.unproject(&Vec2::new(p[0] as f64, p[1] as f64), z)
+}
+
+fn reprojection(cam: &PinholeCamera, t: &Se3, p: &Vec3, px: [f32; 2]) -> f64 {
+    match cam.project(&(t.rotation * p + t.translation.vector)) {
+        Some(q) => ((q.x - px[0] as f64).powi(2) + (q.y - px[1] as f64).powi(2)).sqrt(),
+        None => f64::INFINITY,
+    }
+}
+
+/// The camera's motion from the previous frame to the current one (maps previous-camera
+/// coordinates to current-camera coordinates), from the static tracks: inliers of the geometry
+/// check in no dynamic box with valid depth in both frames. A deterministic 3-point RANSAC on
+/// [`umeyama`] scored by reprojection into the current frame, refit on the inliers. `None` with
+/// too few inliers.
+pub fn camera_motion(
+    tracked: &[TrackedPoint],
+    states: &[BoxState],
+    prev_depth: &DepthMetres,
+    cur_depth: &DepthMetres,
+    p: &SeatedMotionParams,
+) -> Option<Se3> {
+    let cam = p.camera.as_ref()?;
+    let mut src = Vec::new();
+    let mut dst = Vec::new();
+    let mut cur_px = Vec::new();
+    for t in tracked.iter().filter(|t| !t.outlier) {
+        let [x, y] = t.cur;
+        if states
+            .iter()
+            .any(|s| s.is_dynamic() && s.bbox.contains_strict(x, y))
+        {
+            continue;
+        }
+        let (Some(z0), Some(z1)) = (
+            smooth_depth_at(prev_depth, t.prev, p.depth_range),
+            smooth_depth_at(cur_depth, t.cur, p.depth_range),
+        ) else {
+            continue;
+        };
+        src.push(lift(cam, t.prev, z0));
+        dst.push(lift(cam, t.cur, z1));
+        cur_px.push(t.cur);
+    }
+    let n = src.len();
+    if n < p.min_inliers.max(3) {
+        return None;
+    }
+    let inliers_of = |t: &Se3| -> Vec<usize> {
+        (0..n)
+            .filter(|&i| reprojection(cam, t, &src[i], cur_px[i]) <= p.inlier_px as f64)
+            .collect()
+    };
+    // Deterministic sampling (xorshift): the same frames give the same decision.
+    let mut state = 0x9e37_79b9_7f4a_7c15_u64 ^ n as u64;
+    let mut next = |m: usize| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state % m as u64) as usize
+    };
+    let mut best: Vec<usize> = Vec::new();
+    for _ in 0..p.iterations {
+        let (a, b, c) = (next(n), next(n), next(n));
+        if a == b || b == c || a == c {
+            continue;
+        }
+        let Some(fit) = umeyama(&[src[a], src[b], src[c]], &[dst[a], dst[b], dst[c]], false) else {
+            continue;
+        };
+        let inl = inliers_of(&fit.rigid);
+        if inl.len() > best.len() {
+            best = inl;
+        }
+    }
+    if best.len() < p.min_inliers {
+        return None;
+    }
+    let s: Vec<Vec3> = best.iter().map(|&i| src[i]).collect();
+    let d: Vec<Vec3> = best.iter().map(|&i| dst[i]).collect();
+    let refit = umeyama(&s, &d, false)?.rigid;
+    (inliers_of(&refit).len() >= p.min_inliers).then_some(refit)
+}
+
+/// The reprojection residual of one keypoint: lifted with the current depth, moved back by the
+/// camera motion `prev_to_cur`, projected into the previous frame and compared with its backward
+/// LK track. `None` without depth or a reliable track.
+pub fn seated_residual(
+    keypoint: [f32; 2],
+    motion: &KeypointMotion,
+    prev_to_cur: &Se3,
+    cur_depth: &DepthMetres,
+    p: &SeatedMotionParams,
+) -> Option<f32> {
+    let cam = p.camera.as_ref()?;
+    let reliable = motion.fb_error <= p.max_fb_error_px; // false for NaN too
+    if !reliable {
+        return None;
+    }
+    let z = if p.keypoint_smooth_depth {
+        smooth_depth_at(cur_depth, keypoint, p.depth_range)?
+    } else {
+        depth_at(cur_depth, keypoint, p.depth_range)?
+    };
+    let r = reprojection(
+        cam,
+        &prev_to_cur.inverse(),
+        &lift(cam, keypoint, z),
+        motion.prev,
+    );
+    r.is_finite().then_some(r as f32)
+}
+
+/// True for culled keypoints whose dynamic boxes are all seated parts (NHBC split): the
+/// candidates of the test.
+pub fn seated_candidates(
+    keypoints: &[[f32; 2]],
+    removed: &[bool],
+    states: &[BoxState],
+) -> Vec<bool> {
+    keypoints
+        .iter()
+        .zip(removed)
+        .map(|(&[x, y], &r)| {
+            let mut boxes = states
+                .iter()
+                .filter(|s| s.is_dynamic() && s.bbox.contains_strict(x, y))
+                .peekable();
+            r && boxes.peek().is_some() && boxes.all(|s| s.part != BoxPart::Whole)
+        })
+        .collect()
+}
+
+/// Keep the candidates whose residual shows no motion; the rest keep `removed`. Returns the
+/// new decision and how many keypoints were kept.
+pub fn apply_seated_motion(
+    keypoints: &[[f32; 2]],
+    removed: &[bool],
+    candidates: &[bool],
+    motion: &[Option<KeypointMotion>],
+    prev_to_cur: &Se3,
+    cur_depth: &DepthMetres,
+    p: &SeatedMotionParams,
+) -> (Vec<bool>, usize) {
+    let mut kept = 0;
+    let out = keypoints
+        .iter()
+        .enumerate()
+        .map(|(i, &kp)| {
+            let was = removed.get(i).copied().unwrap_or(false);
+            if !(was && candidates.get(i).copied().unwrap_or(false)) {
+                return was;
+            }
+            let Some(m) = motion.get(i).copied().flatten() else {
+                return was;
+            };
+            match seated_residual(kp, &m, prev_to_cur, cur_depth, p) {
+                Some(r) if r <= p.dynamic_above_px => {
+                    kept += 1;
+                    false
+                }
+                _ => was,
+            }
+        })
+        .collect();
+    (out, kept)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::judge::{Rule, Verdict};
+    use crate::motion_consistency::MotionModel;
+    use stillpoint_geometry::BBox;
+
+    fn cam() -> PinholeCamera {
+        PinholeCamera::new(500.0, 500.0, 160.0, 120.0, 320, 240)
+    }
+
+    #[test]
+    fn camera_motion_from_static_tracks_and_residual_sees_motion_along_any_direction() {
+        let c = cam();
+        let depth = DepthMetres::new(320, 240, 2.0);
+        // The camera moved 2 cm along x: a point at depth 2 m shifts by -5 px.
+        let motion = Se3::translation(-0.02, 0.0, 0.0);
+        let mut tracked = Vec::new();
+        for y in (20..220).step_by(20) {
+            for x in (20..300).step_by(20) {
+                let prev = [x as f32, y as f32];
+                let q = c
+                    .project(&(lift(&c, prev, 2.0) + motion.translation.vector))
+                    .unwrap();
+                tracked.push(TrackedPoint {
+                    prev,
+                    cur: [q.x as f32, q.y as f32],
+                    epipolar_distance: 0.0,
+                    outlier: false,
+                });
+            }
+        }
+        let p = SeatedMotionParams {
+            enabled: true,
+            camera: Some(c),
+            ..Default::default()
+        };
+        let t = camera_motion(&tracked, &[], &depth, &depth, &p).expect("camera motion");
+        assert!((t.translation.vector - motion.translation.vector).norm() < 1e-6);
+        // A still keypoint: its backward track is the camera's shift; a hand that moved 2 px
+        // along the flow (the epipolar line) is caught.
+        let ev = |prev| KeypointMotion {
+            prev,
+            residual: 0.0,
+            fb_error: 0.05,
+            model: MotionModel::Fundamental,
+        };
+        let still = seated_residual([100.0, 100.0], &ev([105.0, 100.0]), &t, &depth, &p).unwrap();
+        let moved = seated_residual([100.0, 100.0], &ev([107.0, 100.0]), &t, &depth, &p).unwrap();
+        assert!(
+            still < 0.01 && (moved - 2.0).abs() < 0.01,
+            "{still} {moved}"
+        );
+        // Only culled keypoints in seated parts are candidates; the moved one stays culled.
+        let part = |part| BoxState {
+            bbox: BBox::new(50.0, 50.0, 150.0, 150.0),
+            class_id: 0,
+            detection: 0,
+            part,
+            rule: Rule::Nhbc,
+            verdict: Verdict::Dynamic,
+            tracked: 10,
+            outliers: 1,
+            depth: None,
+        };
+        let kps = [[100.0, 100.0], [100.0, 100.0], [200.0, 200.0]];
+        let cand = seated_candidates(&kps, &[true, true, false], &[part(BoxPart::SeatedTop)]);
+        assert_eq!(cand, vec![true, true, false]);
+        let whole = seated_candidates(&kps, &[true, true, false], &[part(BoxPart::Whole)]);
+        assert_eq!(whole, vec![false; 3]);
+        let motion = [Some(ev([105.0, 100.0])), Some(ev([107.0, 100.0])), None];
+        let (removed, kept) =
+            apply_seated_motion(&kps, &[true, true, false], &cand, &motion, &t, &depth, &p);
+        assert_eq!((removed, kept), (vec![false, true, false], 1));
+        // No depth (zeros), no camera, too few tracks: no evidence, the box decision stands.
+        let empty = DepthMetres::new(320, 240, 0.0);
+        assert!(seated_residual([100.0, 100.0], &ev([105.0, 100.0]), &t, &empty, &p).is_none());
+        assert!(camera_motion(&tracked, &[], &empty, &depth, &p).is_none());
+        assert!(camera_motion(&tracked[..5], &[], &depth, &depth, &p).is_none());
+        let no_cam = SeatedMotionParams::default();
+        assert!(camera_motion(&tracked, &[], &depth, &depth, &no_cam).is_none());
+    }
+}
