@@ -42,8 +42,9 @@ pub struct Args {
     /// Run local mapping inline after each keyframe (deterministic) instead of in its own thread.
     #[arg(long)]
     pub sequential: bool,
-    /// Cull exactly as the paper's algorithm 3 (static boxes protect their keypoints), without
-    /// our depth-aware rule on RGB-D frames.
+    /// Cull exactly as the paper's algorithm 3 (static boxes protect their keypoints): without
+    /// our depth-aware rule, per-keypoint motion evidence, seated-people 3D test and
+    /// unknown-objects rule.
     #[arg(long)]
     pub paper_cull: bool,
     /// Let keypoints that the front-end keeps inside a moving object's box (protected by a static
@@ -116,7 +117,7 @@ pub struct RunOptions {
     pub sequential: bool,
     pub frames: Option<usize>,
     pub progress: bool,
-    /// The paper's culling only (no depth-aware rule).
+    /// The paper's culling only (algorithm 3; none of our culling rules).
     pub paper_cull: bool,
     /// Let keypoints kept inside a dynamic box create map points (off by default).
     pub box_points_make_map_points: bool,
@@ -240,7 +241,14 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             )
             .with_context(|| format!("opening the {name} detector"))?;
             let mut settings = FrontEndSettings::default();
-            settings.dynamic.depth.enabled &= !o.paper_cull;
+            if o.paper_cull {
+                // Algorithm 3 over the box verdicts: none of our rules between them and the
+                // keypoints (explicit flags below may still turn one back on).
+                settings.dynamic.depth.enabled = false;
+                settings.dynamic.cull.unknown_objects = false;
+                settings.dynamic.keypoint_motion.enabled = false;
+                settings.seated_motion.enabled = false;
+            }
             settings.dynamic.memory.enabled &= o.box_memory;
             settings.no_new_points_in_dynamic_boxes = !o.box_points_make_map_points;
             if let Some(r) = o.overrides.outlier_guard_px {
