@@ -2,10 +2,13 @@
 //! ground-truth masks of a synthetic sequence (`stillpoint synth --masks`), for the paper
 //! (geometry + NHBC/ATA + algorithm 3) and variants of it, our depth-aware culling for RGB-D
 //! (`ours_depth`, when the sequence has depth), with the per-keypoint motion evidence
-//! (`ours_depth+kp`), our defaults (`ours`: depth-aware, per-keypoint evidence, unknown
-//! objects), a person-box-only baseline (Crowd-SLAM: cull everything in person boxes) and a
-//! detection-free baseline (epipolar outliers only, dilated to a radius). Also times the
-//! geometry module per frame, as a ratio to ORB extraction of the same frames.
+//! (`ours_depth+kp`), our defaults (`ours`: the front-end's whole per-frame decision,
+//! `frontend::DynamicFrontEnd` with its default settings: depth-aware culling, per-keypoint
+//! evidence, unknown objects, box memory, and for RGB-D the seated-part 3D motion test; keypoints
+//! it keeps as track-only count as not culled), a person-box-only baseline (Crowd-SLAM: cull
+//! everything in person boxes) and a detection-free baseline (epipolar outliers only, dilated
+//! to a radius). Also times the geometry module per frame, as a ratio to ORB extraction of the
+//! same frames.
 //!
 //! Ground truth, three ways (all printed):
 //! - strict: an ORB keypoint (level-0 pixel, rounded) is dynamic when the mask is non-zero
@@ -29,7 +32,9 @@ use stillpoint_dynamic::{
     motion_consistency_pyramids, near_outliers,
 };
 use stillpoint_features::{LkPyramid, OrbExtractor, OrbParams};
+use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
 use stillpoint_image::{DepthMetres, Gray8, read_depth_metres, read_gray, read_rgb, rgb_to_gray};
+use stillpoint_slam::module::frontend::{FilterInput, KeypointFilter};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -114,6 +119,9 @@ pub struct Args {
     /// `ours` without the per-keypoint motion evidence.
     #[arg(long)]
     no_keypoint_motion: bool,
+    /// `ours` without the front-end's seated-part 3D motion test (`dynamic::seated_motion`).
+    #[arg(long)]
+    no_seated_motion: bool,
     /// Ignore the sequence's depth (ours_depth then culls by the paper's rule).
     #[arg(long)]
     no_depth: bool,
@@ -459,6 +467,36 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         cull: paper_cull.clone(),
         ..settings.clone()
     };
+    // `ours` is the front-end's per-frame decision, exactly as `stillpoint run` makes it: its
+    // own detector (same source), the bench's dynamic settings, the sequence's camera for the
+    // seated-part 3D motion test.
+    // Without a readable camera the seated-part test stays off (the front-end's own rule).
+    let camera = match stillpoint_datasets::open(&args.dataset, None, None) {
+        Ok(seq) => Some(seq.settings().camera),
+        Err(e) => {
+            tracing::warn!(
+                "{}: no camera, so no seated-part 3D test in `ours`: {e}",
+                args.dataset.display()
+            );
+            None
+        }
+    };
+    let mut front_end_settings = FrontEndSettings {
+        dynamic: settings.clone(),
+        ..FrontEndSettings::default()
+    };
+    front_end_settings.seated_motion.camera = camera;
+    front_end_settings.seated_motion.enabled &= !args.no_seated_motion;
+    let mut front_end = DynamicFrontEnd::new(
+        open_detector(
+            &args.detector,
+            &DetectSettings::default(),
+            boxes.exists().then_some(boxes.as_path()),
+            GtDetectorParams::default(),
+        )
+        .with_context(|| format!("detector {:?} (front-end)", args.detector))?,
+        front_end_settings,
+    );
     let mut orb = OrbExtractor::new(OrbParams::default());
     let scales = orb.scale_factors().to_vec();
 
@@ -493,7 +531,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         // Each frame's pyramid is built once and serves as the next frame's previous one.
         let cur_pyr = LkPyramid::new(&gray, &settings.geometry.lk);
         let prev_pyr = std::mem::replace(&mut prev_pyr, cur_pyr.clone());
+        let depth = depth_for(&depth_list, *t, factor).with_context(|| format!("frame {index}"))?;
         let Some(prev_gray) = prev.replace(gray.clone()) else {
+            // The front-end sees frame 0 too (its previous gray, pyramid, depth, box memory).
+            front_end.judge(
+                &FilterInput {
+                    index,
+                    timestamp: *t,
+                    gray: &gray,
+                    rgb: Some(&rgb),
+                    depth: depth.as_ref(),
+                },
+                &[],
+            );
             continue;
         };
         let mask = read_gray(mask_path)
@@ -567,7 +617,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             })
             .with_context(|| format!("frame {index}: detector"))?;
         let states = judge_boxes(&dets, &check.points, &paper_judge);
-        let depth = depth_for(&depth_list, *t, factor).with_context(|| format!("frame {index}"))?;
         depth_frames += usize::from(depth.is_some());
         let mut depth_states = judge_boxes(&dets, &check.points, &settings.judge);
         let person = settings.judge.person_class;
@@ -627,7 +676,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         let mut our_states = judge_boxes(&dets, &check.points, &settings.judge);
         let ours_clock = std::time::Instant::now();
-        let ours = cull_frame_with_motion(
+        // Timed alone: the culling step that `ours` runs before the seated-part test.
+        cull_frame_with_motion(
             &kps,
             &mut our_states,
             &check,
@@ -636,6 +686,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             &settings,
         );
         ours_ms.push(ours_clock.elapsed().as_secs_f64() * 1e3);
+        // Track-only keypoints (`no_new_points`) are not in `dynamic`: they count as kept.
+        let ours = front_end
+            .judge(
+                &FilterInput {
+                    index,
+                    timestamp: *t,
+                    gray: &gray,
+                    rgb: Some(&rgb),
+                    depth: depth.as_ref(),
+                },
+                &kps,
+            )
+            .dynamic;
         let predictions = [
             cull_with(&kps, &states, &check.points, &paper_cull),
             cull_with(&kps, &states, &check.points, &unknown),
