@@ -49,23 +49,7 @@ fn blank_black_and_depthless_frames_do_not_abort() {
         }
     }
     let traj = tmp.path().join("traj.txt");
-    let out = stillpoint()
-        .args([
-            "run",
-            "--detector",
-            "none",
-            "--sequential",
-            "--json",
-            "--dataset",
-        ])
-        .arg(&seq)
-        .arg("--out")
-        .arg(&traj)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
-    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let summary = run_without_detector(&seq, &traj);
     let tracked = summary["tracked"].as_u64().unwrap();
     // 60 frames, 8 black: most of the rest must be tracked (recovery after the black run).
     assert!(tracked >= 45, "{summary}");
@@ -120,23 +104,7 @@ fn frames_from_another_place_are_lost_then_relocalised() {
         }
     }
     let traj = tmp.path().join("traj.txt");
-    let out = stillpoint()
-        .args([
-            "run",
-            "--detector",
-            "none",
-            "--sequential",
-            "--json",
-            "--dataset",
-        ])
-        .arg(&seq)
-        .arg("--out")
-        .arg(&traj)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
-    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let summary = run_without_detector(&seq, &traj);
     let recovered =
         summary["relocalisations"].as_u64().unwrap() + summary["new_maps"].as_u64().unwrap();
     assert!(recovered >= 1, "{summary}");
@@ -167,4 +135,25 @@ fn frames_from_another_place_are_lost_then_relocalised() {
     );
     let ate = summary["ate"]["rmse"].as_f64().unwrap();
     assert!(ate < 0.02, "{summary}");
+}
+
+/// `stillpoint run --detector none --sequential --json` on `seq`; must succeed; its JSON summary.
+fn run_without_detector(seq: &std::path::Path, traj: &std::path::Path) -> serde_json::Value {
+    let out = stillpoint()
+        .args([
+            "run",
+            "--detector",
+            "none",
+            "--sequential",
+            "--json",
+            "--dataset",
+        ])
+        .arg(seq)
+        .arg("--out")
+        .arg(traj)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    serde_json::from_slice(&out.stdout).unwrap()
 }

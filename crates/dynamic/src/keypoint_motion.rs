@@ -297,22 +297,7 @@ mod tests {
 
     /// A smooth random texture (blurred 6 px blocks), `seed` picks the pattern.
     fn texture(seed: u32, x: isize, y: isize) -> u8 {
-        let block = |bx: isize, by: isize| -> f32 {
-            let mut v = (bx as u32).wrapping_mul(73_856_093)
-                ^ (by as u32).wrapping_mul(19_349_663)
-                ^ seed.wrapping_mul(83_492_791);
-            v ^= v >> 13;
-            v = v.wrapping_mul(0x5bd1_e995);
-            v ^= v >> 15;
-            30.0 + (v % 200) as f32
-        };
-        let mut sum = 0.0;
-        for dy in -1..=1 {
-            for dx in -1..=1 {
-                sum += block((x + dx).div_euclid(6), (y + dy).div_euclid(6));
-            }
-        }
-        (sum / 9.0) as u8
+        crate::test_texture::blocky(seed, 6, x, y)
     }
 
     /// A still background with a "hand" rectangle shifted by `shift` (content and rect).

@@ -130,6 +130,8 @@ pub mod memory;
 pub mod motion_consistency;
 pub mod seated_motion;
 pub mod settings;
+#[cfg(test)]
+mod test_texture;
 
 pub use cull::{cull, cull_with, near_outliers};
 pub use depth::{DepthCullInput, ObjectDepth, cull_frame, cull_with_depth};

@@ -399,27 +399,9 @@ fn patch_sad(a: &Gray8, pa: [f32; 2], b: &Gray8, pb: [f32; 2], half: usize) -> u
 mod tests {
     use super::*;
 
-    /// A blocky random texture (7 px blocks, values from a hash of the block), lightly blurred so
-    /// LK has gradients everywhere; `seed` picks the pattern.
+    /// A blocky random texture (7 px blocks), `seed` picks the pattern.
     fn texture(seed: u32) -> impl Fn(isize, isize) -> u8 {
-        move |x: isize, y: isize| {
-            let block = |bx: isize, by: isize| -> f32 {
-                let mut v = (bx as u32).wrapping_mul(73_856_093)
-                    ^ (by as u32).wrapping_mul(19_349_663)
-                    ^ seed.wrapping_mul(83_492_791);
-                v ^= v >> 13;
-                v = v.wrapping_mul(0x5bd1_e995);
-                v ^= v >> 15;
-                30.0 + (v % 200) as f32
-            };
-            let mut sum = 0.0;
-            for dy in -1..=1 {
-                for dx in -1..=1 {
-                    sum += block((x + dx).div_euclid(7), (y + dy).div_euclid(7));
-                }
-            }
-            (sum / 9.0) as u8
-        }
+        move |x: isize, y: isize| crate::test_texture::blocky(seed, 7, x, y)
     }
 
     /// A frame with layers drawn back to front: each layer is (texture seed, rect in the frame
