@@ -39,6 +39,10 @@ pub struct Args {
     /// Write per-pixel dynamic masks (mask/*.png: 255 moving, 0 static).
     #[arg(long)]
     masks: bool,
+    /// With --masks: mark a moving part's pixel only where it moved more than this many pixels
+    /// since the previous frame (0 = any motion).
+    #[arg(long, default_value_t = 0.0)]
+    mask_min_motion: f64,
     /// Write a contact sheet PNG (frames with their boxes: red moving, green still).
     #[arg(long)]
     contact_sheet: Option<PathBuf>,
@@ -80,6 +84,12 @@ fn config(args: &Args, preset: Preset) -> anyhow::Result<SynthConfig> {
         "kinect" => Noise::Kinect(KinectNoise::default()),
         other => bail!("--noise {other:?}: expected none or kinect"),
     };
+    if args.mask_min_motion.is_nan() || args.mask_min_motion < 0.0 {
+        bail!(
+            "--mask-min-motion {} must be 0 or more",
+            args.mask_min_motion
+        );
+    }
     if args.stereo && (args.baseline.is_nan() || args.baseline <= 0.0) {
         bail!("--baseline {} must be positive", args.baseline);
     }
@@ -91,6 +101,7 @@ fn config(args: &Args, preset: Preset) -> anyhow::Result<SynthConfig> {
         noise,
         textures: args.textures.clone(),
         stereo_baseline: args.stereo.then_some(args.baseline),
+        mask_min_motion_px: args.mask_min_motion,
         ..SynthConfig::default()
     })
 }

@@ -88,6 +88,11 @@ pub struct SynthConfig {
     pub stereo_baseline: Option<f64>,
     /// Objects with fewer visible pixels get no box (a detector would not see them either).
     pub min_box_pixels: usize,
+    /// The moving mask marks a pixel of a moving part only where that material point moved more
+    /// than this many pixels in the image since the previous frame (its own motion, seen from the
+    /// previous camera); 0 = any motion at all (the default). A hand that moves 0.1 px is not a
+    /// measurable mover for a keypoint; `bench dynamic` can then score against what can be seen.
+    pub mask_min_motion_px: f64,
 }
 
 impl Default for SynthConfig {
@@ -103,6 +108,7 @@ impl Default for SynthConfig {
             textures: None,
             stereo_baseline: None,
             min_box_pixels: 16,
+            mask_min_motion_px: 0.0,
         }
     }
 }
@@ -343,6 +349,37 @@ impl Generator {
             .collect()
     }
 
+    /// How far (pixels) the material point seen at pixel (x, y) of part `id`, at `depth`, moved
+    /// in the image since the previous frame by its own motion: both its previous and its current
+    /// world position projected with the previous camera. Infinite when it cannot be told
+    /// (no depth, behind the camera), so such a pixel of a moving part counts as moving.
+    fn image_motion_px(
+        &self,
+        (x, y): (usize, usize),
+        depth: f32,
+        id: u16,
+        (pose_wc, prev_wc): (&Se3, &Se3),
+        poses: &[Vec<Se3>],
+        prev: &[Vec<Se3>],
+    ) -> f64 {
+        if self.config.mask_min_motion_px <= 0.0 || !depth.is_finite() || depth <= 0.0 {
+            return f64::INFINITY;
+        }
+        let cam = &self.config.camera;
+        let (o, p) = self.part_table[id as usize - 1];
+        let seen = cam.unproject(&nalgebra::Vector2::new(x as f64, y as f64), depth as f64);
+        let now_w = pose_wc * nalgebra::Point3::from(seen);
+        let before_w = prev[o][p] * (poses[o][p].inverse() * now_w);
+        let prev_cw = prev_wc.inverse();
+        match (
+            cam.project(&(prev_cw * now_w).coords),
+            cam.project(&(prev_cw * before_w).coords),
+        ) {
+            (Some(a), Some(b)) => (a - b).norm(),
+            _ => f64::INFINITY,
+        }
+    }
+
     fn items<'a>(&'a self, poses: &[Vec<Se3>], t_cw: &Se3) -> Vec<DrawItem<'a>> {
         let mut items = Vec::with_capacity(self.part_table.len());
         for (g, &(o, p)) in self.part_table.iter().enumerate() {
@@ -461,12 +498,19 @@ impl Generator {
             data: target
                 .id
                 .iter()
-                .map(|&id| {
-                    if id > 0 && part_moving[id as usize - 1] {
-                        255
-                    } else {
-                        0
-                    }
+                .enumerate()
+                .map(|(i, &id)| {
+                    let moving = id > 0
+                        && part_moving[id as usize - 1]
+                        && self.image_motion_px(
+                            (i % w, i / w),
+                            target.depth[i],
+                            id,
+                            (&pose_wc, &prev_wc),
+                            &poses,
+                            &prev,
+                        ) > cfg.mask_min_motion_px;
+                    if moving { 255 } else { 0 }
                 })
                 .collect(),
         };
@@ -719,6 +763,29 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_motion_threshold_keeps_only_pixels_that_moved_that_far() {
+        let masks = |min: f64| {
+            let g = generate(&SynthConfig {
+                mask_min_motion_px: min,
+                ..small(Preset::SittingXyz)
+            })
+            .unwrap();
+            g.frame(30).dynamic_mask
+        };
+        let any = masks(0.0);
+        let half = masks(0.5);
+        let far = masks(1e9);
+        let count = |m: &Gray8| m.data.iter().filter(|&&v| v > 0).count();
+        assert!(count(&any) > 0, "sitting_xyz frame 30 has moving pixels");
+        assert_eq!(count(&far), 0);
+        assert!(count(&half) <= count(&any));
+        assert!(
+            any.data.iter().zip(&half.data).all(|(&a, &h)| a >= h),
+            "the thresholded mask is a subset"
+        );
     }
 
     #[test]
