@@ -416,28 +416,11 @@ pub fn cull_frame(
 mod tests {
     use super::*;
     use crate::judge::judge_boxes;
+    use crate::paper_cases::{det, pt};
     use crate::settings::JudgeParams;
-    use stillpoint_detect::Detection;
 
     const PERSON: u16 = 0;
     const CHAIR: u16 = 56;
-
-    fn det(class_id: u16, x1: f32, y1: f32, x2: f32, y2: f32) -> Detection {
-        Detection {
-            class_id,
-            score: 0.9,
-            bbox: BBox::new(x1, y1, x2, y2),
-        }
-    }
-
-    fn pt(x: f32, y: f32, outlier: bool) -> TrackedPoint {
-        TrackedPoint {
-            prev: [x, y],
-            cur: [x, y],
-            epipolar_distance: if outlier { 3.0 } else { 0.2 },
-            outlier,
-        }
-    }
 
     /// A depth map at `background` metres with rectangles [x1, y1, x2, y2] painted at a depth,
     /// back to front.

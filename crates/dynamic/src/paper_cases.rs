@@ -8,7 +8,8 @@ const CHAIR: u16 = 56;
 const KEYBOARD: u16 = 66;
 const BOOK: u16 = 73;
 
-fn det(class_id: u16, x1: f32, y1: f32, x2: f32, y2: f32) -> Detection {
+/// A detection of `class_id` with score 0.9 (also the depth tests' helper).
+pub(crate) fn det(class_id: u16, x1: f32, y1: f32, x2: f32, y2: f32) -> Detection {
     Detection {
         class_id,
         score: 0.9,
@@ -17,7 +18,7 @@ fn det(class_id: u16, x1: f32, y1: f32, x2: f32, y2: f32) -> Detection {
 }
 
 /// A point that stayed on its epipolar line (`outlier` false) or left it by 3 px.
-fn pt(x: f32, y: f32, outlier: bool) -> TrackedPoint {
+pub(crate) fn pt(x: f32, y: f32, outlier: bool) -> TrackedPoint {
     let d = if outlier { 3.0 } else { 0.2 };
     TrackedPoint {
         prev: [x, y],
