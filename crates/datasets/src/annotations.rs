@@ -11,6 +11,8 @@ use std::io::{BufRead, Write};
 use std::path::Path;
 use stillpoint_geometry::BBox;
 
+use crate::error::{DatasetError, io_err, parse_err};
+
 /// One visible object in one frame.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct GtBox {
@@ -39,44 +41,18 @@ pub struct FrameBoxes {
     pub boxes: Vec<GtBox>,
 }
 
-/// Errors reading an annotation file.
-#[derive(Debug, thiserror::Error)]
-pub enum AnnotationError {
-    #[error("{path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
-    #[error("{path}:{line}: {msg}")]
-    Parse {
-        path: String,
-        line: usize,
-        msg: String,
-    },
-}
-
 /// Read `boxes.jsonl`. Blank lines are skipped; anything else that does not parse is an error
 /// naming the line.
-pub fn read_boxes(path: &Path) -> Result<Vec<FrameBoxes>, AnnotationError> {
-    let p = path.display().to_string();
-    let file = std::fs::File::open(path).map_err(|source| AnnotationError::Io {
-        path: p.clone(),
-        source,
-    })?;
+pub fn read_boxes(path: &Path) -> Result<Vec<FrameBoxes>, DatasetError> {
+    let file = std::fs::File::open(path).map_err(io_err(path))?;
     let mut out = Vec::new();
     for (i, line) in std::io::BufReader::new(file).lines().enumerate() {
-        let line = line.map_err(|source| AnnotationError::Io {
-            path: p.clone(),
-            source,
-        })?;
+        let line = line.map_err(io_err(path))?;
         if line.trim().is_empty() {
             continue;
         }
-        let fb: FrameBoxes = serde_json::from_str(&line).map_err(|e| AnnotationError::Parse {
-            path: p.clone(),
-            line: i + 1,
-            msg: e.to_string(),
-        })?;
+        let fb: FrameBoxes =
+            serde_json::from_str(&line).map_err(|e| parse_err(path, i + 1, e.to_string()))?;
         out.push(fb);
     }
     Ok(out)

@@ -52,7 +52,7 @@ pub enum DetectError {
     BadInput(String),
     /// Ground-truth boxes could not be read.
     #[error(transparent)]
-    Annotations(#[from] stillpoint_datasets::annotations::AnnotationError),
+    Annotations(#[from] stillpoint_datasets::DatasetError),
     /// The detector thread is gone (it panicked or was shut down).
     #[error("detector thread stopped: {0}")]
     ThreadStopped(String),
