@@ -5,7 +5,9 @@
 use anyhow::Context;
 use stillpoint_synth::{Preset, SynthConfig, WriteOptions};
 
-use super::run::{RunOptions, RunSummary, accuracy, run_sequence, stats, summary_json};
+use super::run::{
+    RunOptions, RunSummary, accuracy, print_culled_row, run_sequence, stats, summary_json,
+};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -139,11 +141,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .map_or("-".to_string(), |(_, b)| format!("{:.2}", stats(b).0));
         println!("{k:<30} {m:>9.2} {med:>9.2} {p90:>9.2} {base:>12}");
     }
-    let culled: Vec<f64> = on.culled_per_frame.iter().map(|&c| c as f64).collect();
-    let (m, med, p90) = stats(&culled);
-    println!(
-        "{:<30} {m:>9.1} {med:>9.1} {p90:>9.1}",
-        "keypoints culled / frame"
-    );
+    print_culled_row(&on);
     Ok(())
 }

@@ -496,6 +496,14 @@ fn count_moving_points(sys: &System, dataset: &Path) -> usize {
     moving.len()
 }
 
+impl RunSummary {
+    /// mean / median / p90 of the keypoints the front-end culled per frame.
+    pub fn culled_stats(&self) -> (f64, f64, f64) {
+        let culled: Vec<f64> = self.culled_per_frame.iter().map(|&c| c as f64).collect();
+        stats(&culled)
+    }
+}
+
 /// mean / median / p90 of a list (0s when empty).
 pub fn stats(v: &[f64]) -> (f64, f64, f64) {
     if v.is_empty() {
@@ -553,8 +561,7 @@ pub fn summary_json(s: &RunSummary) -> serde_json::Value {
             )
         })
         .collect();
-    let culled: Vec<f64> = s.culled_per_frame.iter().map(|&c| c as f64).collect();
-    let (cm, cmed, cp90) = stats(&culled);
+    let (cm, cmed, cp90) = s.culled_stats();
     serde_json::json!({
         "sequence": s.name,
         "detector": s.detector,
@@ -615,8 +622,12 @@ pub fn print_summary(s: &RunSummary) {
         let (m, med, p90) = stats(v);
         println!("{k:<30} {m:>9.2} {med:>9.2} {p90:>9.2}");
     }
-    let culled: Vec<f64> = s.culled_per_frame.iter().map(|&c| c as f64).collect();
-    let (m, med, p90) = stats(&culled);
+    print_culled_row(s);
+}
+
+/// The "keypoints culled / frame" row of the text stage tables (`run`, `demo`).
+pub fn print_culled_row(s: &RunSummary) {
+    let (m, med, p90) = s.culled_stats();
     println!(
         "{:<30} {m:>9.1} {med:>9.1} {p90:>9.1}",
         "keypoints culled / frame"
