@@ -59,24 +59,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 ..MatchParams::default()
             };
             let m = match_keypoints(&fa, &fb, &p);
-            let p1: Vec<Vec2> = m
-                .iter()
-                .map(|m| {
-                    Vec2::new(
-                        fa.keypoints[m.query].x as f64,
-                        fa.keypoints[m.query].y as f64,
-                    )
-                })
-                .collect();
-            let p2: Vec<Vec2> = m
-                .iter()
-                .map(|m| {
-                    Vec2::new(
-                        fb.keypoints[m.train].x as f64,
-                        fb.keypoints[m.train].y as f64,
-                    )
-                })
-                .collect();
+            let point = |k: &stillpoint_features::KeyPoint| Vec2::new(k.x as f64, k.y as f64);
+            let p1: Vec<Vec2> = m.iter().map(|m| point(&fa.keypoints[m.query])).collect();
+            let p2: Vec<Vec2> = m.iter().map(|m| point(&fb.keypoints[m.train])).collect();
             let (inl, mean) = score(&p1, &p2);
             let mut line = format!(
                 "{:<38} {:<7} ours {:4} {:4} {:.3} mean {:.3}",
