@@ -73,6 +73,20 @@ impl BoxState {
     }
 }
 
+/// True when `point` lies strictly inside at least one dynamic box and every dynamic box around
+/// it satisfies `pred` (the rules that apply only to keypoints of, say, seated parts alone).
+pub fn only_in_dynamic_boxes_where(
+    states: &[BoxState],
+    [x, y]: [f32; 2],
+    pred: impl FnMut(&BoxState) -> bool,
+) -> bool {
+    let mut boxes = states
+        .iter()
+        .filter(|s| s.is_dynamic() && s.bbox.contains_strict(x, y))
+        .peekable();
+    boxes.peek().is_some() && boxes.all(pred)
+}
+
 /// Judge every detection against the tracked points of the geometry module (their current-frame
 /// positions, `TrackedPoint::cur`). A seated person (height / width <= 3) yields two states, top
 /// then bottom; every other detection one. Boxes that are empty or not finite contain no point,

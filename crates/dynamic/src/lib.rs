@@ -135,7 +135,9 @@ mod test_texture;
 
 pub use cull::{cull, cull_with, near_outliers};
 pub use depth::{DepthCullInput, ObjectDepth, cull_frame, cull_with_depth};
-pub use judge::{BoxPart, BoxState, Rule, Verdict, judge_boxes, nhbc_parts};
+pub use judge::{
+    BoxPart, BoxState, Rule, Verdict, judge_boxes, nhbc_parts, only_in_dynamic_boxes_where,
+};
 pub use keypoint_motion::{
     KeypointMotion, apply_keypoint_motion, cull_frame_with_motion, in_dynamic_box, keypoint_motion,
 };

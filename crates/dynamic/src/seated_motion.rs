@@ -14,7 +14,7 @@
 //! frames without depth or without a camera estimate keep the box decision. Standing people
 //! and other classes (whole boxes) keep today's rule.
 
-use crate::judge::{BoxPart, BoxState};
+use crate::judge::{BoxPart, BoxState, only_in_dynamic_boxes_where};
 use crate::keypoint_motion::KeypointMotion;
 use crate::motion_consistency::TrackedPoint;
 use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3, umeyama};
@@ -216,13 +216,7 @@ pub fn seated_candidates(
     keypoints
         .iter()
         .zip(removed)
-        .map(|(&[x, y], &r)| {
-            let mut boxes = states
-                .iter()
-                .filter(|s| s.is_dynamic() && s.bbox.contains_strict(x, y))
-                .peekable();
-            r && boxes.peek().is_some() && boxes.all(|s| s.part != BoxPart::Whole)
-        })
+        .map(|(&kp, &r)| r && only_in_dynamic_boxes_where(states, kp, |s| s.part != BoxPart::Whole))
         .collect()
 }
 

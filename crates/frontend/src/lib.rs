@@ -564,12 +564,10 @@ fn seated_only(
 ) -> Vec<bool> {
     kps.iter()
         .zip(dynamic)
-        .map(|(&[x, y], &d)| {
-            let mut boxes = states
-                .iter()
-                .filter(|s| s.is_dynamic() && s.bbox.contains_strict(x, y))
-                .peekable();
-            d && boxes.peek().is_some() && boxes.all(|s| seated_still(s, max_share))
+        .map(|(&kp, &d)| {
+            d && stillpoint_dynamic::only_in_dynamic_boxes_where(states, kp, |s| {
+                seated_still(s, max_share)
+            })
         })
         .collect()
 }
