@@ -230,18 +230,16 @@ impl OrbExtractor {
             }
             corners.clear();
             detect_in_cells(level_img, &self.params, &mut corners);
-            let harris: Option<Vec<f32>> = (self.score == OrbScore::Harris).then(|| {
-                corners
+            // The Harris score is part of detection, so it counts in `fast_ms`.
+            let scores: Vec<f32> = match self.score {
+                OrbScore::Harris => corners
                     .iter()
                     .map(|c| harris_at(level_img, c.x as usize, c.y as usize))
-                    .collect()
-            });
+                    .collect(),
+                OrbScore::Fast => corners.iter().map(|c| c.score as f32).collect(),
+            };
             let t2 = Instant::now();
             self.timings.fast_ms += (t2 - t1).as_secs_f64() * 1e3;
-            let scores: Vec<f32> = match &harris {
-                Some(h) => h.clone(),
-                None => corners.iter().map(|c| c.score as f32).collect(),
-            };
             let keep = distribute_quadtree(
                 &corners,
                 &scores,
