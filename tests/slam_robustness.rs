@@ -8,6 +8,34 @@ fn stillpoint() -> Command {
     Command::new(env!("CARGO_BIN_EXE_stillpoint"))
 }
 
+/// `stillpoint synth --preset static --frames N --seed S --out DIR`; must succeed.
+fn synth_static(dir: &Path, frames: usize, seed: u64) {
+    let st = stillpoint()
+        .args(["synth", "--preset", "static", "--frames"])
+        .arg(frames.to_string())
+        .arg("--seed")
+        .arg(seed.to_string())
+        .arg("--out")
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+}
+
+/// File names in `dir`, sorted (the synth stamps sort in time order).
+fn sorted_names(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
 fn blank(dir: &Path, stamp_file: &str, depth_too: bool) {
     let rgb = dir.join("rgb").join(stamp_file);
     let img = stillpoint_image::read_rgb(&rgb).unwrap();
@@ -24,21 +52,8 @@ fn blank(dir: &Path, stamp_file: &str, depth_too: bool) {
 fn blank_black_and_depthless_frames_do_not_abort() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("seq");
-    let st = stillpoint()
-        .args(["synth", "--preset", "static", "--frames", "60", "--out"])
-        .arg(&seq)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
-    let mut names: Vec<String> = std::fs::read_dir(seq.join("rgb"))
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    names.sort();
+    synth_static(&seq, 60, 0);
+    let names = sorted_names(&seq.join("rgb"));
     // Blank start, a run of black frames, and frames whose depth is missing.
     for (i, n) in names.iter().enumerate() {
         if i < 3 || (25..30).contains(&i) {
@@ -67,34 +82,13 @@ fn blank_black_and_depthless_frames_do_not_abort() {
 fn frames_from_another_place_are_lost_then_relocalised() {
     let tmp = tempfile::tempdir().unwrap();
     let (seq, other) = (tmp.path().join("seq"), tmp.path().join("other"));
-    for (dir, seed) in [(&seq, "0"), (&other, "7")] {
-        let st = stillpoint()
-            .args([
-                "synth", "--preset", "static", "--frames", "75", "--seed", seed,
-            ])
-            .arg("--out")
-            .arg(dir)
-            .output()
-            .unwrap();
-        assert!(
-            st.status.success(),
-            "{}",
-            String::from_utf8_lossy(&st.stderr)
-        );
-    }
-    let sorted = |d: &Path| {
-        let mut v: Vec<String> = std::fs::read_dir(d)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        v.sort();
-        v
-    };
-    let names = sorted(&seq.join("rgb"));
+    synth_static(&seq, 75, 0);
+    synth_static(&other, 75, 7);
+    let names = sorted_names(&seq.join("rgb"));
     let foreign = 30..45;
     for sub in ["rgb", "depth"] {
-        let theirs = sorted(&other.join(sub));
-        let ours = sorted(&seq.join(sub));
+        let theirs = sorted_names(&other.join(sub));
+        let ours = sorted_names(&seq.join(sub));
         for i in foreign.clone() {
             std::fs::copy(
                 other.join(sub).join(&theirs[i]),
