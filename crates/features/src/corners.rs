@@ -565,11 +565,8 @@ mod tests {
     #[test]
     fn subpix_sums_are_the_same_on_every_code_path() {
         let (side, lanes, stride) = (21usize, 24usize, 32usize);
-        let mut seed = 11u32;
-        let mut rnd = || {
-            seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
-            (seed >> 8) as f32 / (1u32 << 24) as f32 * 255.0
-        };
+        let mut rng = crate::test_rng::Lcg(11);
+        let mut rnd = || rng.unit() * 255.0;
         let patch: Vec<f32> = (0..(side + 2) * stride).map(|_| rnd()).collect();
         let weight: Vec<f32> = (0..side * lanes)
             .map(|i| if i % lanes < side { rnd() / 255.0 } else { 0.0 })

@@ -442,12 +442,7 @@ mod tests {
     #[test]
     fn corner_row_marks_exactly_the_segment_test_corners() {
         let (w, h) = (101usize, 12usize);
-        let mut seed = 5u32;
-        let mut img = Gray8::new(w, h, 0);
-        for v in img.data.iter_mut() {
-            seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
-            *v = (seed >> 24) as u8;
-        }
+        let mut img = crate::test_rng::Lcg(5).noise_image(w, h);
         // a flat patch, so some blocks fail the pre-test
         for y in 0..h {
             for x in 40..80 {
@@ -476,12 +471,7 @@ mod tests {
     #[test]
     fn sliding_window_score_matches_its_definition() {
         let (w, h) = (40, 30);
-        let mut img = Gray8::new(w, h, 0);
-        let mut s = 987u32;
-        for v in img.data.iter_mut() {
-            s = s.wrapping_mul(1664525).wrapping_add(1013904223);
-            *v = (s >> 24) as u8;
-        }
+        let img = crate::test_rng::Lcg(987).noise_image(w, h);
         let offsets: [isize; 16] = std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
         for y in 3..h - 3 {
             for x in 3..w - 3 {
@@ -501,12 +491,7 @@ mod tests {
     #[test]
     fn simd_pretest_finds_the_same_corners_as_brute_force() {
         let (w, h) = (97, 61);
-        let mut img = Gray8::new(w, h, 0);
-        let mut s = 12345u32;
-        for v in img.data.iter_mut() {
-            s = s.wrapping_mul(1664525).wrapping_add(1013904223);
-            *v = (s >> 24) as u8;
-        }
+        let img = crate::test_rng::Lcg(12345).noise_image(w, h);
         for t in [7u8, 20, 60] {
             let mut got = vec![];
             detect(&img, [0, 0, w, h], t, &mut got);

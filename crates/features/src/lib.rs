@@ -61,6 +61,8 @@ mod lk;
 mod matcher;
 mod orb;
 mod pattern;
+#[cfg(test)]
+mod test_rng;
 
 pub use corners::{CornerParams, corner_sub_pix, good_features_to_track};
 pub use lk::{LkParams, LkPyramid, forward_backward_errors, track_lk, track_lk_pyramids};

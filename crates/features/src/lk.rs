@@ -749,11 +749,8 @@ mod tests {
     #[test]
     fn mismatch_sums_are_the_same_on_every_code_path() {
         let (stride, rows, width) = (40usize, 22usize, 24usize);
-        let mut seed = 7u32;
-        let mut rnd = || {
-            seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
-            (seed >> 8) as f32 / (1u32 << 24) as f32 * 255.0
-        };
+        let mut rng = crate::test_rng::Lcg(7);
+        let mut rnd = || rng.unit() * 255.0;
         let src: Vec<f32> = (0..stride * 30).map(|_| rnd()).collect();
         let ip: Vec<f32> = (0..rows * width).map(|_| rnd()).collect();
         let gx: Vec<f32> = (0..rows * width).map(|_| rnd() - 128.0).collect();

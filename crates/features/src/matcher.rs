@@ -418,11 +418,8 @@ mod tests {
     use super::*;
 
     fn desc(seed: u32) -> Descriptor {
-        let mut s = seed.wrapping_mul(2654435761).wrapping_add(1);
-        std::array::from_fn(|_| {
-            s = s.wrapping_mul(1664525).wrapping_add(1013904223);
-            (s >> 24) as u8
-        })
+        let mut rng = crate::test_rng::Lcg(seed.wrapping_mul(2654435761).wrapping_add(1));
+        std::array::from_fn(|_| rng.byte())
     }
 
     fn flip_bits(d: &Descriptor, n: usize) -> Descriptor {

@@ -634,11 +634,8 @@ mod tests {
     /// Smooth random texture (sum of blobs) so FAST finds corners everywhere.
     pub(crate) fn texture(w: usize, h: usize, seed: u32) -> Gray8 {
         let mut img = Gray8::new(w, h, 0);
-        let mut s = seed;
-        let mut rnd = || {
-            s = s.wrapping_mul(1664525).wrapping_add(1013904223);
-            (s >> 8) as f32 / (1u32 << 24) as f32
-        };
+        let mut rng = crate::test_rng::Lcg(seed);
+        let mut rnd = || rng.unit();
         let mut f = vec![0f32; w * h];
         for _ in 0..(w * h / 60) {
             let (cx, cy, r, a) = (rnd() * w as f32, rnd() * h as f32, 2.0 + rnd() * 6.0, rnd());
