@@ -25,6 +25,7 @@
 use anyhow::{Context, bail};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
+use stillpoint_datasets::read_stamped_list;
 use stillpoint_detect::{DetectInput, DetectSettings, GtDetectorParams, open_detector};
 use stillpoint_dynamic::{
     CullParams, DynamicSettings, MotionModel, apply_keypoint_motion, cull_frame,
@@ -269,25 +270,7 @@ fn read_depth_list(dir: &Path) -> anyhow::Result<Vec<(f64, PathBuf)>> {
     if !list.exists() {
         return Ok(Vec::new());
     }
-    let text = std::fs::read_to_string(&list)
-        .with_context(|| format!("{}: cannot read", list.display()))?;
-    let mut out = Vec::new();
-    for (n, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let mut it = line.split_whitespace();
-        let (Some(t), Some(file)) = (it.next(), it.next()) else {
-            bail!("{}:{}: expected `timestamp file`", list.display(), n + 1);
-        };
-        let t: f64 = t
-            .parse()
-            .with_context(|| format!("{}:{}: bad timestamp {t:?}", list.display(), n + 1))?;
-        out.push((t, dir.join(file)));
-    }
-    out.sort_by(|a, b| a.0.total_cmp(&b.0));
-    Ok(out)
+    Ok(read_stamped_list(&list, dir)?)
 }
 
 /// The depth map nearest in time to `t` (within 0.02 s, the TUM tools' association), in metres.
@@ -323,26 +306,16 @@ fn depth_factor(dir: &Path) -> f32 {
 /// The frames of a TUM-layout sequence: (timestamp, rgb path, mask path).
 fn read_frames(dir: &Path) -> anyhow::Result<Vec<(f64, PathBuf, PathBuf)>> {
     let list = dir.join("rgb.txt");
-    let text = std::fs::read_to_string(&list)
-        .with_context(|| format!("{}: cannot read", list.display()))?;
-    let mut frames = Vec::new();
-    for (n, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let mut it = line.split_whitespace();
-        let (Some(t), Some(file)) = (it.next(), it.next()) else {
-            bail!("{}:{}: expected `timestamp file`", list.display(), n + 1);
-        };
-        let t: f64 = t
-            .parse()
-            .with_context(|| format!("{}:{}: bad timestamp {t:?}", list.display(), n + 1))?;
-        let name = Path::new(file)
-            .file_name()
-            .with_context(|| format!("{}:{}: no file name in {file:?}", list.display(), n + 1))?;
-        frames.push((t, dir.join(file), dir.join("mask").join(name)));
-    }
+    let frames = read_stamped_list(&list, dir)?
+        .into_iter()
+        .map(|(t, rgb)| {
+            let name = rgb
+                .file_name()
+                .with_context(|| format!("{}: no file name in {}", list.display(), rgb.display()))?
+                .to_owned();
+            Ok((t, rgb, dir.join("mask").join(name)))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
     if frames.len() < 2 {
         bail!(
             "{}: need at least 2 frames, found {}",
