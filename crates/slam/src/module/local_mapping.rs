@@ -118,12 +118,7 @@ impl LocalMapper {
                 .get(t)
                 .is_some_and(|k| !k.bad && k.map_epoch == m.epoch)
         });
-        let own: Vec<MpId> = m.keyframes[&kf]
-            .map_points
-            .iter()
-            .flatten()
-            .copied()
-            .collect();
+        let own = matched_points(m, kf);
         for &t in &targets {
             self.fuse(m, t, &own);
         }
@@ -133,12 +128,7 @@ impl LocalMapper {
         }
         let theirs: Vec<MpId> = theirs.into_iter().collect();
         self.fuse(m, kf, &theirs);
-        let own: Vec<MpId> = m.keyframes[&kf]
-            .map_points
-            .iter()
-            .flatten()
-            .copied()
-            .collect();
+        let own = matched_points(m, kf);
         for mp in own {
             m.update_point(mp, &self.scales);
         }
@@ -387,6 +377,16 @@ impl LocalMapper {
             }
         }
     }
+}
+
+/// The map points `kf` sees, in keypoint order (read again after fusion, which replaces some).
+fn matched_points(m: &Map, kf: KfId) -> Vec<MpId> {
+    m.keyframes[&kf]
+        .map_points
+        .iter()
+        .flatten()
+        .copied()
+        .collect()
 }
 
 /// Messages to the local-mapping thread.
