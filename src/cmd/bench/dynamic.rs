@@ -591,7 +591,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("frame {index}: detector"))?;
         let states = judge_boxes(&dets, &check.points, &paper_judge);
         depth_frames += usize::from(depth.is_some());
-        let mut depth_states = judge_boxes(&dets, &check.points, &settings.judge);
+        // Our judgement, once: culling fills in each state's depth, so `ours` gets a fresh copy.
+        let our_judgement = judge_boxes(&dets, &check.points, &settings.judge);
+        let mut depth_states = our_judgement.clone();
         let person = settings.judge.person_class;
         let own_judge = stillpoint_dynamic::JudgeParams {
             ata_ignores_person_points: true,
@@ -647,7 +649,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 )?;
             }
         }
-        let mut our_states = judge_boxes(&dets, &check.points, &settings.judge);
+        let mut our_states = our_judgement;
         let ours_clock = std::time::Instant::now();
         // Timed alone: the culling step that `ours` runs before the seated-part test.
         cull_frame_with_motion(
