@@ -163,7 +163,11 @@ impl Sequence for EurocSequence {
         let gray = read_gray(p)?;
         check_size(p, gray.width, gray.height, &self.settings)?;
         let right = match &self.right {
-            Some(r) => Some(read_gray(&r[i])?),
+            Some(r) => {
+                let img = read_gray(&r[i])?;
+                check_size(&r[i], img.width, img.height, &self.settings)?;
+                Some(img)
+            }
             None => None,
         };
         Ok(Frame {

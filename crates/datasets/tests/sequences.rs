@@ -2,9 +2,10 @@
 
 use proptest::prelude::*;
 use std::path::Path;
+use stillpoint_datasets::euroc::EurocSequence;
 use stillpoint_datasets::{
-    DatasetKind, Sensor, Settings, detect_kind, open, parse_orbslam_yaml, parse_settings_toml,
-    write_settings_toml,
+    DatasetKind, Sensor, Sequence, Settings, detect_kind, open, parse_orbslam_yaml,
+    parse_settings_toml, write_settings_toml,
 };
 use stillpoint_geometry::PinholeCamera;
 use stillpoint_image::{Gray8, ImageBuf, Rgb8, write_depth16, write_gray, write_rgb};
@@ -175,6 +176,20 @@ fn kitti_folder_and_euroc_layouts() {
         (1, 41.0, 20.0)
     );
     assert!((seq.frame(0).unwrap().timestamp - 1_403_636_579.763_555_6).abs() < 1e-6);
+
+    // A stereo EuRoC right image of the wrong size is an error naming it, as on KITTI.
+    let r = d.path().join("euroc/mav0/cam1");
+    std::fs::create_dir_all(r.join("data")).unwrap();
+    std::fs::copy(e.join("data.csv"), r.join("data.csv")).unwrap();
+    let right = r.join("data/1403636579763555584.png");
+    write_gray(&right, &Gray8::new(16, 12, 3)).unwrap();
+    let stereo = Settings {
+        sensor: Sensor::Stereo,
+        ..seq.settings().clone()
+    };
+    let seq = EurocSequence::open(&d.path().join("euroc"), Some(stereo)).unwrap();
+    let err = seq.frame(0).unwrap_err().to_string();
+    assert!(err.contains("cam1") && err.contains("16x12"), "{err}");
 }
 
 #[test]
