@@ -81,30 +81,19 @@ fn setup(
     if !area.is_finite() || area.abs() < 1e-12 {
         return None;
     }
-    let xmin = s
-        .iter()
-        .map(|q| q[0])
-        .fold(f64::INFINITY, f64::min)
-        .ceil()
-        .max(0.0);
-    let ymin = s
-        .iter()
-        .map(|q| q[1])
-        .fold(f64::INFINITY, f64::min)
-        .ceil()
-        .max(0.0);
-    let xmax = s
-        .iter()
-        .map(|q| q[0])
-        .fold(f64::NEG_INFINITY, f64::max)
-        .floor()
-        .min(w as f64 - 1.0);
-    let ymax = s
-        .iter()
-        .map(|q| q[1])
-        .fold(f64::NEG_INFINITY, f64::max)
-        .floor()
-        .min(h as f64 - 1.0);
+    // Pixel centres inside the screen-space bounding box, clipped to the image.
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for q in &s {
+        for d in 0..2 {
+            lo[d] = lo[d].min(q[d]);
+            hi[d] = hi[d].max(q[d]);
+        }
+    }
+    let (xmin, ymin) = (lo[0].ceil().max(0.0), lo[1].ceil().max(0.0));
+    let (xmax, ymax) = (
+        hi[0].floor().min(w as f64 - 1.0),
+        hi[1].floor().min(h as f64 - 1.0),
+    );
     if xmin > xmax || ymin > ymax {
         return None;
     }
