@@ -257,9 +257,36 @@ pub fn cull_frame_with_motion(
     pyramids: Option<(&LkPyramid, &LkPyramid)>,
     s: &DynamicSettings,
 ) -> Vec<bool> {
+    cull_frame_with_evidence(keypoints, states, check, depth, pyramids, s).removed
+}
+
+/// What [`cull_frame_with_evidence`] decided and measured.
+#[derive(Clone, Debug, Default)]
+pub struct CulledFrame {
+    /// `true` = dynamic, remove (as [`cull_frame_with_motion`] returns it).
+    pub removed: Vec<bool>,
+    /// The keypoints [`keypoint_motion`] was asked to track (empty when it did not run).
+    pub tracked: Vec<bool>,
+    /// Its evidence, per keypoint (empty when it did not run).
+    pub motion: Vec<Option<KeypointMotion>>,
+}
+
+/// [`cull_frame_with_motion`], also handing back the per-keypoint evidence it measured, so that
+/// a later test on the same frames (the front-end's seated-part test) tracks no keypoint twice.
+pub fn cull_frame_with_evidence(
+    keypoints: &[[f32; 2]],
+    states: &mut [BoxState],
+    check: &MotionCheck,
+    depth: Option<&DepthMetres>,
+    pyramids: Option<(&LkPyramid, &LkPyramid)>,
+    s: &DynamicSettings,
+) -> CulledFrame {
     let removed = cull_frame(keypoints, states, &check.points, depth, s);
     let Some((prev_pyr, cur_pyr)) = pyramids.filter(|_| s.keypoint_motion.enabled) else {
-        return removed;
+        return CulledFrame {
+            removed,
+            ..CulledFrame::default()
+        };
     };
     // Track only the keypoints a rule could change: culled ones, when the model may keep them;
     // kept ones, when the cull rule is on.
@@ -273,7 +300,10 @@ pub fn cull_frame_with_motion(
         .map(|(&inside, &r)| inside && if r { may_keep } else { may_cull })
         .collect();
     if !candidates.contains(&true) {
-        return removed;
+        return CulledFrame {
+            removed,
+            ..CulledFrame::default()
+        };
     }
     let motion = keypoint_motion(
         prev_pyr,
@@ -283,7 +313,11 @@ pub fn cull_frame_with_motion(
         check,
         &s.keypoint_motion,
     );
-    apply_keypoint_motion(keypoints, &removed, states, &motion, &s.keypoint_motion)
+    CulledFrame {
+        removed: apply_keypoint_motion(keypoints, &removed, states, &motion, &s.keypoint_motion),
+        tracked: candidates,
+        motion,
+    }
 }
 
 #[cfg(test)]

@@ -139,7 +139,8 @@ pub use judge::{
     BoxPart, BoxState, Rule, Verdict, judge_boxes, nhbc_parts, only_in_dynamic_boxes_where,
 };
 pub use keypoint_motion::{
-    KeypointMotion, apply_keypoint_motion, cull_frame_with_motion, in_dynamic_box, keypoint_motion,
+    CulledFrame, KeypointMotion, apply_keypoint_motion, cull_frame_with_evidence,
+    cull_frame_with_motion, in_dynamic_box, keypoint_motion,
 };
 pub use memory::{RememberedBox, carried_states, carry_forward, remember};
 pub use motion_consistency::{

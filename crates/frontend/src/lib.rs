@@ -46,7 +46,8 @@ use std::time::Instant;
 
 use stillpoint_detect::{DetectInput, Detection, Detector};
 use stillpoint_dynamic::{
-    BoxPart, BoxState, DynamicSettings, RememberedBox, SeatedMotionParams, TrackedPoint, Verdict,
+    BoxPart, BoxState, CulledFrame, DynamicSettings, RememberedBox, SeatedMotionParams,
+    TrackedPoint, Verdict,
 };
 use stillpoint_features::LkPyramid;
 use stillpoint_image::{DepthMetres, Gray8};
@@ -378,7 +379,7 @@ impl KeypointFilter for DynamicFrontEnd {
         // The per-keypoint motion evidence inside dynamic boxes (`dynamic::keypoint_motion`,
         // ours) when `settings.keypoint_motion.enabled`.
         let t0 = Instant::now();
-        out.dynamic = stillpoint_dynamic::cull_frame_with_motion(
+        let culled = stillpoint_dynamic::cull_frame_with_evidence(
             kps,
             &mut states,
             &check,
@@ -387,26 +388,29 @@ impl KeypointFilter for DynamicFrontEnd {
             settings,
         );
         let mut seated_kept = Vec::new();
-        if let (Some(prev_depth), Some(depth)) = (&prev_depth, frame.depth) {
-            let decided = seated_motion(
-                kps,
-                &out.dynamic,
-                &states,
-                &check,
-                (prev_depth, depth),
-                (&prev_pyramid, &pyramid),
-                &self.settings,
-            );
-            if !self.settings.seated_kept_make_points {
-                seated_kept = out
-                    .dynamic
-                    .iter()
-                    .zip(&decided)
-                    .map(|(&a, &b)| a && !b)
-                    .collect();
+        out.dynamic = match (&prev_depth, frame.depth) {
+            (Some(prev_depth), Some(depth)) => {
+                let decided = seated_motion(
+                    kps,
+                    &culled,
+                    &states,
+                    &check,
+                    (prev_depth, depth),
+                    (&prev_pyramid, &pyramid),
+                    &self.settings,
+                );
+                if !self.settings.seated_kept_make_points {
+                    seated_kept = culled
+                        .removed
+                        .iter()
+                        .zip(&decided)
+                        .map(|(&a, &b)| a && !b)
+                        .collect();
+                }
+                decided
             }
-            out.dynamic = decided;
-        }
+            _ => culled.removed,
+        };
         out.geometry_ms += t0.elapsed().as_secs_f64() * 1e3;
         let mut track_only = seated_kept;
         if self.settings.seated_track_only {
@@ -449,13 +453,14 @@ impl KeypointFilter for DynamicFrontEnd {
 /// dynamic boxes are seated parts; the decision is unchanged without a camera motion estimate.
 fn seated_motion(
     kps: &[[f32; 2]],
-    removed: &[bool],
+    culled: &CulledFrame,
     states: &[BoxState],
     check: &stillpoint_dynamic::MotionCheck,
     (prev_depth, depth): (&DepthMetres, &DepthMetres),
     (prev_pyramid, pyramid): (&LkPyramid, &LkPyramid),
     settings: &FrontEndSettings,
 ) -> Vec<bool> {
+    let removed = &culled.removed[..];
     let p = &settings.seated_motion;
     let height = pyramid.size().1 as f32;
     let top = settings.dynamic.judge.seated_top_fraction;
@@ -475,14 +480,29 @@ fn seated_motion(
     else {
         return removed.to_vec();
     };
-    let motion = stillpoint_dynamic::keypoint_motion(
-        prev_pyramid,
-        pyramid,
-        kps,
-        &candidates,
-        check,
-        &settings.dynamic.keypoint_motion,
-    );
+    // The culling step tracked some of these already (same frames, same parameters, and each
+    // keypoint is tracked on its own): track only the rest.
+    let was_tracked = |i: usize| culled.tracked.get(i).copied().unwrap_or(false);
+    let untracked: Vec<bool> = (0..kps.len())
+        .map(|i| candidates[i] && !was_tracked(i))
+        .collect();
+    let mut motion = if untracked.contains(&true) {
+        stillpoint_dynamic::keypoint_motion(
+            prev_pyramid,
+            pyramid,
+            kps,
+            &untracked,
+            check,
+            &settings.dynamic.keypoint_motion,
+        )
+    } else {
+        vec![None; kps.len()]
+    };
+    for (i, m) in motion.iter_mut().enumerate() {
+        if was_tracked(i) {
+            *m = culled.motion.get(i).copied().flatten();
+        }
+    }
     let (out, kept) = stillpoint_dynamic::apply_seated_motion(
         kps,
         removed,
