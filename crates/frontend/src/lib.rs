@@ -126,7 +126,10 @@ pub struct FrontEndSettings {
     /// (`synth --noise kinect`, sitting_xyz, seeds 0 / 1 / 2): 0.53 / 0.33 / 0.55 ->
     /// 0.73 / 0.26 / 0.28 (seed 0 worse: the first-frame rule alone gives 0.65 there, the test
     /// alone 0.52; `--detector none` 0.50); walking_xyz Kinect 0.93 -> 0.93, static Kinect
-    /// 0.49 -> 0.49. Cost: geometry 6.6 -> 7.6 ms a frame on sitting_xyz.
+    /// 0.49 -> 0.49. Cost: geometry 6.6 -> 7.6 ms a frame on sitting_xyz. Since the camera
+    /// motion is polished on the reprojection error (`dynamic::camera_motion`, session 3):
+    /// Kinect sitting_xyz 0.44 / 0.24 / 0.24, gt 0.35 / 0.23 / 0.20, YOLOX walking_xyz 0.97 ->
+    /// 0.92, walking_halfsphere 1.77 -> 1.60, the rest within 0.01.
     pub seated_motion: SeatedMotionParams,
     /// Ours: on the first frame (no motion evidence) seated people's parts are not taken as
     /// moving, so their still torso and legs enter the initial map; from the second frame on
@@ -538,8 +541,9 @@ fn seated_motion(
                 .unwrap_or(-1.0)
         };
         tracing::debug!(
-            "seated motion: {kept} of {} candidates kept; no track {no_track}, fb {bad_fb}, residual p25 {:.2} p50 {:.2} p75 {:.2} t {:?}",
+            "seated motion: {kept} of {} candidates kept; no track {no_track}, fb {bad_fb}, residuals {}, p25 {:.2} p50 {:.2} p75 {:.2} t {:?}",
             candidates.iter().filter(|&&c| c).count(),
+            res.len(),
             q(0.25),
             q(0.5),
             q(0.75),

@@ -7,20 +7,9 @@ pub mod pose;
 pub use local_ba::{BaObservation, BaProblem, local_bundle_adjustment};
 pub use pose::{PoseObservation, optimize_pose};
 
-use nalgebra::{Matrix3, Matrix3x6, Vector3};
-use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
-
-/// Left-multiplicative update exp(δ) T with δ = (ω, υ): rotation by the axis-angle ω, then
-/// translation υ (a retraction whose derivative at 0 is the SE3 one).
-pub fn retract(t: &Se3, delta: &nalgebra::Vector6<f64>) -> Se3 {
-    let d = Se3::new(
-        Vector3::new(delta[3], delta[4], delta[5]),
-        Vector3::new(delta[0], delta[1], delta[2]),
-    );
-    let mut out = d * t;
-    out.rotation.renormalize();
-    out
-}
+use nalgebra::{Matrix3, Vector3};
+use stillpoint_geometry::{PinholeCamera, Vec3};
+pub use stillpoint_geometry::{dpc_dpose, retract};
 
 /// Residual (observed - predicted) and Jacobians of the prediction w.r.t. the camera camera-frame
 /// point for one observation. Returns (error, d pred / d Pc (3x3; the u_r row unused in mono)).
@@ -51,16 +40,6 @@ fn project_with_jacobian(
     Some((Vector3::new(u, v, ur), j))
 }
 
-/// d Pc / d δ for a left perturbation of T_cw: [-[Pc]x | I].
-fn dpc_dpose(pc: &Vec3) -> Matrix3x6<f64> {
-    let mut m = Matrix3x6::zeros();
-    m.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(-stillpoint_geometry::skew(pc)));
-    m.fixed_view_mut::<3, 3>(0, 3)
-        .copy_from(&Matrix3::identity());
-    m
-}
-
 /// Huber weight for a squared error `chi2` with threshold `delta` (on the square root).
 fn huber_weight(chi2: f64, delta: f64) -> f64 {
     let e = chi2.sqrt();
@@ -70,6 +49,7 @@ fn huber_weight(chi2: f64, delta: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use stillpoint_geometry::Se3;
 
     #[test]
     fn jacobians_match_finite_differences() {
