@@ -6,13 +6,14 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use stillpoint_datasets::{DatasetKind, Sequence};
+use stillpoint_datasets::{DatasetKind, GroundTruthFormat, Sequence};
 use stillpoint_detect::{DetectSettings, GtDetectorParams};
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
 use stillpoint_image::Gray8;
+use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths};
 use stillpoint_slam::module::frontend::{FilterInput, KeypointFilter, remove_dynamic};
-use stillpoint_slam::{Feature, SlamSettings, System};
+use stillpoint_slam::{Feature, KeypointDepth, SlamSettings, System};
 use stillpoint_trajectory::{Alignment, AteOptions, RpeOptions, Trajectory, TumWriter};
 
 #[derive(clap::Args)]
@@ -197,6 +198,44 @@ pub fn slam_settings(s: &stillpoint_datasets::Settings) -> SlamSettings {
     out
 }
 
+/// Read a sequence's ground truth in its format. KITTI poses carry no stamps (line i is frame i):
+/// they take the sequence's frame stamps (`times.txt`), so they associate with the estimate.
+fn read_ground_truth(seq: &dyn Sequence, path: &Path) -> anyhow::Result<Trajectory> {
+    use stillpoint_trajectory::{TrajectoryFormat, read_trajectory};
+    let format = match seq.ground_truth_format() {
+        GroundTruthFormat::Tum => TrajectoryFormat::Tum,
+        GroundTruthFormat::KittiPoses => TrajectoryFormat::Kitti,
+        GroundTruthFormat::EurocCsv => TrajectoryFormat::Euroc,
+    };
+    let t = read_trajectory(path, format).with_context(|| path.display().to_string())?;
+    if format != TrajectoryFormat::Kitti {
+        return Ok(t);
+    }
+    let stamps: Option<Vec<f64>> = (0..t.len()).map(|i| seq.timestamp(i)).collect();
+    let stamps = stamps.with_context(|| {
+        format!(
+            "{}: {} poses but {} frames",
+            path.display(),
+            t.len(),
+            seq.len()
+        )
+    })?;
+    Ok(Trajectory::from_parts(stamps, t.poses)?)
+}
+
+/// ORB keypoints as the SLAM core takes them.
+fn slam_features(keypoints: &[stillpoint_features::KeyPoint]) -> Vec<Feature> {
+    keypoints
+        .iter()
+        .map(|k| Feature {
+            x: k.x,
+            y: k.y,
+            octave: k.octave,
+            angle: k.angle,
+        })
+        .collect()
+}
+
 fn keyframe_path(out: &Path) -> PathBuf {
     let stem = out
         .file_stem()
@@ -219,13 +258,17 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     if let Some(b) = o.overrides.points_from_pose_outliers {
         settings.no_points_from_pose_outliers = !b;
     }
-    let mut orb = OrbExtractor::new(OrbParams {
+    let orb_params = OrbParams {
         n_features: ds.orb.n_features,
         scale_factor: ds.orb.scale_factor,
         n_levels: ds.orb.n_levels,
         ini_th_fast: ds.orb.ini_th_fast,
         min_th_fast: ds.orb.min_th_fast,
-    });
+    };
+    let mut orb = OrbExtractor::new(orb_params.clone());
+    // Stereo: the right image gets its own extractor (its pyramid is kept for matching).
+    let mut orb_right = OrbExtractor::new(orb_params);
+    let (bf, fx) = (settings.bf, settings.camera.fx);
     let mut front = match &o.detector {
         None => None,
         Some(name) => {
@@ -321,18 +364,17 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         };
         let mut t = FrameTimes::default();
         let t0 = Instant::now();
-        let feats = orb.extract(&frame.gray);
+        // Left and right images in parallel, as ORB-SLAM does.
+        let (feats, right_feats) = std::thread::scope(|sc| {
+            let right = frame
+                .right
+                .as_ref()
+                .map(|r| sc.spawn(|| orb_right.extract(r)));
+            let left = orb.extract(&frame.gray);
+            (left, right.and_then(|h| h.join().ok()))
+        });
         t.orb = t0.elapsed().as_secs_f64() * 1e3;
-        let mut features: Vec<Feature> = feats
-            .keypoints
-            .iter()
-            .map(|k| Feature {
-                x: k.x,
-                y: k.y,
-                octave: k.octave,
-                angle: k.angle,
-            })
-            .collect();
+        let mut features = slam_features(&feats.keypoints);
         let mut descriptors = feats.descriptors;
         let mut n_culled = 0;
         let mut no_new_points = Vec::new();
@@ -369,13 +411,43 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
                     .count()
             }));
         }
+        // Stereo: depth for the kept left keypoints by matching them along the rows.
+        let stereo_depth = match (&frame.right, &right_feats) {
+            (Some(right), Some(rf)) => {
+                let t1 = Instant::now();
+                let right_keypoints = slam_features(&rf.keypoints);
+                let d = stereo_depths(
+                    &StereoView {
+                        keypoints: &features,
+                        descriptors: &descriptors,
+                        levels: orb.pyramid(&frame.gray),
+                    },
+                    &StereoView {
+                        keypoints: &right_keypoints,
+                        descriptors: &rf.descriptors,
+                        levels: orb_right.pyramid(right),
+                    },
+                    bf,
+                    fx,
+                    orb.scale_factors(),
+                    &StereoParams::default(),
+                );
+                t.orb += t1.elapsed().as_secs_f64() * 1e3;
+                Some(d)
+            }
+            _ => None,
+        };
+        let depth = match &stereo_depth {
+            Some(d) => KeypointDepth::PerKeypoint(d),
+            None => frame.depth.as_ref().into(),
+        };
         let report = sys
             .track_rgbd_masked(
                 i,
                 frame.timestamp,
                 &features,
                 &descriptors,
-                frame.depth.as_ref(),
+                depth,
                 &no_new_points,
             )
             .with_context(|| format!("frame {i} of {}", o.dataset.display()))?;
@@ -421,16 +493,11 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         stillpoint_trajectory::write_tum(&kp, &keyframe_trajectory)
             .with_context(|| format!("writing {}", kp.display()))?;
     }
-    let ground_truth = match seq.ground_truth() {
-        Some(p) => match stillpoint_trajectory::read_tum(&p) {
-            Ok(t) => Some(t),
-            Err(e) => {
-                tracing::warn!("ground truth unreadable: {e}");
-                None
-            }
-        },
-        None => None,
-    };
+    let ground_truth = seq.ground_truth().and_then(|p| {
+        read_ground_truth(seq.as_ref(), &p)
+            .map_err(|e| tracing::warn!("ground truth unreadable: {e:#}"))
+            .ok()
+    });
     let moving_map_points = has_masks.then(|| count_moving_points(&sys, &o.dataset));
     let pick = |f: fn(&FrameTimes) -> f64| times.iter().map(f).collect::<Vec<f64>>();
     let mut timings = vec![];

@@ -30,7 +30,8 @@ pub struct Args {
     /// Sensor noise: none or kinect.
     #[arg(long, default_value = "none")]
     noise: String,
-    /// Also write a KITTI-layout stereo sequence (image_0, image_1, calib.txt, times.txt, poses.txt).
+    /// Also write a KITTI-layout stereo sequence (image_0, image_1, calib.txt, times.txt, poses.txt,
+    /// settings_stereo.toml) in the same folder; `stillpoint run --kind kitti` reads it as stereo.
     #[arg(long)]
     stereo: bool,
     /// Stereo baseline in metres.

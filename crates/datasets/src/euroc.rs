@@ -4,7 +4,7 @@
 
 use crate::error::{DatasetError, io_err, layout_err, parse_err};
 use crate::lists::data_lines;
-use crate::sequence::{Sequence, check_index, check_size, dir_name};
+use crate::sequence::{GroundTruthFormat, Sequence, check_index, check_size, dir_name};
 use crate::{Frame, Sensor, Settings};
 use std::path::{Path, PathBuf};
 use stillpoint_geometry::{PinholeCamera, RadTan};
@@ -178,6 +178,9 @@ impl Sequence for EurocSequence {
             depth: None,
             right,
         })
+    }
+    fn ground_truth_format(&self) -> GroundTruthFormat {
+        GroundTruthFormat::EurocCsv
     }
     fn ground_truth(&self) -> Option<PathBuf> {
         Some(self.mav.join("state_groundtruth_estimate0/data.csv")).filter(|p| p.is_file())

@@ -3,7 +3,7 @@
 
 use crate::error::{DatasetError, io_err, layout_err, parse_err};
 use crate::lists::{data_lines, read_times};
-use crate::sequence::{Sequence, check_index, check_size, dir_name, is_image};
+use crate::sequence::{GroundTruthFormat, Sequence, check_index, check_size, dir_name, is_image};
 use crate::{Frame, Sensor, Settings};
 use std::path::{Path, PathBuf};
 use stillpoint_geometry::PinholeCamera;
@@ -96,10 +96,13 @@ impl KittiSequence {
         } else {
             None
         };
-        let local_toml = ["settings.toml", "settings_stereo.toml"]
-            .iter()
-            .map(|f| dir.join(f))
-            .find(|p| p.is_file());
+        // `stillpoint synth --stereo` writes both: the stereo one when there is a right image.
+        let names = if right.is_some() {
+            ["settings_stereo.toml", "settings.toml"]
+        } else {
+            ["settings.toml", "settings_stereo.toml"]
+        };
+        let local_toml = names.iter().map(|f| dir.join(f)).find(|p| p.is_file());
         let settings = match (settings, local_toml) {
             (Some(s), _) => s,
             (None, Some(p)) => crate::read_settings_toml(&p)?,
@@ -207,6 +210,9 @@ impl Sequence for KittiSequence {
             depth: None,
             right,
         })
+    }
+    fn ground_truth_format(&self) -> GroundTruthFormat {
+        GroundTruthFormat::KittiPoses
     }
     /// `poses.txt`, else the first `poses*.txt` in the directory, else `../../poses/<name>.txt`
     /// (the official layout `sequences/NN/` beside `poses/NN.txt`).

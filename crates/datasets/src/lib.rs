@@ -20,7 +20,7 @@ pub use annotations::{FrameBoxes, GtBox};
 pub use error::DatasetError;
 pub use frame::Frame;
 pub use lists::{associate_nearest, read_associations, read_stamped_list, read_times};
-pub use sequence::{DatasetKind, Sequence, detect_kind, open};
+pub use sequence::{DatasetKind, GroundTruthFormat, Sequence, detect_kind, open};
 pub use settings::{OrbSettings, Sensor, Settings};
 pub use settings_file::{
     parse_orbslam_yaml, parse_settings_toml, read_orbslam_yaml, read_settings, read_settings_toml,

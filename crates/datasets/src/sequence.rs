@@ -16,15 +16,29 @@ pub trait Sequence: Send {
     }
     /// Load frame `i` from disk.
     fn frame(&self, i: usize) -> Result<Frame, DatasetError>;
-    /// Ground-truth trajectory file, when the sequence has one (format by kind: TUM text, KITTI
-    /// poses, EuRoC csv).
+    /// Ground-truth trajectory file, when the sequence has one (format: [`Self::ground_truth_format`]).
     fn ground_truth(&self) -> Option<PathBuf>;
+    /// How [`Self::ground_truth`] is written.
+    fn ground_truth_format(&self) -> GroundTruthFormat {
+        GroundTruthFormat::Tum
+    }
     /// `boxes.jsonl` of per-frame object boxes, when present.
     fn boxes(&self) -> Option<PathBuf>;
     /// A short name (the directory name).
     fn name(&self) -> String;
     /// Stamp of frame `i` without loading it.
     fn timestamp(&self, i: usize) -> Option<f64>;
+}
+
+/// The formats of ground-truth files.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GroundTruthFormat {
+    /// `timestamp tx ty tz qx qy qz qw` (TUM, Bonn, synth).
+    Tum,
+    /// KITTI `poses/NN.txt`: a row-major 3x4 `[R | t]` per frame, no stamps (line i is frame i).
+    KittiPoses,
+    /// EuRoC `state_groundtruth_estimate0/data.csv` (nanosecond stamps, body frame).
+    EurocCsv,
 }
 
 /// The layouts [`open`] reads.
@@ -73,15 +87,17 @@ pub fn detect_kind(dir: &Path) -> Result<DatasetKind, DatasetError> {
     if dir.join("mav0").is_dir() || dir.join("cam0/data.csv").is_file() {
         return Ok(DatasetKind::Euroc);
     }
-    if dir.join("image_0").is_dir() || dir.join("image_2").is_dir() {
-        return Ok(DatasetKind::Kitti);
-    }
+    // Before KITTI: `stillpoint synth --stereo` writes the TUM layout and the KITTI one in the
+    // same folder; RGB-D is its main reading (`--kind kitti` picks the stereo one).
     if dir.join("rgb.txt").is_file() {
         return Ok(if dir.join("boxes.jsonl").is_file() {
             DatasetKind::Synth
         } else {
             DatasetKind::Tum
         });
+    }
+    if dir.join("image_0").is_dir() || dir.join("image_2").is_dir() {
+        return Ok(DatasetKind::Kitti);
     }
     let has_images = std::fs::read_dir(dir)
         .map_err(crate::error::io_err(dir))?

@@ -279,6 +279,15 @@ impl OrbExtractor {
         out
     }
 
+    /// The pyramid of the image last given to [`Self::extract`], which must be `img`: level 0 is
+    /// `img` itself, the others are kept from that call. Stereo matching refines disparities on
+    /// these levels, as ORB-SLAM does.
+    pub fn pyramid<'a>(&'a self, img: &'a Gray8) -> Vec<&'a Gray8> {
+        std::iter::once(img)
+            .chain(self.pyramid[..self.pyramid_len].iter())
+            .collect()
+    }
+
     fn build_pyramid(&mut self, img: &Gray8) {
         self.pyramid_len = 0;
         for level in 1..self.params.n_levels {

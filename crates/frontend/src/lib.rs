@@ -283,11 +283,17 @@ impl DynamicFrontEnd {
     }
 }
 
-/// Run the detector on the frame's colour image; a failure is logged and counts as no detection
-/// (the geometry check still runs).
+/// Run the detector on the frame's colour image, or on its gray image replicated into three
+/// channels when the camera is gray (KITTI `image_0/1`, EuRoC); a failure is logged and counts as
+/// no detection (the geometry check still runs).
 fn detect(detector: &mut dyn Detector, frame: &FilterInput) -> Vec<Detection> {
-    let Some(rgb) = frame.rgb else {
-        return Vec::new();
+    let replicated;
+    let rgb = match frame.rgb {
+        Some(rgb) => rgb,
+        None => {
+            replicated = stillpoint_image::gray_to_rgb(frame.gray);
+            &replicated
+        }
     };
     detector
         .detect(&DetectInput {
@@ -664,11 +670,8 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn culls_walkers_with_gt_boxes_and_nothing_without_a_detector() {
-        let frames = walking_frames();
-        let (w, h) = (frames[0].rgb.width, frames[0].rgb.height);
-        let kps = grid(w, h, 8);
+    /// The generator's boxes as a detector.
+    fn gt_detector(frames: &[SynthFrame]) -> GtDetector {
         let boxes: Vec<FrameBoxes> = frames
             .iter()
             .map(|f| FrameBoxes {
@@ -677,8 +680,39 @@ mod tests {
                 boxes: f.boxes.clone(),
             })
             .collect();
-        let gt = GtDetector::from_frames(boxes, GtDetectorParams::default()).expect("gt boxes");
-        let mut front = DynamicFrontEnd::new(Box::new(gt), FrontEndSettings::default());
+        GtDetector::from_frames(boxes, GtDetectorParams::default()).expect("gt boxes")
+    }
+
+    #[test]
+    fn gray_only_frames_still_reach_the_detector() {
+        // KITTI image_0/1 and EuRoC are gray: the detector gets the gray image in three channels.
+        let frames = walking_frames();
+        let kps = grid(frames[0].rgb.width, frames[0].rgb.height, 8);
+        let mut front =
+            DynamicFrontEnd::new(Box::new(gt_detector(&frames)), FrontEndSettings::default());
+        for f in &frames[..2] {
+            let gray = stillpoint_image::rgb_to_gray(&f.rgb);
+            let input = FilterInput {
+                index: f.index,
+                timestamp: f.timestamp,
+                gray: &gray,
+                rgb: None,
+                depth: None,
+            };
+            let out = front.judge(&input, &kps);
+            if f.index > 0 {
+                assert!(out.dynamic_boxes > 0 && out.dynamic.contains(&true));
+            }
+        }
+    }
+
+    #[test]
+    fn culls_walkers_with_gt_boxes_and_nothing_without_a_detector() {
+        let frames = walking_frames();
+        let (w, h) = (frames[0].rgb.width, frames[0].rgb.height);
+        let kps = grid(w, h, 8);
+        let mut front =
+            DynamicFrontEnd::new(Box::new(gt_detector(&frames)), FrontEndSettings::default());
         let outcomes = run(&mut front, &frames, &kps);
         for (f, out) in frames.iter().zip(&outcomes) {
             assert_eq!(out.dynamic.len(), kps.len());

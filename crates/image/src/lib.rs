@@ -128,6 +128,16 @@ pub fn rgb_to_gray(rgb: &Rgb8) -> Gray8 {
     }
 }
 
+/// Replicate a grayscale image into the three channels (for a colour-only consumer such as the
+/// detector on KITTI's or EuRoC's gray cameras).
+pub fn gray_to_rgb(gray: &Gray8) -> Rgb8 {
+    ImageBuf {
+        width: gray.width,
+        height: gray.height,
+        data: gray.data.iter().map(|&v| [v; 3]).collect(),
+    }
+}
+
 fn read_err(path: &Path, e: impl std::error::Error + Send + Sync + 'static) -> ImageError {
     ImageError::Read {
         path: path.to_path_buf(),

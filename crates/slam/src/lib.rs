@@ -29,7 +29,7 @@ pub mod settings;
 pub mod solve;
 mod system;
 
-pub use data::frame::{Descriptor, Feature, Frame};
+pub use data::frame::{Descriptor, Feature, Frame, KeypointDepth};
 pub use module::tracking::TrackingState;
 pub use settings::SlamSettings;
 pub use system::{FrameReport, System};

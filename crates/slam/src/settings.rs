@@ -19,8 +19,11 @@ pub struct SlamSettings {
     pub scale_factor: f64,
     /// ORB pyramid levels (`ORBextractor.nLevels`, 8).
     pub n_levels: usize,
-    /// Keypoints with depth needed to initialise an RGB-D map (ORB-SLAM: > 500).
+    /// Keypoints needed to initialise a map (ORB-SLAM, stereo and RGB-D: more than 500).
     pub init_min_keypoints: usize,
+    /// Of those, keypoints with depth needed (ours: ORB-SLAM needs none; stereo matches only a
+    /// part of the keypoints, ~60 % on synth, and a frame without depth must not start a map).
+    pub init_min_with_depth: usize,
     /// Hamming threshold for accepted matches (ORB-SLAM `ORBmatcher::TH_HIGH`).
     pub th_high: u32,
     /// Stricter Hamming threshold for BoW / brute-force matches (`ORBmatcher::TH_LOW`).
@@ -115,6 +118,7 @@ impl SlamSettings {
             scale_factor: 1.2,
             n_levels: 8,
             init_min_keypoints: 500,
+            init_min_with_depth: 100,
             th_high: 100,
             th_low: 50,
             motion_search_radius: 7.0,

@@ -10,7 +10,7 @@ use stillpoint_image::DepthMetres;
 use crate::data::{KfId, Map};
 use crate::module::local_mapping::{LocalMapper, MapperThread};
 use crate::module::tracking::Tracker;
-use crate::{Descriptor, Feature, Frame, SlamError, SlamSettings, TrackingState};
+use crate::{Descriptor, Feature, Frame, KeypointDepth, SlamError, SlamSettings, TrackingState};
 
 /// What the system did with one frame.
 #[derive(Clone, Debug)]
@@ -89,13 +89,13 @@ impl System {
     /// [`System::track_rgbd`] with keypoints that may be tracked but must not create map points
     /// (`no_new_points`, same length as `features`, or empty): the front-end's keypoints inside a
     /// moving object's box that a static box protects (paper algorithm 3 keeps them).
-    pub fn track_rgbd_masked(
+    pub fn track_rgbd_masked<'d>(
         &mut self,
         index: usize,
         timestamp: f64,
         features: &[Feature],
         descriptors: &[Descriptor],
-        depth: Option<&DepthMetres>,
+        depth: impl Into<KeypointDepth<'d>>,
         no_new_points: &[bool],
     ) -> Result<FrameReport, SlamError> {
         let t0 = Instant::now();

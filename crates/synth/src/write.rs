@@ -243,7 +243,8 @@ pub fn write_sequence(
     })
 }
 
-/// calib.txt (P0..P3 as KITTI writes them), times.txt (seconds from the first frame), poses.txt
+/// calib.txt (P0..P3 as KITTI writes them), times.txt (the TUM layout's stamps, so that
+/// boxes.jsonl and both layouts' trajectories share one clock), poses.txt
 /// (left camera poses relative to the first frame, 3x4 row-major) and settings_stereo.toml.
 fn write_kitti_text(g: &Generator, out: &Path) -> Result<(), SynthError> {
     let c = &g.config().camera;
@@ -266,7 +267,7 @@ fn write_kitti_text(g: &Generator, out: &Path) -> Result<(), SynthError> {
     let mut pw = create(&poses)?;
     let first = g.pose(0).inverse();
     for i in 0..g.len() {
-        writeln!(tw, "{:e}", i as f64 / g.config().fps).map_err(io(&times))?;
+        writeln!(tw, "{:.6}", g.timestamp(i)).map_err(io(&times))?;
         let m = se3_to_3x4(&(first * g.pose(i)));
         let line: Vec<String> = m.iter().map(|v| format!("{v:e}")).collect();
         writeln!(pw, "{}", line.join(" ")).map_err(io(&poses))?;

@@ -19,6 +19,21 @@ pub struct Feature {
     pub angle: f32,
 }
 
+/// Where a frame's keypoint depths come from: a depth image (RGB-D, sampled at each keypoint's
+/// pixel) or one value per keypoint (stereo matching; 0 = none).
+#[derive(Clone, Copy, Debug)]
+pub enum KeypointDepth<'a> {
+    None,
+    Map(&'a DepthMetres),
+    PerKeypoint(&'a [f32]),
+}
+
+impl<'a> From<Option<&'a DepthMetres>> for KeypointDepth<'a> {
+    fn from(d: Option<&'a DepthMetres>) -> Self {
+        d.map_or(Self::None, Self::Map)
+    }
+}
+
 /// Keypoints bucketed in cells so that projection searches only look nearby (ORB-SLAM's
 /// 64 x 48 `FRAME_GRID`).
 #[derive(Clone, Debug)]
@@ -154,15 +169,16 @@ impl Frame {
 
     /// [`Frame::new`] with a per-keypoint flag (same length as `features`, or empty for none):
     /// `true` = this keypoint may be tracked but must not create a map point.
-    pub fn new_with_mask(
+    pub fn new_with_mask<'d>(
         index: usize,
         timestamp: f64,
         features: &[Feature],
         descriptors: &[Descriptor],
-        depth: Option<&DepthMetres>,
+        depth: impl Into<KeypointDepth<'d>>,
         settings: &SlamSettings,
         no_new_points: &[bool],
     ) -> Result<Self, crate::SlamError> {
+        let depth = depth.into();
         if features.len() != descriptors.len() {
             return Err(crate::SlamError::BadInput {
                 index,
@@ -199,16 +215,16 @@ impl Frame {
             if !(un.x.is_finite() && un.y.is_finite()) {
                 continue;
             }
-            let z = depth
-                .and_then(|dm| {
+            let z = match depth {
+                KeypointDepth::None => None,
+                KeypointDepth::Map(dm) => {
                     let (x, y) = (kp.x.round() as isize, kp.y.round() as isize);
-                    if x < 0 || y < 0 || x as usize >= dm.width || y as usize >= dm.height {
-                        return None;
-                    }
-                    let z = dm.get(x as usize, y as usize);
-                    (z.is_finite() && z > 0.0).then_some(z)
-                })
-                .unwrap_or(0.0);
+                    dm.get_checked(x, y)
+                }
+                KeypointDepth::PerKeypoint(d) => d.get(j).copied(),
+            }
+            .filter(|z| z.is_finite() && *z > 0.0)
+            .unwrap_or(0.0);
             f.points.push(un);
             f.octaves.push(kp.octave.min((n_levels - 1).min(255) as u8));
             f.angles

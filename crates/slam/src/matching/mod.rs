@@ -1,6 +1,8 @@
 //! Descriptor matching: by projection (motion model, local map), by brute force with a ratio test
 //! (reference keyframe, relocalisation), and the rotation-consistency histogram.
 
+pub mod stereo;
+
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
 
 use crate::data::{Frame, KeyFrame, Map, MpId};

@@ -149,7 +149,7 @@ impl Tracker {
             if self.lost_frames > self.s.new_map_after_lost_frames {
                 let origin = self.last_good_pose.unwrap_or_else(Se3::identity);
                 frame.map_points.iter_mut().for_each(|m| *m = None);
-                if frame.with_depth() > self.s.init_min_keypoints {
+                if self.can_initialise(&frame) {
                     map.start_new_map();
                     if let Some(kf) = self.initialise(&mut frame, map, origin) {
                         warn!(
@@ -185,13 +185,20 @@ impl Tracker {
         }
     }
 
-    /// RGB-D initialisation: every keypoint with depth becomes a map point of the first keyframe.
+    /// Enough keypoints, and enough with depth, to start a map.
+    fn can_initialise(&self, frame: &Frame) -> bool {
+        frame.len() > self.s.init_min_keypoints && frame.with_depth() >= self.s.init_min_with_depth
+    }
+
+    /// RGB-D / stereo initialisation: every keypoint with depth becomes a map point of the first
+    /// keyframe.
     fn initialise(&mut self, frame: &mut Frame, map: &mut Map, origin_cw: Se3) -> Option<KfId> {
-        if frame.with_depth() <= self.s.init_min_keypoints {
+        if !self.can_initialise(frame) {
             debug!(
                 frame = frame.index,
+                keypoints = frame.len(),
                 with_depth = frame.with_depth(),
-                "not enough keypoints with depth to initialise"
+                "not enough keypoints (with depth) to initialise"
             );
             return None;
         }
