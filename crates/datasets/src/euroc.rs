@@ -137,6 +137,12 @@ impl EurocSequence {
                     }
                 }
             }
+            // Stereo matching searches along image rows, which needs rectified pairs.
+            tracing::warn!(
+                "{}: EuRoC cam0/cam1 are used as given, not rectified: stereo depth will be \
+                 sparse and biased (rectification is not implemented yet)",
+                mav.display()
+            );
             Some(paths)
         } else {
             None
