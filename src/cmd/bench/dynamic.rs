@@ -46,6 +46,10 @@ pub struct Args {
     /// Boxes from: gt (boxes.jsonl), yolox (the ONNX model), none.
     #[arg(long, default_value = "gt")]
     detector: String,
+    /// YOLOX ONNX model for `--detector yolox` (else $STILLPOINT_MODEL, models/ beside the
+    /// binary, ../shared/models), as `stillpoint run --model`.
+    #[arg(long)]
+    model: Option<PathBuf>,
     /// Radius in pixels of the detection-free baseline's dilation around outliers.
     #[arg(long, default_value_t = 20.0)]
     radius: f32,
@@ -348,9 +352,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         frames.len()
     };
     let boxes = args.dataset.join("boxes.jsonl");
+    let detect_settings = DetectSettings {
+        model: args.model.clone(),
+        ..DetectSettings::default()
+    };
     let mut detector = open_detector(
         &args.detector,
-        &DetectSettings::default(),
+        &detect_settings,
         boxes.exists().then_some(boxes.as_path()),
         GtDetectorParams::default(),
     )
@@ -463,7 +471,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut front_end = DynamicFrontEnd::new(
         open_detector(
             &args.detector,
-            &DetectSettings::default(),
+            &detect_settings,
             boxes.exists().then_some(boxes.as_path()),
             GtDetectorParams::default(),
         )
