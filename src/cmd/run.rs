@@ -48,8 +48,8 @@ pub struct Args {
     /// unknown-objects rule.
     #[arg(long)]
     pub paper_cull: bool,
-    /// Let keypoints that the front-end keeps inside a moving object's box (protected by a static
-    /// box, or behind the object by depth) create map points. By default they are only tracked.
+    /// Let keypoints that the front-end keeps inside a moving object's box because a static box
+    /// protects them (paper algorithm 3) create map points. By default they are only tracked.
     #[arg(long)]
     pub box_points_make_map_points: bool,
     /// Turn off the box memory (ours): by default a box judged dynamic is carried, moved by the
