@@ -11,22 +11,25 @@ fn stillpoint() -> Command {
     Command::new(env!("CARGO_BIN_EXE_stillpoint"))
 }
 
-#[test]
-fn synthetic_stereo_sequence_tracks_and_reports_ate_against_kitti_poses() {
-    let dir = tempfile::tempdir().unwrap();
-    let seq = dir.path().join("seq");
+/// `stillpoint synth --preset static --frames N --stereo` into `dir/seq`; must succeed.
+fn synth_static_stereo(dir: &std::path::Path, frames: usize) -> std::path::PathBuf {
+    let seq = dir.join("seq");
     let st = stillpoint()
-        .args([
-            "synth", "--preset", "static", "--frames", "40", "--stereo", "--out",
-        ])
+        .args(["synth", "--preset", "static", "--stereo", "--frames"])
+        .arg(frames.to_string())
+        .arg("--out")
         .arg(&seq)
         .output()
         .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    let stderr = String::from_utf8_lossy(&st.stderr);
+    assert!(st.status.success(), "{stderr}");
+    seq
+}
+
+#[test]
+fn synthetic_stereo_sequence_tracks_and_reports_ate_against_kitti_poses() {
+    let dir = tempfile::tempdir().unwrap();
+    let seq = synth_static_stereo(dir.path(), 40);
     let out = stillpoint()
         .args([
             "run",
@@ -100,19 +103,7 @@ fn keypoint_depths(
 #[test]
 fn stereo_depths_match_the_rendered_depth() {
     let dir = tempfile::tempdir().unwrap();
-    let seq = dir.path().join("seq");
-    let st = stillpoint()
-        .args([
-            "synth", "--preset", "static", "--frames", "1", "--stereo", "--out",
-        ])
-        .arg(&seq)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    let seq = synth_static_stereo(dir.path(), 1);
     let first = |sub: &str| {
         let mut v: Vec<_> = std::fs::read_dir(seq.join(sub))
             .unwrap()
