@@ -26,16 +26,7 @@ fn load(dir: &std::path::Path, i: usize, s: &SlamSettings, orb: &mut OrbExtracto
     let depth =
         stillpoint_image::read_depth_metres(&dir.join(format!("depth/{i}.png")), 5000.0).unwrap();
     let f = orb.extract(&gray);
-    let feats: Vec<Feature> = f
-        .keypoints
-        .iter()
-        .map(|k| Feature {
-            x: k.x,
-            y: k.y,
-            octave: k.octave,
-            angle: k.angle,
-        })
-        .collect();
+    let feats: Vec<Feature> = f.keypoints.iter().map(Feature::from).collect();
     Frame::new(i, i as f64, &feats, &f.descriptors, Some(&depth), s).unwrap()
 }
 

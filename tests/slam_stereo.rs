@@ -70,14 +70,7 @@ fn keypoint_depths(
     let (mut ol, mut or) = (OrbExtractor::new(params.clone()), OrbExtractor::new(params));
     let (fl, fr) = (ol.extract(left), or.extract(right));
     let feats = |k: &[stillpoint_features::KeyPoint]| -> Vec<Feature> {
-        k.iter()
-            .map(|k| Feature {
-                x: k.x,
-                y: k.y,
-                octave: k.octave,
-                angle: k.angle,
-            })
-            .collect()
+        k.iter().map(Feature::from).collect()
     };
     let (kl, kr) = (feats(&fl.keypoints), feats(&fr.keypoints));
     let depth = stereo_depths(

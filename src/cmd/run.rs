@@ -223,19 +223,6 @@ fn read_ground_truth(seq: &dyn Sequence, path: &Path) -> anyhow::Result<Trajecto
     Ok(Trajectory::from_parts(stamps, t.poses)?)
 }
 
-/// ORB keypoints as the SLAM core takes them.
-fn slam_features(keypoints: &[stillpoint_features::KeyPoint]) -> Vec<Feature> {
-    keypoints
-        .iter()
-        .map(|k| Feature {
-            x: k.x,
-            y: k.y,
-            octave: k.octave,
-            angle: k.angle,
-        })
-        .collect()
-}
-
 fn keyframe_path(out: &Path) -> PathBuf {
     let stem = out
         .file_stem()
@@ -374,7 +361,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             (left, right.and_then(|h| h.join().ok()))
         });
         t.orb = t0.elapsed().as_secs_f64() * 1e3;
-        let mut features = slam_features(&feats.keypoints);
+        let mut features: Vec<Feature> = feats.keypoints.iter().map(Feature::from).collect();
         let mut descriptors = feats.descriptors;
         let mut n_culled = 0;
         let mut no_new_points = Vec::new();
@@ -415,7 +402,8 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         let stereo_depth = match (&frame.right, &right_feats) {
             (Some(right), Some(rf)) => {
                 let t1 = Instant::now();
-                let right_keypoints = slam_features(&rf.keypoints);
+                let right_keypoints: Vec<Feature> =
+                    rf.keypoints.iter().map(Feature::from).collect();
                 let d = stereo_depths(
                     &StereoView {
                         keypoints: &features,

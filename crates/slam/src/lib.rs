@@ -43,18 +43,5 @@ pub enum SlamError {
     LocalMapping(String),
 }
 
-/// Hamming distance between two 256-bit descriptors.
-///
-/// ```
-/// assert_eq!(stillpoint_slam::hamming(&[0u8; 32], &[0xffu8; 32]), 256);
-/// ```
-#[inline]
-pub fn hamming(a: &Descriptor, b: &Descriptor) -> u32 {
-    let mut d = 0;
-    for i in 0..4 {
-        let x = u64::from_le_bytes(a[i * 8..i * 8 + 8].try_into().unwrap_or([0; 8]));
-        let y = u64::from_le_bytes(b[i * 8..i * 8 + 8].try_into().unwrap_or([0; 8]));
-        d += (x ^ y).count_ones();
-    }
-    d
-}
+/// Hamming distance between two 256-bit descriptors (the ORB extractor's).
+pub use stillpoint_features::hamming;

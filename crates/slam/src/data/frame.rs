@@ -6,8 +6,8 @@ use stillpoint_image::DepthMetres;
 use super::map::MpId;
 use crate::SlamSettings;
 
-/// A 256-bit binary descriptor (ORB's steered BRIEF).
-pub type Descriptor = [u8; 32];
+/// A 256-bit ORB descriptor.
+pub use stillpoint_features::Descriptor;
 
 /// One keypoint as extracted: level-0 pixel position (distorted, as in the image), octave and
 /// orientation in degrees.
@@ -17,6 +17,17 @@ pub struct Feature {
     pub y: f32,
     pub octave: u8,
     pub angle: f32,
+}
+
+impl From<&stillpoint_features::KeyPoint> for Feature {
+    fn from(k: &stillpoint_features::KeyPoint) -> Self {
+        Self {
+            x: k.x,
+            y: k.y,
+            octave: k.octave,
+            angle: k.angle,
+        }
+    }
 }
 
 /// Where a frame's keypoint depths come from: a depth image (RGB-D, sampled at each keypoint's
