@@ -88,7 +88,9 @@ impl System {
 
     /// [`System::track_rgbd`] with keypoints that may be tracked but must not create map points
     /// (`no_new_points`, same length as `features`, or empty): the front-end's keypoints inside a
-    /// moving object's box that a static box protects (paper algorithm 3 keeps them).
+    /// moving object's box that a static box protects (paper algorithm 3 keeps them). `depth` is
+    /// a depth image (RGB-D) or one depth per keypoint ([`KeypointDepth::PerKeypoint`], from
+    /// [`crate::matching::stereo::stereo_depths`] for a stereo pair).
     pub fn track_rgbd_masked<'d>(
         &mut self,
         index: usize,
