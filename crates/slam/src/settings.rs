@@ -86,6 +86,9 @@ pub struct SlamSettings {
     /// Neighbours taken into the local map / local BA (ORB-SLAM3 tracking: 10 per keyframe; local
     /// mapping fuses with 10 for stereo/RGB-D).
     pub local_neighbours: usize,
+    /// Local mapping triangulates new points between the new keyframe and its neighbours
+    /// (ORB-SLAM3 `CreateNewMapPoints`).
+    pub triangulate_new_points: bool,
     /// Map points whose found/visible ratio falls below this are culled (ORB-SLAM3: 0.25).
     pub point_found_ratio: f64,
     /// Map points with at most this many observations 2 keyframes after creation are culled;
@@ -141,6 +144,7 @@ impl SlamSettings {
             kf_new_points_min: 100,
             covisibility_min_shared: 15,
             local_neighbours: 10,
+            triangulate_new_points: true,
             point_found_ratio: 0.25,
             point_min_observations: 3,
             kf_redundancy: 0.9,

@@ -26,6 +26,8 @@ pub struct KeyFrame {
     pub depth: Vec<f32>,
     pub u_right: Vec<f32>,
     pub map_points: Vec<Option<MpId>>,
+    /// Keypoints the front-end allows to be tracked but not to found a map point.
+    pub no_new_point: Vec<bool>,
     pub grid: KeypointGrid,
     /// Covisibility: keyframe -> shared map points (only edges with >= the minimum weight, or
     /// the single best when none reaches it, as ORB-SLAM).
@@ -51,6 +53,7 @@ impl KeyFrame {
             depth: f.depth.clone(),
             u_right: f.u_right.clone(),
             map_points: f.map_points.clone(),
+            no_new_point: f.no_new_point.clone(),
             grid: f.grid.clone(),
             connections: BTreeMap::new(),
             parent: None,

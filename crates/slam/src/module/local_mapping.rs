@@ -46,6 +46,9 @@ impl LocalMapper {
             }
             self.process_new_keyframe(&mut m, kf);
             self.cull_points(&mut m, kf);
+            if self.s.triangulate_new_points {
+                self.create_new_points(&mut m, kf);
+            }
             self.fuse_with_neighbours(&mut m, kf);
         }
         self.local_ba(map, kf);
@@ -97,6 +100,190 @@ impl LocalMapper {
             }
         }
         self.recent_points = keep;
+    }
+
+    /// ORB-SLAM3 `CreateNewMapPoints` (stereo / RGB-D): keypoints of the new keyframe and of its
+    /// best covisible keyframes that observe no map point are matched by descriptor (Hamming <=
+    /// `th_low`, near the epipolar line, rotation-consistent) and triangulated, or lifted with
+    /// the depth of the view whose depth gives more parallax; kept when in front of both
+    /// cameras, within the chi-square of both observations and at consistent scales. This is
+    /// how keypoints without depth (beyond the sensor, or on a depth hole) enter the map.
+    /// Keypoints the front-end flagged `no_new_point` never found a point here either.
+    fn create_new_points(&mut self, m: &mut Map, kf: KfId) {
+        let s = &self.s;
+        let cam = &s.camera;
+        let baseline = s.bf / cam.fx;
+        let ratio_factor = 1.5 * s.scale_factor;
+        let Some(k1) = m.keyframes.get(&kf) else {
+            return;
+        };
+        let free = |k: &crate::data::KeyFrame, i: usize| {
+            k.map_points[i].is_none() && !k.no_new_point.get(i).copied().unwrap_or(false)
+        };
+        let free1: Vec<usize> = (0..k1.points.len()).filter(|&i| free(k1, i)).collect();
+        let (pose1, center1) = (k1.pose_cw, k1.camera_center());
+        let neighbours = k1.best_covisibles(s.local_neighbours);
+        let mut created = Vec::new();
+        for kf2 in neighbours {
+            let (Some(k1), Some(k2)) = (m.keyframes.get(&kf), m.keyframes.get(&kf2)) else {
+                continue;
+            };
+            if k2.bad || k2.map_epoch != k1.map_epoch {
+                continue;
+            }
+            let center2 = k2.camera_center();
+            if (center2 - center1).norm() < baseline {
+                continue;
+            }
+            let pose2 = k2.pose_cw;
+            let free2: Vec<usize> = (0..k2.points.len()).filter(|&j| free(k2, j)).collect();
+            // Fundamental matrix of the pair, for the epipolar check (pixels of 1 -> line in 2).
+            let t12 = pose1 * pose2.inverse();
+            let (r21, t21) = {
+                let t21 = t12.inverse();
+                (
+                    t21.rotation.to_rotation_matrix().into_inner(),
+                    t21.translation.vector,
+                )
+            };
+            let kinv = cam
+                .k()
+                .try_inverse()
+                .unwrap_or_else(stillpoint_geometry::Mat3::identity);
+            let f21 = kinv.transpose() * stillpoint_geometry::skew(&t21) * r21 * kinv;
+            let mut matches: Vec<(usize, usize, f32)> = Vec::new();
+            for &i in &free1 {
+                let p1 = k1.points[i];
+                let line = f21 * nalgebra::Vector3::new(p1.x, p1.y, 1.0);
+                let norm2 = line.x * line.x + line.y * line.y;
+                if norm2 <= 0.0 {
+                    continue;
+                }
+                let mut best = (u32::MAX, usize::MAX);
+                for &j in &free2 {
+                    let d = hamming(&k1.descriptors[i], &k2.descriptors[j]);
+                    if d > s.th_low || d >= best.0 {
+                        continue;
+                    }
+                    let p2 = k2.points[j];
+                    let dist = line.x * p2.x + line.y * p2.y + line.z;
+                    let sigma2 = 1.0 / self.inv_sigma2[k2.octaves[j] as usize];
+                    if dist * dist / norm2 < 3.84 * sigma2 {
+                        best = (d, j);
+                    }
+                }
+                if best.1 != usize::MAX {
+                    matches.push((i, best.1, k2.angles[best.1] - k1.angles[i]));
+                }
+            }
+            let rot: Vec<(usize, f32)> = matches.iter().map(|m| (m.0, m.2)).collect();
+            let drop: BTreeSet<usize> = crate::matching::rotation_outliers(&rot)
+                .into_iter()
+                .collect();
+            let mut used2 = BTreeSet::new();
+            for (n, &(i, j, _)) in matches.iter().enumerate() {
+                if drop.contains(&n) || !used2.insert(j) {
+                    continue;
+                }
+                if let Some(x) = self.triangulate_pair(k1, i, k2, j, ratio_factor) {
+                    created.push((x, i, kf2, j));
+                }
+            }
+        }
+        for (x, i, kf2, j) in created {
+            let (Some(k1), Some(k2)) = (m.keyframes.get(&kf), m.keyframes.get(&kf2)) else {
+                continue;
+            };
+            // An earlier neighbour may have taken either keypoint.
+            if k1.map_points[i].is_some() || k2.map_points[j].is_some() {
+                continue;
+            }
+            if let Some(mp) = m.add_point(x, kf, i) {
+                m.add_observation(mp, kf2, j);
+                m.update_point(mp, &self.scales);
+                self.recent_points.push(mp);
+            }
+        }
+    }
+
+    /// The 3D point of keypoint `i` of `k1` matched to `j` of `k2`, with ORB-SLAM3's checks;
+    /// `None` when it fails one.
+    fn triangulate_pair(
+        &self,
+        k1: &crate::data::KeyFrame,
+        i: usize,
+        k2: &crate::data::KeyFrame,
+        j: usize,
+        ratio_factor: f64,
+    ) -> Option<Vec3> {
+        let s = &self.s;
+        let cam = &s.camera;
+        let norm = |p: &stillpoint_geometry::Vec2| {
+            stillpoint_geometry::Vec2::new((p.x - cam.cx) / cam.fx, (p.y - cam.cy) / cam.fy)
+        };
+        let (x1, x2) = (norm(&k1.points[i]), norm(&k2.points[j]));
+        let ray = |k: &crate::data::KeyFrame, x: &stillpoint_geometry::Vec2| {
+            k.pose_cw.inverse().rotation * Vec3::new(x.x, x.y, 1.0)
+        };
+        let (ray1, ray2) = (ray(k1, &x1), ray(k2, &x2));
+        let cos_rays = ray1.dot(&ray2) / (ray1.norm() * ray2.norm());
+        let baseline = s.bf / cam.fx;
+        let stereo_cos = |z: f32| {
+            if z > 0.0 {
+                (2.0 * (baseline / 2.0).atan2(z as f64)).cos()
+            } else {
+                2.0
+            }
+        };
+        let (c1, c2) = (stereo_cos(k1.depth[i]), stereo_cos(k2.depth[j]));
+        let cos_stereo = c1.min(c2);
+        let x = if cos_rays < cos_stereo
+            && cos_rays > 0.0
+            && (k1.depth[i] > 0.0 || k2.depth[j] > 0.0 || cos_rays < 0.9998)
+        {
+            crate::solve::triangulate(&k1.pose_cw, &x1, &k2.pose_cw, &x2)?
+        } else if k1.depth[i] > 0.0 && c1 < c2 {
+            k1.unproject_world(i, cam)?
+        } else if k2.depth[j] > 0.0 && c2 < c1 {
+            k2.unproject_world(j, cam)?
+        } else {
+            return None;
+        };
+        // In front of both cameras, within the chi-square of both observations.
+        for (k, idx) in [(k1, i), (k2, j)] {
+            let pc = (k.pose_cw * nalgebra::Point3::from(x)).coords;
+            if pc.z <= 0.0 {
+                return None;
+            }
+            let uv = cam.project_undistorted(&pc)?;
+            let kp = k.points[idx];
+            let inv = self.inv_sigma2[k.octaves[idx] as usize];
+            let mut e2 = (uv.x - kp.x).powi(2) + (uv.y - kp.y).powi(2);
+            let th = if k.u_right[idx] > 0.0 {
+                e2 += (uv.x - s.bf / pc.z - k.u_right[idx] as f64).powi(2);
+                7.8
+            } else {
+                5.991
+            };
+            if e2 * inv > th {
+                return None;
+            }
+        }
+        // Scale consistency: distances to the two cameras agree with the keypoints' octaves.
+        let (d1, d2) = (
+            (x - k1.camera_center()).norm(),
+            (x - k2.camera_center()).norm(),
+        );
+        if d1 <= 0.0 || d2 <= 0.0 {
+            return None;
+        }
+        let ratio_dist = d2 / d1;
+        let ratio_octave =
+            self.scales[k1.octaves[i] as usize] / self.scales[k2.octaves[j] as usize];
+        if ratio_dist * ratio_factor < ratio_octave || ratio_dist > ratio_octave * ratio_factor {
+            return None;
+        }
+        Some(x)
     }
 
     /// ORB-SLAM3 `SearchInNeighbors`: fuse the keyframe's points into its neighbours and theirs
@@ -458,5 +645,81 @@ impl MapperThread {
 impl Drop for MapperThread {
     fn drop(&mut self) {
         let _ = self.finish();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Descriptor, Feature, Frame};
+    use stillpoint_geometry::{PinholeCamera, Se3};
+
+    #[test]
+    fn keypoints_without_depth_are_triangulated_unless_flagged() {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let s = SlamSettings::rgbd(cam, 40.0, 30.0);
+        // 20 anchor points (already mapped, they make the two keyframes covisible) and 40 far
+        // points without depth; keypoints 20..30 of the new keyframe are flagged no-new-point.
+        let points: Vec<Vec3> = (0..60)
+            .map(|i| {
+                let (x, y) = ((i % 10) as f64 - 4.5, (i / 10) as f64 - 2.5);
+                Vec3::new(x * 0.6, y * 0.5, 6.0 + (i % 7) as f64 * 0.5)
+            })
+            .collect();
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let descriptors: Vec<Descriptor> = (0..60)
+            .map(|_| {
+                std::array::from_fn(|_| {
+                    state = state
+                        .wrapping_mul(6_364_136_223_846_793_005)
+                        .wrapping_add(1);
+                    (state >> 56) as u8
+                })
+            })
+            .collect();
+        let view = |pose: Se3, flags: &[bool]| {
+            let feats: Vec<Feature> = points
+                .iter()
+                .map(|p| {
+                    let uv = cam
+                        .project_undistorted(&(pose * nalgebra::Point3::from(*p)).coords)
+                        .unwrap();
+                    Feature {
+                        x: uv.x as f32,
+                        y: uv.y as f32,
+                        octave: 0,
+                        angle: 0.0,
+                    }
+                })
+                .collect();
+            let mut f =
+                Frame::new_with_mask(0, 0.0, &feats, &descriptors, None, &s, flags).unwrap();
+            f.pose_cw = Some(pose);
+            f
+        };
+        let flags: Vec<bool> = (0..60).map(|i| (20..30).contains(&i)).collect();
+        let old = view(Se3::identity(), &[]);
+        let new = view(Se3::translation(-0.4, 0.0, 0.0), &flags);
+        let mut map = Map::new();
+        let k1 = map.add_keyframe(&old).unwrap();
+        let k2 = map.add_keyframe(&new).unwrap();
+        for (i, p) in points.iter().enumerate().take(20) {
+            let mp = map.add_point(*p, k1, i).unwrap();
+            map.add_observation(mp, k2, i);
+        }
+        map.update_connections(k2, 15);
+        let mut mapper = LocalMapper::new(s);
+        mapper.create_new_points(&mut map, k2);
+        let k = &map.keyframes[&k2];
+        for (i, p) in points.iter().enumerate().skip(20) {
+            let made = k.map_points[i].map(|mp| map.points[&mp].position);
+            if flags[i] {
+                assert!(made.is_none(), "flagged keypoint {i} founded a point");
+            } else {
+                let x = made.unwrap_or_else(|| panic!("keypoint {i} not triangulated"));
+                assert!((x - p).norm() < 0.01, "{i}: {x} vs {p}");
+            }
+        }
+        assert_eq!(mapper.recent_points.len(), 30);
     }
 }

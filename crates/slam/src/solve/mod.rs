@@ -147,3 +147,53 @@ mod tests {
         assert!(ransac_pose(&c[..2], &cam, &RansacParams::default()).is_none());
     }
 }
+
+/// Linear (DLT) triangulation of one point seen at normalised image coordinates `x1` by camera
+/// `pose1_cw` and `x2` by `pose2_cw` (world-to-camera poses). `None` for a degenerate system.
+pub fn triangulate(
+    pose1_cw: &Se3,
+    x1: &stillpoint_geometry::Vec2,
+    pose2_cw: &Se3,
+    x2: &stillpoint_geometry::Vec2,
+) -> Option<Vec3> {
+    let rows = |t: &Se3, x: &stillpoint_geometry::Vec2| {
+        let m = t.to_homogeneous();
+        let r = |i: usize| nalgebra::RowVector4::new(m[(i, 0)], m[(i, 1)], m[(i, 2)], m[(i, 3)]);
+        (x.x * r(2) - r(0), x.y * r(2) - r(1))
+    };
+    let (a0, a1) = rows(pose1_cw, x1);
+    let (a2, a3) = rows(pose2_cw, x2);
+    let a = nalgebra::Matrix4::from_rows(&[a0, a1, a2, a3]);
+    let svd = a.svd(false, true);
+    let v_t = svd.v_t?;
+    // The right singular vector of the smallest singular value.
+    let (k, _) = svd
+        .singular_values
+        .iter()
+        .enumerate()
+        .min_by(|a, b| a.1.total_cmp(b.1))?;
+    let h = v_t.row(k);
+    (h[3].abs() > 1e-12).then(|| Vec3::new(h[0] / h[3], h[1] / h[3], h[2] / h[3]))
+}
+
+#[cfg(test)]
+mod triangulate_tests {
+    use super::*;
+    use stillpoint_geometry::Vec2;
+
+    #[test]
+    fn two_views_recover_the_point() {
+        let p = Vec3::new(0.3, -0.2, 4.0);
+        let c1 = Se3::identity();
+        let c2 = Se3::new(
+            nalgebra::Vector3::new(-0.5, 0.0, 0.1),
+            nalgebra::Vector3::new(0.0, 0.05, 0.0),
+        );
+        let norm = |t: &Se3| {
+            let q = t * nalgebra::Point3::from(p);
+            Vec2::new(q.x / q.z, q.y / q.z)
+        };
+        let x = triangulate(&c1, &norm(&c1), &c2, &norm(&c2)).expect("a point");
+        assert!((x - p).norm() < 1e-9, "{x}");
+    }
+}
