@@ -302,16 +302,7 @@ mod tests {
         let mut tracked = Vec::new();
         for y in (20..220).step_by(20) {
             for x in (20..300).step_by(20) {
-                let prev = [x as f32, y as f32];
-                let q = c
-                    .project(&(lift(&c, prev, 2.0) + motion.translation.vector))
-                    .unwrap();
-                tracked.push(TrackedPoint {
-                    prev,
-                    cur: [q.x as f32, q.y as f32],
-                    epipolar_distance: 0.0,
-                    outlier: false,
-                });
+                tracked.push(static_track(&c, &motion, [x as f32, y as f32], 2.0));
             }
         }
         let p = SeatedMotionParams {
@@ -384,15 +375,7 @@ mod tests {
         for (k, y) in (20..220).step_by(25).enumerate() {
             for (j, x) in (20..300).step_by(25).enumerate() {
                 let prev = [x as f32, y as f32];
-                let q = c
-                    .project(&apply(&truth, lift(&c, prev, true_z(prev[0], prev[1]))))
-                    .unwrap();
-                tracked.push(TrackedPoint {
-                    prev,
-                    cur: [q.x as f32, q.y as f32],
-                    epipolar_distance: 0.0,
-                    outlier: false,
-                });
+                tracked.push(static_track(&c, &truth, prev, true_z(prev[0], prev[1])));
                 // Each 3x3 patch of the previous depth map is off by a different few cm.
                 let dz = [0.03, -0.025, 0.015, -0.03, 0.02][(k * 3 + j) % 5];
                 for yy in y - 1..=y + 1 {
@@ -431,5 +414,17 @@ mod tests {
 
     fn apply(t: &Se3, v: Vec3) -> Vec3 {
         t.rotation * v + t.translation.vector
+    }
+
+    /// The track of a static point seen at `prev` with depth `z` when the camera moves by
+    /// `motion` (previous-camera to current-camera coordinates).
+    fn static_track(c: &PinholeCamera, motion: &Se3, prev: [f32; 2], z: f64) -> TrackedPoint {
+        let q = c.project(&apply(motion, lift(c, prev, z))).unwrap();
+        TrackedPoint {
+            prev,
+            cur: [q.x as f32, q.y as f32],
+            epipolar_distance: 0.0,
+            outlier: false,
+        }
     }
 }
