@@ -86,6 +86,9 @@ pub struct SlamSettings {
     /// Neighbours taken into the local map / local BA (ORB-SLAM3 tracking: 10 per keyframe; local
     /// mapping fuses with 10 for stereo/RGB-D).
     pub local_neighbours: usize,
+    /// Local BA optimises the new keyframe and at most this many - 1 of its best covisible
+    /// keyframes (ours; ORB-SLAM takes them all).
+    pub local_ba_max_keyframes: usize,
     /// Local mapping triangulates new points between the new keyframe and its neighbours
     /// (ORB-SLAM3 `CreateNewMapPoints`).
     pub triangulate_new_points: bool,
@@ -145,6 +148,10 @@ impl SlamSettings {
             covisibility_min_shared: 15,
             local_neighbours: 10,
             triangulate_new_points: true,
+            local_ba_max_keyframes: std::env::var("DBG_BA")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(usize::MAX),
             point_found_ratio: 0.25,
             point_min_observations: 3,
             kf_redundancy: 0.9,

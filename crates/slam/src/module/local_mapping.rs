@@ -414,12 +414,20 @@ impl LocalMapper {
             let Some(k) = m.keyframes.get(&kf) else {
                 return;
             };
+            // The keyframe and its best covisible ones, at most `local_ba_max_keyframes`; the
+            // rest that see the points are fixed. ORB-SLAM takes every covisible keyframe, which
+            // on a failing map (a keyframe every frame) makes each BA grow with the map.
             let mut local: Vec<KfId> = vec![kf];
-            local.extend(k.connections.keys().filter(|o| {
-                m.keyframes
-                    .get(o)
-                    .is_some_and(|x| !x.bad && x.map_epoch == m.epoch)
-            }));
+            local.extend(
+                k.best_covisibles(k.connections.len())
+                    .into_iter()
+                    .filter(|o| {
+                        m.keyframes
+                            .get(o)
+                            .is_some_and(|x| !x.bad && x.map_epoch == m.epoch)
+                    })
+                    .take(self.s.local_ba_max_keyframes.saturating_sub(1)),
+            );
             let local_set: BTreeSet<KfId> = local.iter().copied().collect();
             let mut pts: BTreeSet<MpId> = BTreeSet::new();
             for l in &local {
