@@ -148,10 +148,7 @@ impl SlamSettings {
             covisibility_min_shared: 15,
             local_neighbours: 10,
             triangulate_new_points: true,
-            local_ba_max_keyframes: std::env::var("DBG_BA")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(usize::MAX),
+            local_ba_max_keyframes: 20,
             point_found_ratio: 0.25,
             point_min_observations: 3,
             kf_redundancy: 0.9,
