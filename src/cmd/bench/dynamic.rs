@@ -485,7 +485,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut support_totals = [Counts::default(); METHODS.len()];
     let mut clear_totals = [Counts::default(); METHODS.len()];
     let mut straddling = 0usize;
-    let mut prev_pyr = LkPyramid::default();
+    let mut last_pyr = LkPyramid::default();
     let mut dump = match &args.dump_keypoints {
         Some(path) => Some(std::io::BufWriter::new(
             std::fs::File::create(path)
@@ -510,21 +510,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let rgb = read_rgb(rgb_path).with_context(|| format!("frame {index}"))?;
         let gray = rgb_to_gray(&rgb);
         // Each frame's pyramid is built once and serves as the next frame's previous one.
-        let cur_pyr = LkPyramid::new(&gray, &settings.geometry.lk);
-        let prev_pyr = std::mem::replace(&mut prev_pyr, cur_pyr.clone());
+        let prev_pyr =
+            std::mem::replace(&mut last_pyr, LkPyramid::new(&gray, &settings.geometry.lk));
+        let cur_pyr = &last_pyr;
         let depth = depth_for(&depth_list, *t, factor).with_context(|| format!("frame {index}"))?;
+        let input = FilterInput {
+            index,
+            timestamp: *t,
+            gray: &gray,
+            rgb: Some(&rgb),
+            depth: depth.as_ref(),
+        };
         let Some(prev_gray) = prev.replace(gray.clone()) else {
             // The front-end sees frame 0 too (its previous gray, pyramid, depth, box memory).
-            front_end.judge(
-                &FilterInput {
-                    index,
-                    timestamp: *t,
-                    gray: &gray,
-                    rgb: Some(&rgb),
-                    depth: depth.as_ref(),
-                },
-                &[],
-            );
+            front_end.judge(&input, &[]);
             continue;
         };
         let mask = read_gray(mask_path)
@@ -577,7 +576,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         straddling += clear.iter().filter(|c| c.is_none()).count();
 
         let check =
-            motion_consistency_pyramids(&prev_gray, &gray, &prev_pyr, &cur_pyr, &settings.geometry);
+            motion_consistency_pyramids(&prev_gray, &gray, &prev_pyr, cur_pyr, &settings.geometry);
         geometry_ms.push(check.timings.total_ms());
         let tm = check.timings;
         for (s, v) in stages
@@ -618,7 +617,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let candidates = in_dynamic_box(&kps, &depth_states);
         let motion = keypoint_motion(
             &prev_pyr,
-            &cur_pyr,
+            cur_pyr,
             &kps,
             &candidates,
             &check,
@@ -665,23 +664,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             &mut our_states,
             &check,
             depth.as_ref(),
-            Some((&prev_pyr, &cur_pyr)),
+            Some((&prev_pyr, cur_pyr)),
             &settings,
         );
         ours_ms.push(ours_clock.elapsed().as_secs_f64() * 1e3);
         // Track-only keypoints (`no_new_points`) are not in `dynamic`: they count as kept.
-        let ours = front_end
-            .judge(
-                &FilterInput {
-                    index,
-                    timestamp: *t,
-                    gray: &gray,
-                    rgb: Some(&rgb),
-                    depth: depth.as_ref(),
-                },
-                &kps,
-            )
-            .dynamic;
+        let ours = front_end.judge(&input, &kps).dynamic;
         let predictions = [
             cull_with(&kps, &states, &check.points, &paper_cull),
             cull_with(&kps, &states, &check.points, &unknown),
