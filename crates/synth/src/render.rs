@@ -313,6 +313,61 @@ pub fn draw(target: &mut Target, cam: &PinholeCamera, items: &[DrawItem], textur
     }
 }
 
+/// [`draw`] with `samples` x `samples` colour samples a pixel, averaged (box filter): a camera
+/// integrates light over its pixels, so an edge that moves a tenth of a pixel changes the pixels
+/// it crosses by a tenth. Point-sampled, edges move in whole-pixel steps and LK on a silhouette or
+/// a facet edge misreads a still surface by up to half a pixel. `samples` is made odd so that the
+/// middle sample lies on the pixel centre: depth and part id are that sample's (exactly what
+/// [`draw`] stores).
+pub fn draw_antialiased(
+    target: &mut Target,
+    cam: &PinholeCamera,
+    items: &[DrawItem],
+    textures: &[Texture],
+    samples: usize,
+) {
+    let s = samples.max(1) | 1;
+    if s == 1 {
+        draw(target, cam, items, textures);
+        return;
+    }
+    let (w, h) = (target.width, target.height);
+    // sample k of pixel u sits at u + (k - (s-1)/2) / s: hi-res pixel U = u*s + k is at
+    // U/s - (s-1)/(2s) in the image, so f' = f*s and c' = c*s + (s-1)/2
+    let half = (s - 1) as f64 / 2.0;
+    let fine_cam = PinholeCamera::new(
+        cam.fx * s as f64,
+        cam.fy * s as f64,
+        cam.cx * s as f64 + half,
+        cam.cy * s as f64 + half,
+        (w * s) as u32,
+        (h * s) as u32,
+    );
+    let mut fine = Target::new(w * s, h * s);
+    draw(&mut fine, &fine_cam, items, textures);
+    let fw = w * s;
+    let mid = s / 2;
+    for y in 0..h {
+        for x in 0..w {
+            let mut acc = [0u32; 3];
+            for dy in 0..s {
+                let row = (y * s + dy) * fw + x * s;
+                for c in &fine.rgb[row..row + s] {
+                    acc[0] += c[0] as u32;
+                    acc[1] += c[1] as u32;
+                    acc[2] += c[2] as u32;
+                }
+            }
+            let n = (s * s) as u32;
+            let i = y * w + x;
+            target.rgb[i] = acc.map(|a| ((a + n / 2) / n) as u8);
+            let centre = (y * s + mid) * fw + x * s + mid;
+            target.depth[i] = fine.depth[centre];
+            target.id[i] = fine.id[centre];
+        }
+    }
+}
+
 /// Count the pixels `items` would cover with nothing in front of them (alpha-tested), using
 /// `scratch` (image-sized, all false on entry and on return).
 pub fn coverage(
@@ -451,6 +506,58 @@ mod tests {
         );
         assert_eq!(n, t.id.iter().filter(|&&i| i == 1).count());
         assert!(scratch.iter().all(|&b| !b));
+    }
+
+    #[test]
+    fn antialiasing_blends_edge_pixels_and_keeps_depth_and_ids_of_the_centre() {
+        let cam = PinholeCamera::new(50.0, 50.0, 15.5, 15.5, 32, 32);
+        // A wall at z = 2 whose right edge projects to u = 10.3: pixel 10 (9.5..10.5) is 80 %
+        // covered, and two of its three sample columns (9.67, 10.0, 10.33) fall on the wall.
+        let x_edge = (10.3 - 15.5) * 2.0 / 50.0;
+        let mut mesh = Mesh::default();
+        mesh.quad(
+            [
+                P3::new(-3.0, -3.0, 2.0),
+                P3::new(x_edge, -3.0, 2.0),
+                P3::new(x_edge, 3.0, 2.0),
+                P3::new(-3.0, 3.0, 2.0),
+            ],
+            0,
+            [0.0, 0.0],
+            [1.0, 1.0],
+        );
+        let items = [DrawItem {
+            mesh: &mesh,
+            t_cp: Isometry3::identity(),
+            r_wp: nalgebra::UnitQuaternion::identity(),
+            id: 3,
+        }];
+        let tex = flat_texture();
+        let mut point = Target::new(32, 32);
+        draw(&mut point, &cam, &items, &tex);
+        let mut one = Target::new(32, 32);
+        draw_antialiased(&mut one, &cam, &items, &tex, 1);
+        assert_eq!((&one.rgb, &one.id), (&point.rgb, &point.id));
+        let mut aa = Target::new(32, 32);
+        draw_antialiased(&mut aa, &cam, &items, &tex, 3);
+        assert_eq!(aa.id, point.id);
+        assert!(
+            aa.depth
+                .iter()
+                .zip(&point.depth)
+                .all(|(a, b)| a == b || (a.is_infinite() && b.is_infinite()))
+        );
+        let at = |t: &Target, u: usize| t.rgb[16 * 32 + u][0] as i32;
+        let wall = at(&point, 5);
+        assert!(wall > 30, "the wall is lit: {wall}");
+        assert_eq!(at(&aa, 5), wall);
+        assert_eq!((at(&point, 10), at(&point, 11)), (wall, 0));
+        assert!(
+            (at(&aa, 10) - 2 * wall / 3).abs() <= 1,
+            "{} vs 2/3 of {wall}",
+            at(&aa, 10)
+        );
+        assert_eq!(at(&aa, 11), 0);
     }
 
     fn flatten(t: &[Texture]) -> Vec<Texture> {
