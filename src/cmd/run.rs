@@ -340,6 +340,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     let (mut tracked, mut relocs, mut new_maps) = (0, 0, 0);
     let has_masks = o.dataset.join("mask").is_dir();
     let mut moving_kept = Vec::new();
+    let mut depth_scale_checked = false;
     for i in 0..n {
         bar.inc(1);
         let frame = match seq.frame(i) {
@@ -349,6 +350,14 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
                 continue;
             }
         };
+        if let (false, Some(depth)) = (depth_scale_checked, &frame.depth) {
+            // The first frame with depth: a wrong factor scales the whole trajectory silently.
+            depth_scale_checked = true;
+            let factor = seq.settings().depth_factor;
+            if let Some(w) = stillpoint_datasets::depth_scale_warning(depth, factor) {
+                tracing::warn!("frame {i}: {w}");
+            }
+        }
         let mut t = FrameTimes::default();
         let t0 = Instant::now();
         // Left and right images in parallel, as ORB-SLAM does.

@@ -5,6 +5,7 @@
 //! Frames are read lazily: [`open`] reads file lists only, [`Sequence::frame`] loads one frame.
 
 pub mod annotations;
+pub mod depth_check;
 pub mod error;
 pub mod euroc;
 pub mod folder;
@@ -17,6 +18,7 @@ pub mod settings_file;
 pub mod tum;
 
 pub use annotations::{FrameBoxes, GtBox};
+pub use depth_check::depth_scale_warning;
 pub use error::DatasetError;
 pub use frame::Frame;
 pub use lists::{associate_nearest, read_associations, read_stamped_list, read_times};

@@ -245,3 +245,32 @@ fn tum_association_reproduces_the_shipped_association_files() {
         assert_eq!(mine, theirs, "{}", f.display());
     }
 }
+
+#[test]
+#[ignore = "needs ../shared/data"]
+fn real_depth_maps_pass_the_scale_check_and_fail_it_with_the_wrong_factor() {
+    use stillpoint_datasets::depth_scale_warning;
+    use stillpoint_image::read_depth_metres;
+    // TUM fr1 desk and ICL-NUIM living room, both 5000 per metre.
+    let files = [
+        data().join("rgbd_pairs/pair/1_depth.png"),
+        data().join("rgbd_pairs/pair/2_depth.png"),
+        data().join("rgbd_pairs/five_frames_with_poses/depth/1.png"),
+        data().join("rgbd_pairs/five_frames_with_poses/depth/5.png"),
+    ];
+    for f in &files {
+        let right = read_depth_metres(f, 5000.0).unwrap();
+        assert_eq!(depth_scale_warning(&right, 5000.0), None, "{}", f.display());
+        // Read as millimetres the same maps are 5x too deep (medians 7.2-15 m).
+        let as_mm = read_depth_metres(f, 1000.0).unwrap();
+        let w = depth_scale_warning(&as_mm, 1000.0).expect("read with 1000");
+        assert!(w.contains("with 5000"), "{w}");
+        // Read with a factor 10x too large (medians 0.14-0.30 m): too shallow.
+        let tiny = read_depth_metres(f, 50000.0).unwrap();
+        assert!(
+            depth_scale_warning(&tiny, 50000.0).is_some(),
+            "{}",
+            f.display()
+        );
+    }
+}
