@@ -8,7 +8,7 @@ use crate::sequence::{GroundTruthFormat, Sequence, check_index, check_size, dir_
 use crate::{Frame, Sensor, Settings};
 use std::path::{Path, PathBuf};
 use stillpoint_geometry::{PinholeCamera, RadTan};
-use stillpoint_image::read_gray;
+use stillpoint_image::{Gray8, read_gray, remap_bilinear};
 
 /// Read a camera's `data.csv`: (seconds, image path), stamps strictly increasing.
 fn read_cam_csv(cam: &Path) -> Result<Vec<(f64, PathBuf)>, DatasetError> {
@@ -95,13 +95,20 @@ pub fn read_euroc_sensor_yaml(path: &Path) -> Result<Settings, DatasetError> {
     Ok(s)
 }
 
+/// For each pixel of a rectified image, the raw pixel it samples (row-major).
+type RectifyMap = Vec<[f32; 2]>;
+
 /// An EuRoC MAV sequence: cam0 (left); cam1 as the right image when the settings are stereo
-/// (an ORB-SLAM EuRoC settings file; images are not rectified here).
+/// (an ORB-SLAM EuRoC settings file). Both images are rectified when the settings carry
+/// ORB-SLAM's `LEFT/RIGHT.K, D, R, P` ([`Settings::rectification`]), as ORB-SLAM's
+/// `stereo_euroc` does before tracking.
 pub struct EurocSequence {
     mav: PathBuf,
     settings: Settings,
     left: Vec<(f64, PathBuf)>,
     right: Option<Vec<PathBuf>>,
+    /// Where each rectified pixel samples the raw left and right images.
+    rectify_maps: Option<(RectifyMap, RectifyMap)>,
 }
 
 impl EurocSequence {
@@ -137,23 +144,45 @@ impl EurocSequence {
                     }
                 }
             }
-            // Stereo matching searches along image rows, which needs rectified pairs.
-            tracing::warn!(
-                "{}: EuRoC cam0/cam1 are used as given, not rectified: stereo depth will be \
-                 sparse and biased (rectification is not implemented yet)",
-                mav.display()
-            );
+            if settings.rectification.is_none() {
+                // Stereo matching searches along image rows, which needs rectified pairs.
+                tracing::warn!(
+                    "{}: EuRoC cam0/cam1 are used as given, not rectified: stereo depth will be \
+                     sparse and biased (give ORB-SLAM's EuRoC stereo settings, with LEFT/RIGHT.K, \
+                     D, R, P, to rectify them)",
+                    mav.display()
+                );
+            }
             Some(paths)
         } else {
             None
         };
+        let rectify_maps = settings
+            .rectification
+            .map(|r| (r.left.map(), r.right.map()));
         Ok(Self {
             mav,
             settings,
             left,
             right,
+            rectify_maps,
         })
     }
+}
+
+/// `img` (read from `path`) resampled through a rectification map of its size.
+fn rectified(img: Gray8, map: &[[f32; 2]], path: &Path) -> Result<Gray8, DatasetError> {
+    remap_bilinear(&img, map, img.width, img.height).ok_or_else(|| {
+        layout_err(
+            path,
+            format!(
+                "{}x{} image, but the rectification (LEFT/RIGHT.width, height) is for {} pixels",
+                img.width,
+                img.height,
+                map.len()
+            ),
+        )
+    })
 }
 
 impl Sequence for EurocSequence {
@@ -175,6 +204,14 @@ impl Sequence for EurocSequence {
                 Some(img)
             }
             None => None,
+        };
+        let (gray, right) = match (&self.rectify_maps, &self.right) {
+            (Some((l, r)), Some(paths)) => (
+                rectified(gray, l, p)?,
+                right.map(|img| rectified(img, r, &paths[i])).transpose()?,
+            ),
+            (Some((l, _)), None) => (rectified(gray, l, p)?, right),
+            (None, _) => (gray, right),
         };
         Ok(Frame {
             index: i,

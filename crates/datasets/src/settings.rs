@@ -1,7 +1,7 @@
 //! Camera and front-end settings, as ORB-SLAM's settings files carry them.
 
 use serde::{Deserialize, Serialize};
-use stillpoint_geometry::PinholeCamera;
+use stillpoint_geometry::{PinholeCamera, StereoRectification};
 
 /// What the sequence provides.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -60,6 +60,11 @@ pub struct Settings {
     pub rgb: bool,
     #[serde(default)]
     pub orb: OrbSettings,
+    /// For a stereo camera whose images are not rectified (EuRoC): the raw cameras and the
+    /// rectifying rotations and projections (ORB-SLAM's `LEFT.K/D/R/P`, `RIGHT.*`). The EuRoC
+    /// reader then rectifies both images, and `camera` / `bf` describe the rectified pair.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rectification: Option<StereoRectification>,
 }
 
 fn default_fps() -> f64 {
@@ -88,6 +93,7 @@ impl Settings {
             th_depth: default_th_depth(),
             rgb: true,
             orb: OrbSettings::default(),
+            rectification: None,
         }
     }
 

@@ -9,7 +9,7 @@
 use crate::error::{DatasetError, io_err};
 use crate::settings::{OrbSettings, Sensor, Settings};
 use std::path::Path;
-use stillpoint_geometry::{PinholeCamera, RadTan};
+use stillpoint_geometry::{PinholeCamera, RadTan, RectifyingView, StereoRectification};
 use yaml_rust2::{Yaml, YamlLoader};
 
 fn settings_err(path: &Path, msg: impl Into<String>) -> DatasetError {
@@ -90,6 +90,102 @@ impl Doc<'_> {
             }
         }
         Ok(None)
+    }
+
+    /// An OpenCV matrix (`data: [...]`) of `rows` x one of `cols` finite numbers, row-major
+    /// (distortion vectors come with 4 or 5 columns). `None` when absent.
+    fn matrix(
+        &self,
+        key: &str,
+        rows: usize,
+        cols: &[usize],
+    ) -> Result<Option<Vec<f64>>, DatasetError> {
+        let m = &self.root[key];
+        if matches!(m, Yaml::BadValue | Yaml::Null) {
+            return Ok(None);
+        }
+        let data: Option<Vec<f64>> = m["data"].as_vec().and_then(|v| {
+            v.iter()
+                .map(|y| y.as_f64().or_else(|| y.as_i64().map(|i| i as f64)))
+                .collect()
+        });
+        match data {
+            Some(d)
+                if cols.iter().any(|&c| d.len() == rows * c) && d.iter().all(|v| v.is_finite()) =>
+            {
+                Ok(Some(d))
+            }
+            _ => Err(settings_err(
+                self.path,
+                format!(
+                    "line {}: {key} must be a {rows}x{} matrix of finite numbers (data: [...])",
+                    self.line_of(key),
+                    cols.iter()
+                        .map(|c| c.to_string())
+                        .collect::<Vec<_>>()
+                        .join(" or ")
+                ),
+            )),
+        }
+    }
+
+    /// One camera's `K`, `D`, `R`, `P` (`side` = `LEFT` or `RIGHT`), `None` when none of them
+    /// is there; some but not all is an error.
+    fn rectifying_view(
+        &self,
+        side: &str,
+        size: (u32, u32),
+    ) -> Result<Option<RectifyingView>, DatasetError> {
+        let key = |k: &str| format!("{side}.{k}");
+        let k = self.matrix(&key("K"), 3, &[3])?;
+        let d = self.matrix(&key("D"), 1, &[4, 5])?;
+        let r = self.matrix(&key("R"), 3, &[3])?;
+        let p = self.matrix(&key("P"), 3, &[4])?;
+        let (k, d, r, p) = match (k, d, r, p) {
+            (None, None, None, None) => return Ok(None),
+            (Some(k), Some(d), Some(r), Some(p)) => (k, d, r, p),
+            _ => {
+                return Err(settings_err(
+                    self.path,
+                    format!(
+                        "{side}.K, {side}.D, {side}.R and {side}.P go together: some are missing"
+                    ),
+                ));
+            }
+        };
+        let dim = |k: &str, dflt: u32| -> Result<u32, DatasetError> {
+            Ok(self.number(&key(k))?.map_or(dflt, |v| v as u32))
+        };
+        let mut raw = PinholeCamera::new(
+            k[0],
+            k[4],
+            k[2],
+            k[5],
+            dim("width", size.0)?,
+            dim("height", size.1)?,
+        );
+        raw.distortion = RadTan {
+            k1: d[0],
+            k2: d[1],
+            p1: d[2],
+            p2: d[3],
+            k3: d.get(4).copied().unwrap_or(0.0),
+        };
+        if !(raw.fx > 0.0 && raw.fy > 0.0 && p[0] > 0.0 && p[5] > 0.0) {
+            return Err(settings_err(
+                self.path,
+                format!("{side}.K and {side}.P need positive focal lengths"),
+            ));
+        }
+        Ok(Some(RectifyingView {
+            raw,
+            r: [[r[0], r[1], r[2]], [r[3], r[4], r[5]], [r[6], r[7], r[8]]],
+            p: [
+                [p[0], p[1], p[2], p[3]],
+                [p[4], p[5], p[6], p[7]],
+                [p[8], p[9], p[10], p[11]],
+            ],
+        }))
     }
 
     fn required(&self, keys: &[&str]) -> Result<f64, DatasetError> {
@@ -186,7 +282,62 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
         ini_th_fast: int("ORBextractor.iniThFAST", defaults.ini_th_fast as f64)?.min(255.0) as u8,
         min_th_fast: int("ORBextractor.minThFAST", defaults.min_th_fast as f64)?.min(255.0) as u8,
     };
+    let rectification = match (
+        d.rectifying_view("LEFT", (width, height))?,
+        d.rectifying_view("RIGHT", (width, height))?,
+    ) {
+        (None, None) => None,
+        (Some(left), Some(right)) => {
+            // ORB-SLAM: "Camera.fx, .fy, etc must be the same as in LEFT.P" (the tracked
+            // camera is the rectified one), and Camera.bf the rectified baseline.
+            let rect = left.rectified_camera();
+            let off = (rect.fx - fx).abs()
+                + (rect.fy - fy).abs()
+                + (rect.cx - cx).abs()
+                + (rect.cy - cy).abs();
+            if off > 0.01 || !camera.distortion.is_zero() {
+                return Err(settings_err(
+                    path,
+                    format!(
+                        "with LEFT/RIGHT rectification, Camera.fx/fy/cx/cy must be LEFT.P's \
+                         ({:.4} {:.4} {:.4} {:.4}) and Camera.k1.. zero: the images are tracked \
+                         rectified",
+                        rect.fx, rect.fy, rect.cx, rect.cy
+                    ),
+                ));
+            }
+            for (side, v) in [("LEFT", &left), ("RIGHT", &right)] {
+                if (v.raw.width, v.raw.height) != (width, height) {
+                    return Err(settings_err(
+                        path,
+                        format!(
+                            "{side}.width x height {}x{} differs from Camera.width x height \
+                             {width}x{height} (rectified images keep the raw size)",
+                            v.raw.width, v.raw.height
+                        ),
+                    ));
+                }
+            }
+            let s = StereoRectification { left, right };
+            if let Some(bf) = bf
+                && (bf - s.bf()).abs() > 1e-3 * s.bf().abs()
+            {
+                return Err(settings_err(
+                    path,
+                    format!("Camera.bf {bf} differs from -RIGHT.P[0][3] = {}", s.bf()),
+                ));
+            }
+            Some(s)
+        }
+        _ => {
+            return Err(settings_err(
+                path,
+                "stereo rectification needs both LEFT.* and RIGHT.*",
+            ));
+        }
+    };
     Ok(Settings {
+        rectification,
         sensor,
         camera,
         fps: d.number("Camera.fps")?.unwrap_or(30.0),

@@ -226,6 +226,70 @@ fn orbslam_yaml_dialect_and_toml_form() {
     assert!(e.starts_with("t.toml: line 3"), "{e}");
 }
 
+#[test]
+fn stereo_rectification_blocks_are_read_whole_and_checked_against_the_camera() {
+    let head = "%YAML:1.0\nCamera.fx: 400\nCamera.fy: 400\nCamera.cx: 320\nCamera.cy: 240\n\
+                Camera.width: 640\nCamera.height: 480\nCamera.bf: 40\n";
+    let side = |name: &str, fx: f64, tx: f64| {
+        format!(
+            "{name}.D: !!opencv-matrix\n   rows: 1\n   cols: 4\n   dt: d\n   data:[-0.2, 0.05, 0, 0]\n\
+             {name}.K: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data:[410, 0, 321, 0, 411, 239, 0, 0, 1]\n\
+             {name}.R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data:[1, 0, 0, 0, 1, 0, 0, 0, 1]\n\
+             {name}.P: !!opencv-matrix\n   rows: 3\n   cols: 4\n   dt: d\n   data:[{fx}, 0, 320, {tx}, 0, {fx}, 240, 0, 0, 0, 1, 0]\n"
+        )
+    };
+    let both = format!(
+        "{head}{}{}",
+        side("LEFT", 400.0, 0.0),
+        side("RIGHT", 400.0, -40.0)
+    );
+    let s = parse_orbslam_yaml(&both, "r.yaml".as_ref()).unwrap();
+    let r = s.rectification.expect("rectification");
+    assert_eq!(
+        (r.bf(), r.left.raw.fx, r.left.raw.distortion.k1),
+        (40.0, 410.0, -0.2)
+    );
+    assert_eq!((r.right.p[0][3], r.left.raw.width), (-40.0, 640));
+    // Without the blocks: none, as before.
+    assert_eq!(
+        parse_orbslam_yaml(head, "h.yaml".as_ref())
+            .unwrap()
+            .rectification,
+        None
+    );
+    let err = |text: &str| {
+        parse_orbslam_yaml(text, "e.yaml".as_ref())
+            .unwrap_err()
+            .to_string()
+    };
+    let e = err(&format!("{head}{}", side("LEFT", 400.0, 0.0)));
+    assert!(e.contains("both LEFT.* and RIGHT.*"), "{e}");
+    let partial = side("RIGHT", 400.0, -40.0).replace("RIGHT.P", "RIGHT.Q");
+    let e = err(&format!("{head}{}{partial}", side("LEFT", 400.0, 0.0)));
+    assert!(e.contains("RIGHT.P go together"), "{e}");
+    // The tracked camera must be the rectified one (LEFT.P), and bf its baseline.
+    let e = err(&format!(
+        "{head}{}{}",
+        side("LEFT", 390.0, 0.0),
+        side("RIGHT", 390.0, -39.0)
+    ));
+    assert!(e.contains("must be LEFT.P's"), "{e}");
+    let e = err(&format!(
+        "{head}{}{}",
+        side("LEFT", 400.0, 0.0),
+        side("RIGHT", 400.0, -44.0)
+    ));
+    assert!(e.contains("Camera.bf 40 differs"), "{e}");
+    let bad = side("LEFT", 400.0, 0.0).replace("data:[410, 0, 321,", "data:[410, 0,");
+    let e = err(&format!("{head}{bad}{}", side("RIGHT", 400.0, -40.0)));
+    assert!(e.contains("LEFT.K must be a 3x3 matrix"), "{e}");
+    // The TOML form carries it too.
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.toml");
+    write_settings_toml(&p, &s).unwrap();
+    assert_eq!(stillpoint_datasets::read_settings(&p).unwrap(), s);
+}
+
 proptest! {
     #[test]
     fn settings_parsers_never_panic(text in "[ -~\n]{0,300}") {

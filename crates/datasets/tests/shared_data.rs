@@ -274,3 +274,15 @@ fn real_depth_maps_pass_the_scale_check_and_fail_it_with_the_wrong_factor() {
         );
     }
 }
+
+#[test]
+#[ignore = "needs ../shared/data"]
+fn euroc_stereo_settings_carry_orbslams_rectification() {
+    let s = read_orbslam_yaml(&data().join("calib/EuRoC_orbslam2_stereo.yaml")).unwrap();
+    let r = s.rectification.expect("LEFT/RIGHT blocks");
+    assert!((r.bf() - 47.90639384423901).abs() < 1e-12);
+    assert_eq!((r.left.raw.fx, r.right.raw.cx), (458.654, 379.999));
+    assert_eq!(r.left.raw.distortion.k1, -0.28340811);
+    assert_eq!(r.left.rectified_camera().fx, s.camera.fx);
+    assert_eq!(r.right.r[2][2], 0.999945173484644);
+}

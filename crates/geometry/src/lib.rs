@@ -11,12 +11,14 @@ pub mod epipolar;
 pub mod fundamental;
 pub mod homography;
 pub mod pose;
+pub mod rectify;
 
 pub use align::{Sim3, umeyama};
 pub use bbox::BBox;
 pub use camera::{PinholeCamera, RadTan};
 pub use epipolar::{epipolar_distance, fundamental_from_poses};
 pub use pose::{dpc_dpose, refine_pose_reprojection, retract};
+pub use rectify::{RectifyingView, StereoRectification};
 
 /// A rigid transform (rotation + translation), double precision.
 pub type Se3 = nalgebra::Isometry3<f64>;

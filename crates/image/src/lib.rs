@@ -138,6 +138,44 @@ pub fn gray_to_rgb(gray: &Gray8) -> Rgb8 {
     }
 }
 
+/// Resample `img` through `map` (OpenCV's `remap` with bilinear interpolation): output pixel
+/// i of a `width` x `height` image (row-major) takes `img` at the sub-pixel position `map[i]`;
+/// positions outside `img` give 0. `None` when `map` does not hold `width * height` entries.
+///
+/// ```
+/// use stillpoint_image::{Gray8, remap_bilinear};
+/// let img = Gray8::from_vec(2, 1, vec![0, 100]).unwrap();
+/// let out = remap_bilinear(&img, &[[0.5, 0.0], [1.0, 0.0], [5.0, 0.0]], 3, 1).unwrap();
+/// assert_eq!(out.data, vec![50, 100, 0]);
+/// ```
+pub fn remap_bilinear(img: &Gray8, map: &[[f32; 2]], width: usize, height: usize) -> Option<Gray8> {
+    if map.len() != width * height {
+        return None;
+    }
+    let (w, h) = (img.width as f32, img.height as f32);
+    let data = map
+        .iter()
+        .map(|&[x, y]| {
+            // NaN fails these comparisons too.
+            if !(x >= 0.0 && y >= 0.0 && x <= w - 1.0 && y <= h - 1.0) {
+                return 0;
+            }
+            let (x0, y0) = (x as usize, y as usize);
+            let (x1, y1) = ((x0 + 1).min(img.width - 1), (y0 + 1).min(img.height - 1));
+            let (ax, ay) = (x - x0 as f32, y - y0 as f32);
+            let p = |xx: usize, yy: usize| img.data[yy * img.width + xx] as f32;
+            let top = p(x0, y0) + ax * (p(x1, y0) - p(x0, y0));
+            let bottom = p(x0, y1) + ax * (p(x1, y1) - p(x0, y1));
+            (top + ay * (bottom - top)).round() as u8
+        })
+        .collect();
+    Some(ImageBuf {
+        width,
+        height,
+        data,
+    })
+}
+
 fn read_err(path: &Path, e: impl std::error::Error + Send + Sync + 'static) -> ImageError {
     ImageError::Read {
         path: path.to_path_buf(),
@@ -295,6 +333,27 @@ pub fn write_depth_metres(path: &Path, img: &DepthMetres, factor: f32) -> Result
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn remap_interpolates_and_leaves_outside_and_bad_positions_black() {
+        // A horizontal ramp 0, 10, 20, ... sampled half a pixel right and a quarter down.
+        let img = Gray8::from_vec(8, 4, (0..32).map(|i| (i % 8) as u8 * 10).collect()).unwrap();
+        let map: Vec<[f32; 2]> = (0..8 * 4)
+            .map(|i| [(i % 8) as f32 + 0.5, (i / 8) as f32 + 0.25])
+            .collect();
+        let out = remap_bilinear(&img, &map, 8, 4).unwrap();
+        assert_eq!(&out.data[..8], &[5, 15, 25, 35, 45, 55, 65, 0]);
+        // The last row's samples fall below the image.
+        assert!(out.row(3).iter().all(|&v| v == 0));
+        let odd = [[f32::NAN, 0.0], [-0.1, 0.0], [0.0, 3.0], [7.0, 0.0]];
+        let out = remap_bilinear(&img, &odd, 4, 1).unwrap();
+        assert_eq!(out.data, vec![0, 0, 0, 70]);
+        assert!(remap_bilinear(&img, &odd, 5, 1).is_none());
+        assert!(
+            remap_bilinear(&Gray8::new(0, 0, 0), &[[0.0, 0.0]], 1, 1)
+                .is_some_and(|o| o.data == [0])
+        );
+    }
 
     #[test]
     fn depth_roundtrip_is_exact_at_factor_resolution() {

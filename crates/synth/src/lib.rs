@@ -340,6 +340,7 @@ impl Generator {
             th_depth: 40.0,
             rgb: true,
             orb: OrbSettings::default(),
+            rectification: None,
         }
     }
 
