@@ -19,7 +19,7 @@ pub struct Args {
     /// models/yolox_nano.onnx beside the binary, then ../shared/models/yolox_nano_480x640.onnx.
     #[arg(long)]
     model: Option<PathBuf>,
-    /// TOML settings file whose [detect] table sets model, backend, threads, thresholds.
+    /// TOML settings file whose `[detect]` table sets model, backend, threads, thresholds.
     #[arg(long)]
     settings: Option<PathBuf>,
     /// Inference backend: tract (pure Rust) or ort (ONNX Runtime; needs ORT_DYLIB_PATH).
@@ -38,7 +38,7 @@ pub struct Args {
     #[arg(long)]
     json: bool,
     /// Draw the boxes into this PNG (with several images: one file per image, named
-    /// <stem>_<image stem>.png).
+    /// `<stem>_<image stem>.png`).
     #[arg(long)]
     draw: Option<PathBuf>,
 }

@@ -66,7 +66,7 @@ fn sorted_images(dir: &Path) -> Result<Vec<PathBuf>, DatasetError> {
 
 impl KittiSequence {
     /// Open `dir`. Camera from `settings`, else `settings*.toml` in `dir`, else `calib.txt`
-    /// (or the first `calib*.txt`): fx, fy, cx, cy from P0 (P2 for colour), bf = -P1[3]
+    /// (or the first `calib*.txt`): fx, fy, cx, cy from P0 (P2 for colour), bf = `-P1[3]`
     /// (P3 - P2 for colour) and the image size from the first image. Stamps from `times.txt`,
     /// else frame index / fps.
     pub fn open(dir: &Path, settings: Option<Settings>) -> Result<Self, DatasetError> {

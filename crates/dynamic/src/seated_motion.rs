@@ -3,7 +3,7 @@
 //! NHBC splits a seated person into a top and a bottom part, and a part holding one outlier
 //! (a hand) is dynamic as a whole: its still torso and legs are culled with it. On synth
 //! sitting_xyz that cull made the trajectory worse than no front-end at all. The two-view
-//! models of [`crate::keypoint_motion`] cannot tell which keypoints moved: the epipolar distance
+//! models of [`crate::keypoint_motion`](mod@crate::keypoint_motion) cannot tell which keypoints moved: the epipolar distance
 //! is blind along the epipolar line. With depth it is not: the camera's motion between the two
 //! frames comes from the static tracks (inliers of the geometry check outside every dynamic
 //! box, lifted with the depth of both frames; 3-point rigid fits, [`umeyama`], in an MSAC

@@ -18,7 +18,7 @@ pub fn retract(t: &Se3, delta: &Vector6<f64>) -> Se3 {
     out
 }
 
-/// d Pc / d δ for a left perturbation of the pose that maps a point to Pc: [-[Pc]x | I].
+/// d Pc / d δ for a left perturbation of the pose that maps a point to Pc: `[-[Pc]x | I]`.
 pub fn dpc_dpose(pc: &Vec3) -> Matrix3x6<f64> {
     let mut m = Matrix3x6::zeros();
     m.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-skew(pc)));

@@ -1,6 +1,6 @@
 //! Absolute trajectory error (evo_ape, translation part) and relative pose error (evo_rpe,
 //! translation and rotation parts), with evo 1.38's conventions:
-//! - association by nearest stamp ([`crate::associate`]), then Umeyama alignment of the estimate's
+//! - association by nearest stamp ([`crate::associate`](mod@crate::associate)), then Umeyama alignment of the estimate's
 //!   positions onto the ground truth's (`-a` SE(3), `-as` Sim(3));
 //! - ATE error i = |p_gt,i - p_est,i|;
 //! - RPE pair (i, j): E = (Q_i⁻¹ Q_j)⁻¹ (P_i⁻¹ P_j), Q ground truth, P estimate; pairs are
