@@ -231,3 +231,92 @@ fn refine_and_scale(
         .collect();
     Some((pose, kept))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Descriptor, Feature};
+    use nalgebra::Point3;
+    use rand::{Rng, SeedableRng};
+    use stillpoint_geometry::PinholeCamera;
+
+    /// The frame a camera at `pose_cw` sees of `points` (level-0 keypoints, their descriptors).
+    fn view(
+        index: usize,
+        pose_cw: &Se3,
+        points: &[Vec3],
+        descriptors: &[Descriptor],
+        s: &SlamSettings,
+    ) -> Frame {
+        let (mut feats, mut descs) = (Vec::new(), Vec::new());
+        for (p, d) in points.iter().zip(descriptors) {
+            let Some(uv) = s
+                .camera
+                .project(&(pose_cw * Point3::from(*p)).coords)
+                .filter(|uv| s.camera.in_image(uv, 1.0))
+            else {
+                continue;
+            };
+            feats.push(Feature {
+                x: uv.x as f32,
+                y: uv.y as f32,
+                octave: 0,
+                angle: 0.0,
+            });
+            descs.push(*d);
+        }
+        Frame::new(index, index as f64, &feats, &descs, None, s).unwrap()
+    }
+
+    #[test]
+    fn two_views_of_a_scene_make_an_initial_map_at_median_depth_one() {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let s = SlamSettings::monocular(cam, 30.0);
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+        let points: Vec<Vec3> = (0..400)
+            .map(|_| {
+                let z = rng.random_range(3.0..8.0);
+                Vec3::new(
+                    rng.random_range(-0.6..0.6) * z,
+                    rng.random_range(-0.45..0.45) * z,
+                    z,
+                )
+            })
+            .collect();
+        let descriptors: Vec<Descriptor> = (0..points.len())
+            .map(|_| std::array::from_fn(|_| rng.random()))
+            .collect();
+        let truth21 = Se3::new(Vec3::new(-0.35, 0.02, -0.05), Vec3::new(0.0, 0.04, 0.01));
+        let mut init = MonoInitializer::default();
+        // Too few keypoints: no reference.
+        let sparse = view(0, &Se3::identity(), &points[..50], &descriptors[..50], &s);
+        assert!(init.add_frame(&sparse, &s).is_none());
+        assert_eq!(init.reference_index(), None);
+        let first = view(1, &Se3::identity(), &points, &descriptors, &s);
+        assert!(init.add_frame(&first, &s).is_none());
+        assert_eq!(init.reference_index(), Some(1));
+        let second = view(2, &truth21, &points, &descriptors, &s);
+        let got = init.add_frame(&second, &s).expect("initialised");
+        assert_eq!(init.reference_index(), None);
+        assert!(got.points.len() > 300, "{} points", got.points.len());
+        let dir = got.pose21.translation.vector.normalize();
+        let angle = dir
+            .dot(&truth21.translation.vector.normalize())
+            .clamp(-1.0, 1.0)
+            .acos();
+        assert!(angle.to_degrees() < 1.0, "translation off by {angle} rad");
+        let mut depths: Vec<f64> = got.points.iter().map(|p| p.position.z).collect();
+        depths.sort_by(f64::total_cmp);
+        assert!((depths[(depths.len() - 1) / 2] - 1.0).abs() < 1e-9);
+        // Each point is the true one at the map's scale.
+        let scale = got.pose21.translation.vector.norm() / truth21.translation.vector.norm();
+        for p in &got.points {
+            let kp = first.points[p.reference_keypoint];
+            let truth = points
+                .iter()
+                .find(|x| cam.project(x).is_some_and(|uv| (uv - kp).norm() < 1e-3))
+                .expect("a scene point");
+            assert!((p.position - truth * scale).norm() < 1e-3 * scale * truth.z);
+        }
+    }
+}
