@@ -75,7 +75,7 @@ impl KeyFrame {
     }
 
     /// Median depth of the keyframe's map points in its camera (ORB-SLAM
-    /// `ComputeSceneMedianDepth(2)`); `None` without points in front of it.
+    /// `ComputeSceneMedianDepth(2)`); `None` without points (the median may be negative when most points are behind it).
     pub fn scene_median_depth(&self, points: &BTreeMap<MpId, MapPoint>) -> Option<f64> {
         let mut z: Vec<f64> = self
             .map_points

@@ -207,7 +207,7 @@ fn refine_and_scale(
         })
         .collect();
     let mut depths: Vec<f64> = kept.iter().map(|p| p.position.z).collect();
-    if kept.len() < s.mono_init.min_points_after_ba {
+    if kept.is_empty() || kept.len() < s.mono_init.min_points_after_ba {
         debug!(
             points = kept.len(),
             "too few points after bundle adjustment"

@@ -2,7 +2,7 @@
 //!
 //! RGB-D frames know the depth of their keypoints, so a minimal sample is 3 map point / camera
 //! point pairs aligned by Umeyama (rigid), scored by reprojection error of every correspondence
-//! (with or without depth). ORB-SLAM uses EPnP here; EPnP (for monocular) is left for later.
+//! (with or without depth). ORB-SLAM uses EPnP here.
 //!
 //! Monocular frames have no depth: [`ransac_pnp`] samples 4 correspondences for [`epnp`], as
 //! ORB-SLAM's `PnPsolver`. [`two_view`]: the relative motion of two views without depth

@@ -250,7 +250,7 @@ fn score_homography(h21: &Mat3, p1: &[Vec2], p2: &[Vec2], inv_sigma2: f64) -> (f
             for (from, to, m) in [(b, a, &h12), (a, b, h21)] {
                 let chi2 = transfer(m, from).map_or(f64::INFINITY, |q| (q - to).norm_squared())
                     * inv_sigma2;
-                if chi2 > TH {
+                if chi2.is_nan() || chi2 > TH {
                     inlier = false;
                 } else {
                     score += TH - chi2;
@@ -283,7 +283,7 @@ fn score_fundamental(f21: &Mat3, p1: &[Vec2], p2: &[Vec2], inv_sigma2: f64) -> (
                 } else {
                     f64::INFINITY
                 };
-                if chi2 > TH {
+                if chi2.is_nan() || chi2 > TH {
                     inlier = false;
                 } else {
                     score += TH_SCORE - chi2;
@@ -303,13 +303,19 @@ struct Checked {
 }
 
 fn se3_from(r: &Matrix3<f64>, t: &Vec3) -> Se3 {
-    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(r));
+    // Bounded iterations: `from_matrix` loops for ever on a NaN matrix.
+    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_eps(
+        r,
+        1e-12,
+        100,
+        Rotation3::identity(),
+    ));
     Se3::from_parts(Translation3::from(*t), rot)
 }
 
 /// Triangulate every inlier for the motion `pose21`; count those in front of both cameras,
 /// within `th2` squared pixels of both observations. Points seen with less than ~0.36 degree of
-/// parallax count but are not kept (ORB-SLAM's cos < 0.99998).
+/// parallax count (when in front of both cameras) but are not kept (ORB-SLAM's cos < 0.99998).
 fn check_motion(
     cam: &PinholeCamera,
     p1: &[Vec2],
@@ -340,6 +346,9 @@ fn check_motion(
         if (x.z <= 0.0 || x2.z <= 0.0) && cos < COS_TINY_PARALLAX {
             continue;
         }
+        // Unlike ORB-SLAM (which divides by a negative z), a tiny-parallax point behind a
+        // camera does not count: counted, such points score every motion hypothesis alike
+        // and the synthetic static sequence never initialised (measured).
         let reprojects = |pc: &Vec3, obs: &Vec2| {
             cam.project_undistorted(pc)
                 .is_some_and(|uv| (uv - obs).norm_squared() <= th2)
@@ -459,7 +468,8 @@ fn decompose_homography(h21: &Mat3, k: &Mat3) -> Vec<(Matrix3<f64>, Vec3)> {
         svd.singular_values[1],
         svd.singular_values[2],
     );
-    if d1 / d2 < 1.00001 || d2 / d3 < 1.00001 {
+    // Negated so that NaN ratios (d2 = d3 = 0) are rejected too.
+    if !(d1 / d2 >= 1.00001 && d2 / d3 >= 1.00001) {
         return Vec::new();
     }
     let (d1s, d2s, d3s) = (d1 * d1, d2 * d2, d3 * d3);
