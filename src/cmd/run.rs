@@ -1,12 +1,12 @@
-//! `stillpoint run`: RGB-D SLAM over a dataset, with the dynamic front-end (paper figure 2) on
-//! every frame unless `--no-dynamic`. The per-frame trajectory is written as it goes (TUM), the
+//! `stillpoint run`: SLAM over a dataset (RGB-D, stereo or monocular, as the dataset provides),
+//! with the dynamic front-end (paper figure 2) on every frame unless `--no-dynamic`. The per-frame trajectory is written as it goes (TUM), the
 //! keyframe trajectory at the end, then a timing table like the paper's table 6.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use stillpoint_datasets::{DatasetKind, GroundTruthFormat, Sequence};
+use stillpoint_datasets::{DatasetKind, GroundTruthFormat, Sensor, Sequence};
 use stillpoint_detect::{DetectSettings, GtDetectorParams};
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
@@ -158,6 +158,8 @@ struct FrameTimes {
 /// What a run produced.
 pub struct RunSummary {
     pub name: String,
+    /// What the SLAM ran on (monocular trajectories have an arbitrary scale).
+    pub sensor: Sensor,
     pub frames: usize,
     pub tracked: usize,
     pub keyframes: usize,
@@ -189,9 +191,14 @@ fn on_mask(mask: &Gray8, x: f64, y: f64) -> bool {
         .is_some_and(|v| v > 127)
 }
 
-/// SLAM settings from a dataset's settings (RGB-D; `bf` defaults to ORB-SLAM's TUM 40).
+/// SLAM settings from a dataset's settings: monocular for a monocular sequence, else RGB-D (also
+/// for stereo, whose depth comes per keypoint; `bf` defaults to ORB-SLAM's TUM 40).
 pub fn slam_settings(s: &stillpoint_datasets::Settings) -> SlamSettings {
-    let mut out = SlamSettings::rgbd(s.camera, s.bf.unwrap_or(40.0), s.fps);
+    let mut out = if s.sensor == Sensor::Mono {
+        SlamSettings::monocular(s.camera, s.fps)
+    } else {
+        SlamSettings::rgbd(s.camera, s.bf.unwrap_or(40.0), s.fps)
+    };
     out.th_depth = s.th_depth;
     out.scale_factor = s.orb.scale_factor as f64;
     out.n_levels = s.orb.n_levels.max(1);
@@ -253,6 +260,14 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         min_th_fast: ds.orb.min_th_fast,
     };
     let mut orb = OrbExtractor::new(orb_params.clone());
+    // Monocular initialisation matches level-0 keypoints only: more features until the map
+    // exists (ORB-SLAM3's initialisation extractor).
+    let mut orb_init = settings.monocular.then(|| {
+        OrbExtractor::new(OrbParams {
+            n_features: orb_params.n_features * settings.mono_init.feature_factor.max(1),
+            ..orb_params.clone()
+        })
+    });
     // Stereo: the right image gets its own extractor (its pyramid is kept for matching).
     let mut orb_right = OrbExtractor::new(orb_params);
     let (bf, fx) = (settings.bf, settings.camera.fx);
@@ -360,13 +375,17 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         }
         let mut t = FrameTimes::default();
         let t0 = Instant::now();
+        let left_orb = match orb_init.as_mut() {
+            Some(o) if sys.initialising() => o,
+            _ => &mut orb,
+        };
         // Left and right images in parallel, as ORB-SLAM does.
         let (feats, right_feats) = std::thread::scope(|sc| {
             let right = frame
                 .right
                 .as_ref()
                 .map(|r| sc.spawn(|| orb_right.extract(r)));
-            let left = orb.extract(&frame.gray);
+            let left = left_orb.extract(&frame.gray);
             (left, right.and_then(|h| h.join().ok()))
         });
         t.orb = t0.elapsed().as_secs_f64() * 1e3;
@@ -507,6 +526,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     timings.push(("local mapping (per keyframe)", sys.mapping_times_ms()));
     Ok(RunSummary {
         name: seq.name(),
+        sensor: ds.sensor,
         frames: n,
         tracked,
         keyframes: sys.keyframe_count(),
@@ -580,7 +600,18 @@ pub fn stats(v: &[f64]) -> (f64, f64, f64) {
     (mean, at(0.5), at(0.9))
 }
 
-/// ATE (SE3-aligned, as the paper) and translational RPE over 1 s, when there is ground truth.
+/// How a run's trajectory is aligned to the ground truth: SE(3), as the paper, or Sim(3) for a
+/// monocular run, whose scale is arbitrary (evo `-as`).
+pub fn alignment(s: &RunSummary) -> Alignment {
+    if s.sensor == Sensor::Mono {
+        Alignment::Sim3
+    } else {
+        Alignment::Se3
+    }
+}
+
+/// ATE and translational RPE over 1 s ([`alignment`]: SE(3), or Sim(3) for monocular), when there
+/// is ground truth.
 pub fn accuracy(
     s: &RunSummary,
 ) -> Option<(
@@ -592,7 +623,7 @@ pub fn accuracy(
         gt,
         &s.trajectory,
         &AteOptions {
-            align: Alignment::Se3,
+            align: alignment(s),
             ..Default::default()
         },
     )
@@ -602,6 +633,11 @@ pub fn accuracy(
         gt,
         &s.trajectory,
         &RpeOptions {
+            align: if s.sensor == Sensor::Mono {
+                Alignment::Sim3
+            } else {
+                Alignment::None
+            },
             delta: 1.0,
             delta_unit: stillpoint_trajectory::DeltaUnit::Seconds,
             ..Default::default()
@@ -628,6 +664,7 @@ pub fn summary_json(s: &RunSummary) -> serde_json::Value {
     let (cm, cmed, cp90) = s.culled_stats();
     serde_json::json!({
         "sequence": s.name,
+        "sensor": s.sensor,
         "detector": s.detector,
         "frames": s.frames,
         "tracked": s.tracked,
@@ -638,6 +675,7 @@ pub fn summary_json(s: &RunSummary) -> serde_json::Value {
         "new_maps": s.new_maps,
         "culled_per_frame": {"mean": cm, "median": cmed, "p90": cp90},
         "ate": acc.as_ref().map(|(a, _)| serde_json::json!({
+            "align": alignment(s), "scale": a.alignment.scale,
             "rmse": a.stats.rmse, "mean": a.stats.mean, "median": a.stats.median,
             "std": a.stats.std, "max": a.stats.max, "pairs": a.stats.count})),
         "rpe_1s": acc.as_ref().and_then(|(_, r)| r.as_ref()).map(|r| serde_json::json!({
@@ -667,8 +705,15 @@ pub fn print_summary(s: &RunSummary) {
     );
     if let Some((a, r)) = accuracy(s) {
         print!(
-            "ATE RMSE {:.4} m (S.D. {:.4}, {} pairs)",
-            a.stats.rmse, a.stats.std, a.stats.count
+            "ATE RMSE {:.4} m (S.D. {:.4}, {} pairs{})",
+            a.stats.rmse,
+            a.stats.std,
+            a.stats.count,
+            if alignment(s) == Alignment::Sim3 {
+                format!(", Sim(3)-aligned, scale {:.3}", a.alignment.scale)
+            } else {
+                String::new()
+            }
         );
         if let Some(r) = r {
             print!(

@@ -8,6 +8,14 @@ use stillpoint_geometry::PinholeCamera;
 pub struct SlamSettings {
     /// Camera of the (left / RGB) image, distortion included.
     pub camera: PinholeCamera,
+    /// Monocular: no keypoint has depth; the map starts from two views
+    /// ([`crate::module::initializer`]) at an arbitrary scale, and tracking and mapping use
+    /// ORB-SLAM3's monocular rules. [`SlamSettings::monocular`] sets the thresholds that go with it.
+    #[serde(default)]
+    pub monocular: bool,
+    /// Monocular initialisation.
+    #[serde(default)]
+    pub mono_init: MonoInitSettings,
     /// Baseline x fx in pixel-metres (`Camera.bf`): RGB-D uses it for the virtual right coordinate
     /// u_r = u - bf / z. ORB-SLAM TUM files use 40.
     pub bf: f64,
@@ -32,7 +40,8 @@ pub struct SlamSettings {
     pub motion_search_radius: f64,
     /// Fewer matches than this with the motion model doubles the radius (ORB-SLAM3: 20).
     pub motion_min_matches: usize,
-    /// Local-map projection search window factor (ORB-SLAM3 `SearchLocalPoints`, RGB-D: 3).
+    /// Local-map projection search window factor (ORB-SLAM3 `SearchLocalPoints`, RGB-D: 3,
+    /// monocular: 1).
     pub local_map_search_th: f64,
     /// Nearest / second ratio in local-map search (ORB-SLAM3 `ORBmatcher(0.8)`).
     pub local_map_ratio: f32,
@@ -49,7 +58,8 @@ pub struct SlamSettings {
     /// Pose optimisation rounds x iterations (ORB-SLAM3: 4 x 10).
     pub pose_rounds: usize,
     pub pose_iterations: usize,
-    /// Keyframe ratio threshold vs the reference keyframe's tracked points (ORB-SLAM3 RGB-D: 0.75).
+    /// Keyframe ratio threshold vs the reference keyframe's tracked points (ORB-SLAM3 RGB-D: 0.75,
+    /// monocular: 0.9).
     pub kf_ref_ratio: f64,
     /// Close points tracked below this and ...
     pub kf_close_tracked_max: usize,
@@ -83,9 +93,12 @@ pub struct SlamSettings {
     pub kf_new_points_min: usize,
     /// Covisibility edge weight: shared points needed for an edge (ORB-SLAM3: 15).
     pub covisibility_min_shared: usize,
-    /// Neighbours taken into the local map / local BA (ORB-SLAM3 tracking: 10 per keyframe; local
-    /// mapping fuses with 10 for stereo/RGB-D).
+    /// Neighbours taken into the local map (ORB-SLAM3 tracking: 10 per keyframe).
     pub local_neighbours: usize,
+    /// Covisible keyframes local mapping triangulates and fuses with (ORB-SLAM3
+    /// `CreateNewMapPoints`, `SearchInNeighbors`: 10 stereo/RGB-D, 30 monocular).
+    #[serde(default = "default_mapping_neighbours")]
+    pub mapping_neighbours: usize,
     /// Local BA optimises the new keyframe and at most this many - 1 of its best covisible
     /// keyframes (ours; ORB-SLAM takes them all).
     pub local_ba_max_keyframes: usize,
@@ -113,11 +126,84 @@ pub struct SlamSettings {
     pub reloc_candidates: usize,
 }
 
+fn default_mapping_neighbours() -> usize {
+    10
+}
+
+/// Monocular initialisation (ORB-SLAM `Tracking::MonocularInitialization` and `Initializer` /
+/// ORB-SLAM3 `TwoViewReconstruction`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default)]
+pub struct MonoInitSettings {
+    /// A reference frame needs more keypoints than this, and so does the frame matched to it
+    /// (ORB-SLAM: 100).
+    pub min_keypoints: usize,
+    /// Half-size of the square window around a keypoint's last matched position in which it is
+    /// searched (ORB-SLAM `SearchForInitialization(..., 100)`).
+    pub window_px: f64,
+    /// Nearest / second Hamming ratio (ORB-SLAM `ORBmatcher(0.9, true)`).
+    pub ratio: f32,
+    /// Fewer matches than this drop the reference frame (ORB-SLAM: 100).
+    pub min_matches: usize,
+    /// RANSAC iterations of 8 points for H and F (ORB-SLAM: 200).
+    pub ransac_iterations: usize,
+    /// Parallax needed, degrees (ORB-SLAM: 1).
+    pub min_parallax_deg: f64,
+    /// Triangulated points needed (ORB-SLAM: 50).
+    pub min_triangulated: usize,
+    /// The homography is chosen when S_H / (S_H + S_F) is above this. ORB-SLAM2 0.40, ORB-SLAM3
+    /// 0.50. 0.40: when the scene is a plane both models explain it and the share is near 0.5,
+    /// and the fundamental matrix of a plane is degenerate, so ties go to the homography; a
+    /// scene with depth gives shares far below either value (measured in the two-view tests).
+    pub homography_ratio: f64,
+    /// Points the initial map must keep after bundle adjustment (ORB-SLAM2: 100; ORB-SLAM3: 50).
+    pub min_points_after_ba: usize,
+    /// Features the extractor should deliver while initialising, as a multiple of the usual
+    /// count (ORB-SLAM3 `mpIniORBextractor`: 5): initialisation matches level-0 keypoints only.
+    /// Read by the caller that extracts features ([`crate::System::initialising`]).
+    pub feature_factor: usize,
+}
+
+impl Default for MonoInitSettings {
+    fn default() -> Self {
+        Self {
+            min_keypoints: 100,
+            window_px: 100.0,
+            ratio: 0.9,
+            min_matches: 100,
+            ransac_iterations: 200,
+            min_parallax_deg: 1.0,
+            min_triangulated: 50,
+            homography_ratio: 0.4,
+            min_points_after_ba: 100,
+            feature_factor: 5,
+        }
+    }
+}
+
 impl SlamSettings {
+    /// Monocular settings with ORB-SLAM3's monocular values where they differ from RGB-D:
+    /// motion-model radius 15 px, local-map search window 1, keyframe ratio 0.9 (no close-point
+    /// rule), points culled with fewer than 2 observations, triangulation and fusion with 30
+    /// neighbours. `bf` only scales the unused virtual right coordinate; 40 as for RGB-D.
+    pub fn monocular(camera: PinholeCamera, fps: f64) -> Self {
+        Self {
+            monocular: true,
+            motion_search_radius: 15.0,
+            local_map_search_th: 1.0,
+            kf_ref_ratio: 0.9,
+            point_min_observations: 2,
+            mapping_neighbours: 30,
+            ..Self::rgbd(camera, 40.0, fps)
+        }
+    }
+
     /// RGB-D settings with ORB-SLAM3's defaults for a camera, `bf` and frame rate.
     pub fn rgbd(camera: PinholeCamera, bf: f64, fps: f64) -> Self {
         Self {
             camera,
+            monocular: false,
+            mono_init: MonoInitSettings::default(),
             bf,
             th_depth: 40.0,
             fps,
@@ -147,6 +233,7 @@ impl SlamSettings {
             kf_new_points_min: 100,
             covisibility_min_shared: 15,
             local_neighbours: 10,
+            mapping_neighbours: default_mapping_neighbours(),
             triangulate_new_points: true,
             local_ba_max_keyframes: 20,
             point_found_ratio: 0.25,

@@ -34,7 +34,8 @@ enum Mapping {
     Thread(MapperThread),
 }
 
-/// The SLAM system for RGB-D input.
+/// The SLAM system: RGB-D, stereo (depth per keypoint) or monocular input (see
+/// [`SlamSettings::monocular`]).
 pub struct System {
     pub settings: SlamSettings,
     map: Arc<Mutex<Map>>,
@@ -86,6 +87,33 @@ impl System {
         self.track_rgbd_masked(index, timestamp, features, descriptors, depth, &[])
     }
 
+    /// Track one monocular frame (settings from [`SlamSettings::monocular`]); `no_new_points` as
+    /// for [`System::track_rgbd_masked`].
+    pub fn track_monocular(
+        &mut self,
+        index: usize,
+        timestamp: f64,
+        features: &[Feature],
+        descriptors: &[Descriptor],
+        no_new_points: &[bool],
+    ) -> Result<FrameReport, SlamError> {
+        self.track_rgbd_masked(
+            index,
+            timestamp,
+            features,
+            descriptors,
+            KeypointDepth::None,
+            no_new_points,
+        )
+    }
+
+    /// Monocular and not initialised yet: the caller should extract
+    /// `settings.mono_init.feature_factor` times the usual features (ORB-SLAM3 initialises with
+    /// 5x: initialisation matches level-0 keypoints only).
+    pub fn initialising(&self) -> bool {
+        self.settings.monocular && self.tracker.state == TrackingState::NotInitialized
+    }
+
     /// [`System::track_rgbd`] with keypoints that may be tracked but must not create map points
     /// (`no_new_points`, same length as `features`, or empty): the front-end's keypoints inside a
     /// moving object's box that a static box protects (paper algorithm 3 keeps them). `depth` is
@@ -132,6 +160,9 @@ impl System {
             self.tracker.track(frame, &mut map, idle, queued)
         };
         let tracking_ms = t0.elapsed().as_secs_f64() * 1e3;
+        if let Some(kf) = outcome.first_keyframe {
+            self.insert_keyframe(kf)?;
+        }
         if let Some(kf) = outcome.new_keyframe {
             self.insert_keyframe(kf)?;
         }

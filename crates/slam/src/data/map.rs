@@ -74,6 +74,24 @@ impl KeyFrame {
         })
     }
 
+    /// Median depth of the keyframe's map points in its camera (ORB-SLAM
+    /// `ComputeSceneMedianDepth(2)`); `None` without points (the median may be negative when most points are behind it).
+    pub fn scene_median_depth(&self, points: &BTreeMap<MpId, MapPoint>) -> Option<f64> {
+        let mut z: Vec<f64> = self
+            .map_points
+            .iter()
+            .flatten()
+            .filter_map(|mp| points.get(mp))
+            .map(|p| (self.pose_cw * nalgebra::Point3::from(p.position)).z)
+            .filter(|z| z.is_finite())
+            .collect();
+        if z.is_empty() {
+            return None;
+        }
+        z.sort_by(f64::total_cmp);
+        Some(z[(z.len() - 1) / 2])
+    }
+
     /// Best covisible keyframes, highest weight first.
     pub fn best_covisibles(&self, n: usize) -> Vec<KfId> {
         let mut v: Vec<(usize, KfId)> = self.connections.iter().map(|(&k, &w)| (w, k)).collect();

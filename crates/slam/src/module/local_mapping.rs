@@ -102,12 +102,14 @@ impl LocalMapper {
         self.recent_points = keep;
     }
 
-    /// ORB-SLAM3 `CreateNewMapPoints` (stereo / RGB-D): keypoints of the new keyframe and of its
-    /// best covisible keyframes that observe no map point are matched by descriptor (Hamming <=
-    /// `th_low`, near the epipolar line, rotation-consistent) and triangulated, or lifted with
-    /// the depth of the view whose depth gives more parallax; kept when in front of both
-    /// cameras, within the chi-square of both observations and at consistent scales. This is
-    /// how keypoints without depth (beyond the sensor, or on a depth hole) enter the map.
+    /// ORB-SLAM3 `CreateNewMapPoints`: keypoints of the new keyframe and of its best covisible
+    /// keyframes that observe no map point are matched by descriptor (Hamming <= `th_low`, near
+    /// the epipolar line, rotation-consistent) and triangulated, or lifted with the depth of the
+    /// view whose depth gives more parallax; kept when in front of both cameras, within the
+    /// chi-square of both observations and at consistent scales. This is how keypoints without
+    /// depth (beyond the sensor, or on a depth hole) enter the map, and, monocular, every point
+    /// after initialisation. Monocular also skips neighbours too close for their scene depth
+    /// (baseline < 1 % of their median depth) and keypoints near the epipole, as ORB-SLAM3.
     /// Keypoints the front-end flagged `no_new_point` never found a point here either.
     fn create_new_points(&mut self, m: &mut Map, kf: KfId) {
         let s = &self.s;
@@ -122,7 +124,7 @@ impl LocalMapper {
         };
         let free1: Vec<usize> = (0..k1.points.len()).filter(|&i| free(k1, i)).collect();
         let (pose1, center1) = (k1.pose_cw, k1.camera_center());
-        let neighbours = k1.best_covisibles(s.local_neighbours);
+        let neighbours = k1.best_covisibles(s.mapping_neighbours);
         let mut created = Vec::new();
         for kf2 in neighbours {
             let (Some(k1), Some(k2)) = (m.keyframes.get(&kf), m.keyframes.get(&kf2)) else {
@@ -132,7 +134,12 @@ impl LocalMapper {
                 continue;
             }
             let center2 = k2.camera_center();
-            if (center2 - center1).norm() < baseline {
+            if s.monocular {
+                let depth2 = k2.scene_median_depth(&m.points).unwrap_or(0.0);
+                if !(depth2 > 0.0 && (center2 - center1).norm() / depth2 >= 0.01) {
+                    continue;
+                }
+            } else if (center2 - center1).norm() < baseline {
                 continue;
             }
             let pose2 = k2.pose_cw;
@@ -151,6 +158,29 @@ impl LocalMapper {
                 .try_inverse()
                 .unwrap_or_else(stillpoint_geometry::Mat3::identity);
             let f21 = kinv.transpose() * stillpoint_geometry::skew(&t21) * r21 * kinv;
+            // Monocular: where the first camera's centre appears in the second image; matches
+            // near it have no parallax whatever their depth.
+            let epipole2 = {
+                let c = (pose2 * nalgebra::Point3::from(center1)).coords;
+                (s.monocular && c.z.abs() > 1e-12).then(|| {
+                    stillpoint_geometry::Vec2::new(
+                        cam.fx * c.x / c.z + cam.cx,
+                        cam.fy * c.y / c.z + cam.cy,
+                    )
+                })
+            };
+            // The free keypoints of the neighbour as columns, so that the epipolar test, which
+            // rejects all but a few, runs as a tight loop before any descriptor is compared
+            // (monocular keyframes have ~all keypoints free: 30 neighbours x 2000 x 2000 pairs).
+            let xs: Vec<f64> = free2.iter().map(|&j| k2.points[j].x).collect();
+            let ys: Vec<f64> = free2.iter().map(|&j| k2.points[j].y).collect();
+            let band: Vec<f64> = free2
+                .iter()
+                .map(|&j| 3.84 * (1.0 / self.inv_sigma2[k2.octaves[j] as usize]))
+                .collect();
+            // A test without the division that lets through a superset of the exact one.
+            let loose: Vec<f64> = band.iter().map(|b| b * (1.0 + 1e-9)).collect();
+            let mut near_line: Vec<usize> = Vec::new();
             let mut matches: Vec<(usize, usize, f32)> = Vec::new();
             for &i in &free1 {
                 let p1 = k1.points[i];
@@ -159,16 +189,26 @@ impl LocalMapper {
                 if norm2 <= 0.0 {
                     continue;
                 }
+                near_line.clear();
+                for (n, ((x, y), l)) in xs.iter().zip(&ys).zip(&loose).enumerate() {
+                    let dist = line.x * x + line.y * y + line.z;
+                    if dist * dist < l * norm2 && dist * dist / norm2 < band[n] {
+                        near_line.push(n);
+                    }
+                }
                 let mut best = (u32::MAX, usize::MAX);
-                for &j in &free2 {
-                    let d = hamming(&k1.descriptors[i], &k2.descriptors[j]);
-                    if d > s.th_low || d >= best.0 {
+                for &n in &near_line {
+                    let j = free2[n];
+                    if let Some(ep) = epipole2
+                        && k1.depth[i] <= 0.0
+                        && k2.depth[j] <= 0.0
+                        && (ep - k2.points[j]).norm_squared()
+                            < 100.0 * self.scales[k2.octaves[j] as usize]
+                    {
                         continue;
                     }
-                    let p2 = k2.points[j];
-                    let dist = line.x * p2.x + line.y * p2.y + line.z;
-                    let sigma2 = 1.0 / self.inv_sigma2[k2.octaves[j] as usize];
-                    if dist * dist / norm2 < 3.84 * sigma2 {
+                    let d = hamming(&k1.descriptors[i], &k2.descriptors[j]);
+                    if d <= s.th_low && d < best.0 {
                         best = (d, j);
                     }
                 }
@@ -289,7 +329,7 @@ impl LocalMapper {
     /// ORB-SLAM3 `SearchInNeighbors`: fuse the keyframe's points into its neighbours and theirs
     /// into it, merging duplicates.
     fn fuse_with_neighbours(&mut self, m: &mut Map, kf: KfId) {
-        let n = self.s.local_neighbours;
+        let n = self.s.mapping_neighbours;
         let mut targets: BTreeSet<KfId> = BTreeSet::new();
         for k in m.keyframes[&kf].best_covisibles(n) {
             targets.insert(k);
@@ -520,8 +560,8 @@ impl LocalMapper {
         }
     }
 
-    /// ORB-SLAM3 `KeyFrameCulling`: drop covisible keyframes whose close points are 90 % seen by
-    /// at least 3 other keyframes at the same or finer scale.
+    /// ORB-SLAM3 `KeyFrameCulling`: drop covisible keyframes whose close points (monocular: all
+    /// points) are 90 % seen by at least 3 other keyframes at the same or finer scale.
     fn cull_keyframes(&mut self, m: &mut Map, kf: KfId) {
         let Some(k) = m.keyframes.get(&kf) else {
             return;
@@ -545,7 +585,8 @@ impl LocalMapper {
                     continue;
                 };
                 let z = ck.depth[i];
-                if !(z > 0.0 && z < close) {
+                let counted = self.s.monocular || (z > 0.0 && z < close);
+                if !counted {
                     continue;
                 }
                 n_mps += 1;

@@ -1,6 +1,8 @@
-//! The running parts: tracking (per frame), local mapping (per keyframe, own thread) and the
-//! hook through which the dynamic front-end removes keypoints before tracking sees them.
+//! The running parts: tracking (per frame), monocular initialisation, local mapping (per
+//! keyframe, own thread) and the hook through which the dynamic front-end removes keypoints
+//! before tracking sees them.
 
 pub mod frontend;
+pub mod initializer;
 pub mod local_mapping;
 pub mod tracking;

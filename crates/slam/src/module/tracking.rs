@@ -1,6 +1,6 @@
-//! Tracking (ORB-SLAM3 `Tracking` for RGB-D): initialisation from depth, constant-velocity motion
-//! model, reference-keyframe fallback, local-map tracking, keyframe decision, relocalisation and
-//! a new map when relocalisation keeps failing.
+//! Tracking (ORB-SLAM3 `Tracking`): initialisation from depth (RGB-D, stereo) or from two views
+//! (monocular), constant-velocity motion model, reference-keyframe fallback, local-map tracking,
+//! keyframe decision, relocalisation and a new map when relocalisation keeps failing.
 
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -13,14 +13,16 @@ use crate::matching::{
     project_in_frustum, search_by_descriptors, search_by_projection_last,
     search_by_projection_local,
 };
+use crate::module::initializer::MonoInitializer;
 use crate::optimize::{PoseObservation, optimize_pose};
-use crate::solve::{Correspondence, RansacParams, ransac_pose};
+use crate::solve::{Correspondence, RansacParams, ransac_pnp, ransac_pose};
 
 /// Where tracking stands after a frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum TrackingState {
-    /// Waiting for a frame with enough keypoints with depth.
+    /// Waiting for a frame with enough keypoints with depth (monocular: for two views that
+    /// reconstruct).
     NotInitialized,
     Ok,
     /// The last frame(s) could not be tracked; relocalising.
@@ -34,6 +36,9 @@ pub struct TrackOutcome {
     pub pose_wc: Option<Se3>,
     pub inliers: usize,
     pub new_keyframe: Option<KfId>,
+    /// Monocular initialisation makes the reference frame a keyframe too; local mapping takes it
+    /// before `new_keyframe`.
+    pub first_keyframe: Option<KfId>,
     pub initialised: bool,
     pub relocalised: bool,
     pub new_map: bool,
@@ -53,6 +58,9 @@ pub struct Tracker {
     last_good_pose: Option<Se3>,
     lost_frames: usize,
     inv_sigma2: Vec<f64>,
+    mono_init: MonoInitializer,
+    /// Monocular: relocalisation kept failing and the next initialisation starts a new map.
+    new_map_pending: bool,
 }
 
 impl Tracker {
@@ -69,6 +77,8 @@ impl Tracker {
             last_good_pose: None,
             lost_frames: 0,
             inv_sigma2,
+            mono_init: MonoInitializer::default(),
+            new_map_pending: false,
         }
     }
 
@@ -83,6 +93,20 @@ impl Tracker {
     ) -> TrackOutcome {
         let mut out = TrackOutcome::default();
         let ok = match self.state {
+            TrackingState::NotInitialized if self.s.monocular => {
+                let origin = self.last_good_pose.unwrap_or_else(Se3::identity);
+                if let Some((first, kf)) = self.initialise_monocular(&mut frame, map, origin) {
+                    out.initialised = true;
+                    out.new_map = std::mem::take(&mut self.new_map_pending);
+                    out.first_keyframe = Some(first);
+                    out.new_keyframe = Some(kf);
+                    out.pose_wc = frame.pose_cw.map(|p| p.inverse());
+                    out.inliers = frame.map_points.iter().flatten().count();
+                    self.finish_frame(frame, true);
+                    return out;
+                }
+                false
+            }
             TrackingState::NotInitialized => {
                 let origin = self.last_good_pose.unwrap_or_else(Se3::identity);
                 if let Some(kf) = self.initialise(&mut frame, map, origin) {
@@ -146,7 +170,17 @@ impl Tracker {
             self.state = TrackingState::Lost;
             self.velocity = None;
             self.lost_frames += 1;
-            if self.lost_frames > self.s.new_map_after_lost_frames {
+            if self.s.monocular && self.lost_frames > self.s.new_map_after_lost_frames {
+                // Relocalisation kept failing: initialise again from two views, into a new map
+                // (at its own scale).
+                warn!(
+                    frame = frame.index,
+                    "monocular tracking lost for good: initialising a new map"
+                );
+                self.state = TrackingState::NotInitialized;
+                self.new_map_pending = true;
+                self.mono_init.reset();
+            } else if self.lost_frames > self.s.new_map_after_lost_frames {
                 let origin = self.last_good_pose.unwrap_or_else(Se3::identity);
                 frame.map_points.iter_mut().for_each(|m| *m = None);
                 if self.can_initialise(&frame) {
@@ -226,6 +260,58 @@ impl Tracker {
         self.velocity = None;
         self.lost_frames = 0;
         Some(kf)
+    }
+
+    /// Monocular initialisation: the frame goes to the two-view initialiser; once it reconstructs,
+    /// the reference frame and this one become the first two keyframes of a map (a new one when
+    /// the current map has keyframes) at `origin_cw`, and the triangulated points its points.
+    /// Returns (reference keyframe, current keyframe).
+    fn initialise_monocular(
+        &mut self,
+        frame: &mut Frame,
+        map: &mut Map,
+        origin_cw: Se3,
+    ) -> Option<(KfId, KfId)> {
+        let init = self.mono_init.add_frame(frame, &self.s)?;
+        if map.current_keyframes().next().is_some() {
+            map.start_new_map();
+        }
+        let mut reference = init.reference;
+        for f in [&mut reference, &mut *frame] {
+            f.map_points.iter_mut().for_each(|m| *m = None);
+            f.outliers.iter_mut().for_each(|o| *o = false);
+        }
+        reference.pose_cw = Some(origin_cw);
+        frame.pose_cw = Some(init.pose21 * origin_cw);
+        let first = map.add_keyframe(&reference)?;
+        let kf = map.add_keyframe(frame)?;
+        let origin_wc = origin_cw.inverse();
+        let scales = self.s.scale_factors();
+        for p in &init.points {
+            let world = (origin_wc * nalgebra::Point3::from(p.position)).coords;
+            if let Some(mp) = map.add_point(world, kf, p.keypoint) {
+                map.add_observation(mp, first, p.reference_keypoint);
+                map.update_point(mp, &scales);
+                frame.map_points[p.keypoint] = Some(mp);
+            }
+        }
+        map.update_connections(first, self.s.covisibility_min_shared);
+        map.update_connections(kf, self.s.covisibility_min_shared);
+        info!(
+            frame = frame.index,
+            reference = reference.index,
+            model = ?init.model,
+            parallax_deg = init.parallax_deg,
+            points = init.points.len(),
+            epoch = map.epoch,
+            "monocular map initialised"
+        );
+        self.state = TrackingState::Ok;
+        self.reference_kf = Some(kf);
+        self.last_kf_frame = frame.index;
+        self.velocity = None;
+        self.lost_frames = 0;
+        Some((first, kf))
     }
 
     /// Pose optimisation over the frame's matches; marks outliers, returns the inlier count.
@@ -474,7 +560,7 @@ impl Tracker {
         inliers >= self.s.min_tracked_inliers
     }
 
-    /// ORB-SLAM3 `NeedNewKeyFrame` for RGB-D (close-points rule included).
+    /// ORB-SLAM3 `NeedNewKeyFrame` (RGB-D: close-points rule included).
     fn need_new_keyframe(
         &mut self,
         frame: &Frame,
@@ -525,11 +611,15 @@ impl Tracker {
         let c1a = frame.index >= self.last_kf_frame + max_frames;
         let c1b = mapper_idle;
         let weak = inliers < self.s.kf_weak_tracking_inliers;
-        let c1c = (inliers as f64) < ref_matches as f64 * 0.25 || need_close || weak;
+        // Monocular: no close points, and ORB-SLAM3 has no c1c (ours, `weak`, stays).
+        let c1c = (!self.s.monocular
+            && ((inliers as f64) < ref_matches as f64 * 0.25 || need_close))
+            || weak;
         let c2 =
             ((inliers as f64) < ref_matches as f64 * th_ref || need_close || weak) && inliers > 15;
         if (c1a || c1b || c1c) && c2 {
-            mapper_idle || mapper_queue < 3
+            // A busy mapper refuses monocular keyframes (ORB-SLAM3).
+            mapper_idle || (!self.s.monocular && mapper_queue < 3)
         } else {
             false
         }
@@ -576,9 +666,10 @@ impl Tracker {
     }
 
     /// Match against candidate keyframes (nearest to the last known pose, then newest), robust
-    /// pose by RANSAC, then pose optimisation; needs `reloc_min_inliers`.
+    /// pose by RANSAC (3D-3D with depth, EPnP monocular), then pose optimisation; needs
+    /// `reloc_min_inliers`.
     fn relocalise(&mut self, frame: &mut Frame, map: &Map) -> bool {
-        if frame.with_depth() < 3 {
+        if !self.s.monocular && frame.with_depth() < 3 {
             return false;
         }
         let last_center = self.last_good_pose.map(|p| p.inverse().translation.vector);
@@ -614,8 +705,12 @@ impl Tracker {
                     inv_sigma2: self.inv_sigma2[frame.octaves[i] as usize],
                 });
             }
-            let Some((pose, flags)) = ransac_pose(&corr, &self.s.camera, &RansacParams::default())
-            else {
+            let solved = if self.s.monocular {
+                ransac_pnp(&corr, &self.s.camera, &RansacParams::default())
+            } else {
+                ransac_pose(&corr, &self.s.camera, &RansacParams::default())
+            };
+            let Some((pose, flags)) = solved else {
                 continue;
             };
             if flags.iter().filter(|&&f| f).count() < 10 {

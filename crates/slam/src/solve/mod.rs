@@ -2,7 +2,14 @@
 //!
 //! RGB-D frames know the depth of their keypoints, so a minimal sample is 3 map point / camera
 //! point pairs aligned by Umeyama (rigid), scored by reprojection error of every correspondence
-//! (with or without depth). ORB-SLAM uses EPnP here; EPnP (for monocular) is left for later.
+//! (with or without depth). ORB-SLAM uses EPnP here.
+//!
+//! Monocular frames have no depth: [`ransac_pnp`] samples 4 correspondences for [`epnp`], as
+//! ORB-SLAM's `PnPsolver`. [`two_view`]: the relative motion of two views without depth
+//! (monocular initialisation).
+
+pub mod epnp;
+pub mod two_view;
 
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3, umeyama};
 
@@ -109,6 +116,54 @@ pub fn ransac_pose(
     }
 }
 
+/// World-to-camera pose from 2D-3D correspondences alone (no depth): RANSAC over 4-point
+/// [`epnp::epnp`] samples, the best refit by EPnP on its inliers. `None` with fewer than 4
+/// correspondences or no hypothesis with at least 4 inliers.
+pub fn ransac_pnp(
+    c: &[Correspondence],
+    cam: &PinholeCamera,
+    p: &RansacParams,
+) -> Option<(Se3, Vec<bool>)> {
+    if c.len() < 4 {
+        return None;
+    }
+    let norm = |k: &Correspondence| {
+        stillpoint_geometry::Vec2::new((k.u - cam.cx) / cam.fx, (k.v - cam.cy) / cam.fy)
+    };
+    let mut rng = Rng(p.seed | 1);
+    let mut best: Option<(usize, Se3, Vec<bool>)> = None;
+    for _ in 0..p.iterations {
+        let s: [usize; 4] = std::array::from_fn(|_| rng.below(c.len()));
+        if (0..4).any(|a| (a + 1..4).any(|b| s[a] == s[b])) {
+            continue;
+        }
+        let world: Vec<Vec3> = s.iter().map(|&i| c[i].world).collect();
+        let image: Vec<_> = s.iter().map(|&i| norm(&c[i])).collect();
+        let Some(pose) = epnp::epnp(&world, &image) else {
+            continue;
+        };
+        let flags = inliers(&pose, c, cam, p.chi2);
+        let n = flags.iter().filter(|&&f| f).count();
+        if n >= 4 && best.as_ref().is_none_or(|b| n > b.0) {
+            best = Some((n, pose, flags));
+            if n >= p.enough_inliers {
+                break;
+            }
+        }
+    }
+    let (n, pose, flags) = best?;
+    let idx: Vec<usize> = (0..c.len()).filter(|&i| flags[i]).collect();
+    let world: Vec<Vec3> = idx.iter().map(|&i| c[i].world).collect();
+    let image: Vec<_> = idx.iter().map(|&i| norm(&c[i])).collect();
+    if let Some(refined) = epnp::epnp(&world, &image) {
+        let f2 = inliers(&refined, c, cam, p.chi2);
+        if f2.iter().filter(|&&f| f).count() >= n {
+            return Some((refined, f2));
+        }
+    }
+    Some((pose, flags))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -145,6 +200,16 @@ mod tests {
         assert!(e.translation.vector.norm() < 1e-6 && e.rotation.angle() < 1e-6);
         assert!(flags.iter().enumerate().all(|(i, &f)| f == (i % 3 != 0)));
         assert!(ransac_pose(&c[..2], &cam, &RansacParams::default()).is_none());
+        // Without depth (monocular): EPnP samples find the same pose.
+        let mono: Vec<Correspondence> = c
+            .iter()
+            .map(|k| Correspondence { camera: None, ..*k })
+            .collect();
+        let (pose, flags) = ransac_pnp(&mono, &cam, &RansacParams::default()).unwrap();
+        let e = truth.inverse() * pose;
+        assert!(e.translation.vector.norm() < 1e-6 && e.rotation.angle() < 1e-6);
+        assert!(flags.iter().enumerate().all(|(i, &f)| f == (i % 3 != 0)));
+        assert!(ransac_pnp(&mono[..3], &cam, &RansacParams::default()).is_none());
     }
 }
 

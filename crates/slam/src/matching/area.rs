@@ -1,0 +1,69 @@
+//! Matching in a window around where a keypoint was last seen, for monocular initialisation
+//! (ORB-SLAM `ORBmatcher::SearchForInitialization`, stella_vslam `match::area`).
+
+use stillpoint_geometry::Vec2;
+
+use super::rotation_outliers;
+use crate::data::Frame;
+use crate::hamming;
+
+/// Match the level-0 keypoints of `reference` to those of `cur` found within a square window of
+/// half-size `window` around `prev_matched[i]` (where keypoint i was last matched; its own
+/// position at first): Hamming <= `th_low`, nearest < `ratio` x second, one keypoint of `cur` per
+/// match (the closer descriptor wins), rotation-consistent. `prev_matched` is updated to the new
+/// positions. Returns, per reference keypoint, the matched keypoint of `cur`.
+pub fn search_for_initialisation(
+    reference: &Frame,
+    cur: &Frame,
+    prev_matched: &mut [Vec2],
+    window: f64,
+    ratio: f32,
+    th_low: u32,
+) -> Vec<Option<usize>> {
+    let mut matches12: Vec<Option<usize>> = vec![None; reference.len()];
+    let mut matches21: Vec<Option<usize>> = vec![None; cur.len()];
+    let mut distance21 = vec![u32::MAX; cur.len()];
+    for i1 in 0..reference.len().min(prev_matched.len()) {
+        // Initialisation matches the finest level only: its positions are the most precise.
+        if reference.octaves[i1] > 0 {
+            continue;
+        }
+        let at = prev_matched[i1];
+        let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
+        for i2 in cur.features_in_area(at.x, at.y, window, 0, 0) {
+            let d = hamming(&reference.descriptors[i1], &cur.descriptors[i2]);
+            if distance21[i2] <= d {
+                continue;
+            }
+            if d < best.0 {
+                second = best.0;
+                best = (d, i2);
+            } else if d < second {
+                second = d;
+            }
+        }
+        if best.0 <= th_low && (best.0 as f32) < ratio * second as f32 {
+            let i2 = best.1;
+            if let Some(old) = matches21[i2] {
+                matches12[old] = None;
+            }
+            matches12[i1] = Some(i2);
+            matches21[i2] = Some(i1);
+            distance21[i2] = best.0;
+        }
+    }
+    let rot: Vec<(usize, f32)> = matches12
+        .iter()
+        .enumerate()
+        .filter_map(|(i1, m)| m.map(|i2| (i1, reference.angles[i1] - cur.angles[i2])))
+        .collect();
+    for k in rotation_outliers(&rot) {
+        matches12[rot[k].0] = None;
+    }
+    for (i1, m) in matches12.iter().enumerate() {
+        if let Some(i2) = m {
+            prev_matched[i1] = cur.points[*i2];
+        }
+    }
+    matches12
+}

@@ -1,0 +1,322 @@
+//! Monocular initialisation (ORB-SLAM `Tracking::MonocularInitialization`): a reference frame is
+//! kept until a later frame, matched to it in windows around the keypoints' last positions, gives
+//! a two-view reconstruction; then the initial map is the two frames and the triangulated points,
+//! refined by bundle adjustment and scaled to a median scene depth of 1.
+
+use stillpoint_geometry::{Se3, Vec2, Vec3};
+use tracing::debug;
+
+use crate::SlamSettings;
+use crate::data::Frame;
+use crate::matching::area::search_for_initialisation;
+use crate::optimize::{BaObservation, BaProblem, local_bundle_adjustment};
+use crate::solve::two_view::{TwoViewModel, TwoViewParams, reconstruct};
+
+/// A point of the initial map and the keypoints that see it.
+#[derive(Clone, Copy, Debug)]
+pub struct InitialPoint {
+    pub reference_keypoint: usize,
+    pub keypoint: usize,
+    /// In the reference camera's frame.
+    pub position: Vec3,
+}
+
+/// An accepted initialisation: the reference frame, the second camera relative to it, and the
+/// points, scaled to a median depth of 1 in the reference camera.
+#[derive(Clone, Debug)]
+pub struct Initialisation {
+    pub reference: Frame,
+    /// Current camera from the reference camera.
+    pub pose21: Se3,
+    pub points: Vec<InitialPoint>,
+    pub model: TwoViewModel,
+    pub parallax_deg: f64,
+}
+
+/// The monocular initialiser's state: the reference frame and where its keypoints were last
+/// matched.
+#[derive(Default)]
+pub struct MonoInitializer {
+    reference: Option<Frame>,
+    prev_matched: Vec<Vec2>,
+}
+
+impl MonoInitializer {
+    /// Forget the reference frame: the next frame with enough keypoints becomes it.
+    pub fn reset(&mut self) {
+        self.reference = None;
+        self.prev_matched.clear();
+    }
+
+    /// Index of the reference frame, when there is one.
+    pub fn reference_index(&self) -> Option<usize> {
+        self.reference.as_ref().map(|f| f.index)
+    }
+
+    /// Offer a frame. The first with more than `min_keypoints` keypoints becomes the reference;
+    /// later ones are matched to it, and the reference is dropped when a frame has too few
+    /// keypoints or matches (the camera moved too far, or the view changed). Returns the
+    /// initialisation once the two views reconstruct and survive bundle adjustment.
+    pub fn add_frame(&mut self, frame: &Frame, s: &SlamSettings) -> Option<Initialisation> {
+        let p = &s.mono_init;
+        let Some(reference) = &self.reference else {
+            if frame.len() > p.min_keypoints {
+                self.prev_matched = frame.points.clone();
+                self.reference = Some(frame.clone());
+                debug!(
+                    frame = frame.index,
+                    keypoints = frame.len(),
+                    "initialisation reference"
+                );
+            }
+            return None;
+        };
+        if frame.len() <= p.min_keypoints {
+            debug!(
+                frame = frame.index,
+                keypoints = frame.len(),
+                "too few keypoints: reference dropped"
+            );
+            self.reset();
+            return None;
+        }
+        let matches = search_for_initialisation(
+            reference,
+            frame,
+            &mut self.prev_matched,
+            p.window_px,
+            p.ratio,
+            s.th_low,
+        );
+        let pairs: Vec<(usize, usize)> = matches
+            .iter()
+            .enumerate()
+            .filter_map(|(i, m)| m.map(|j| (i, j)))
+            .collect();
+        if pairs.len() < p.min_matches {
+            debug!(
+                frame = frame.index,
+                reference = reference.index,
+                matches = pairs.len(),
+                "too few matches: reference dropped"
+            );
+            self.reset();
+            return None;
+        }
+        let p1: Vec<Vec2> = pairs.iter().map(|&(i, _)| reference.points[i]).collect();
+        let p2: Vec<Vec2> = pairs.iter().map(|&(_, j)| frame.points[j]).collect();
+        let params = TwoViewParams {
+            sigma: 1.0,
+            iterations: p.ransac_iterations,
+            min_parallax_deg: p.min_parallax_deg,
+            min_triangulated: p.min_triangulated,
+            homography_ratio: p.homography_ratio,
+            seed: 0,
+        };
+        let two_view = match reconstruct(&s.camera, &p1, &p2, &params) {
+            Ok(t) => t,
+            Err(why) => {
+                debug!(
+                    frame = frame.index,
+                    reference = reference.index,
+                    matches = pairs.len(),
+                    "no reconstruction: {why}"
+                );
+                return None;
+            }
+        };
+        // Keypoints the front-end keeps but forbids new points on found none here either.
+        let points: Vec<InitialPoint> = pairs
+            .iter()
+            .zip(&two_view.points)
+            .filter_map(|(&(i, j), x)| {
+                Some(InitialPoint {
+                    reference_keypoint: i,
+                    keypoint: j,
+                    position: (*x)?,
+                })
+            })
+            .filter(|p| {
+                !reference.no_new_point[p.reference_keypoint] && !frame.no_new_point[p.keypoint]
+            })
+            .collect();
+        let reference = reference.clone();
+        let refined = refine_and_scale(&reference, frame, two_view.pose21, points, s);
+        let Some((pose21, points)) = refined else {
+            debug!(
+                frame = frame.index,
+                reference = reference.index,
+                "initial map rejected after bundle adjustment"
+            );
+            self.reset();
+            return None;
+        };
+        self.reset();
+        Some(Initialisation {
+            reference,
+            pose21,
+            points,
+            model: two_view.model,
+            parallax_deg: two_view.parallax_deg,
+        })
+    }
+}
+
+/// Bundle adjustment of the two views (the reference fixed; ORB-SLAM's global BA over the initial
+/// map), observations beyond the chi-square test drop their point; then the scale that makes the
+/// median depth in the reference camera 1. `None` when fewer than `min_points_after_ba` points
+/// remain or the median depth is not positive.
+fn refine_and_scale(
+    reference: &Frame,
+    frame: &Frame,
+    pose21: Se3,
+    points: Vec<InitialPoint>,
+    s: &SlamSettings,
+) -> Option<(Se3, Vec<InitialPoint>)> {
+    let inv_sigma2 = s.inv_level_sigma2();
+    let mut problem = BaProblem {
+        poses: vec![Se3::identity(), pose21],
+        fixed: vec![true, false],
+        points: points.iter().map(|p| p.position).collect(),
+        observations: Vec::with_capacity(2 * points.len()),
+    };
+    for (k, p) in points.iter().enumerate() {
+        for (camera, f, idx) in [(0, reference, p.reference_keypoint), (1, frame, p.keypoint)] {
+            problem.observations.push(BaObservation {
+                camera,
+                point: k,
+                u: f.points[idx].x,
+                v: f.points[idx].y,
+                u_right: None,
+                inv_sigma2: inv_sigma2[f.octaves[idx] as usize],
+            });
+        }
+    }
+    let outliers = local_bundle_adjustment(&mut problem, s);
+    let mut bad = vec![false; points.len()];
+    for (o, out) in problem.observations.iter().zip(&outliers) {
+        bad[o.point] |= *out;
+    }
+    let kept: Vec<InitialPoint> = points
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| !bad[*k])
+        .map(|(k, p)| InitialPoint {
+            position: problem.points[k],
+            ..*p
+        })
+        .collect();
+    let mut depths: Vec<f64> = kept.iter().map(|p| p.position.z).collect();
+    if kept.is_empty() || kept.len() < s.mono_init.min_points_after_ba {
+        debug!(
+            points = kept.len(),
+            "too few points after bundle adjustment"
+        );
+        return None;
+    }
+    depths.sort_by(f64::total_cmp);
+    let median = depths[(depths.len() - 1) / 2];
+    if !(median.is_finite() && median > 0.0) {
+        return None;
+    }
+    let scale = 1.0 / median;
+    let mut pose = problem.poses[1];
+    pose.translation.vector *= scale;
+    let kept = kept
+        .into_iter()
+        .map(|p| InitialPoint {
+            position: p.position * scale,
+            ..p
+        })
+        .collect();
+    Some((pose, kept))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Descriptor, Feature};
+    use nalgebra::Point3;
+    use rand::{Rng, SeedableRng};
+    use stillpoint_geometry::PinholeCamera;
+
+    /// The frame a camera at `pose_cw` sees of `points` (level-0 keypoints, their descriptors).
+    fn view(
+        index: usize,
+        pose_cw: &Se3,
+        points: &[Vec3],
+        descriptors: &[Descriptor],
+        s: &SlamSettings,
+    ) -> Frame {
+        let (mut feats, mut descs) = (Vec::new(), Vec::new());
+        for (p, d) in points.iter().zip(descriptors) {
+            let Some(uv) = s
+                .camera
+                .project(&(pose_cw * Point3::from(*p)).coords)
+                .filter(|uv| s.camera.in_image(uv, 1.0))
+            else {
+                continue;
+            };
+            feats.push(Feature {
+                x: uv.x as f32,
+                y: uv.y as f32,
+                octave: 0,
+                angle: 0.0,
+            });
+            descs.push(*d);
+        }
+        Frame::new(index, index as f64, &feats, &descs, None, s).unwrap()
+    }
+
+    #[test]
+    fn two_views_of_a_scene_make_an_initial_map_at_median_depth_one() {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let s = SlamSettings::monocular(cam, 30.0);
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+        let points: Vec<Vec3> = (0..400)
+            .map(|_| {
+                let z = rng.random_range(3.0..8.0);
+                Vec3::new(
+                    rng.random_range(-0.6..0.6) * z,
+                    rng.random_range(-0.45..0.45) * z,
+                    z,
+                )
+            })
+            .collect();
+        let descriptors: Vec<Descriptor> = (0..points.len())
+            .map(|_| std::array::from_fn(|_| rng.random()))
+            .collect();
+        let truth21 = Se3::new(Vec3::new(-0.35, 0.02, -0.05), Vec3::new(0.0, 0.04, 0.01));
+        let mut init = MonoInitializer::default();
+        // Too few keypoints: no reference.
+        let sparse = view(0, &Se3::identity(), &points[..50], &descriptors[..50], &s);
+        assert!(init.add_frame(&sparse, &s).is_none());
+        assert_eq!(init.reference_index(), None);
+        let first = view(1, &Se3::identity(), &points, &descriptors, &s);
+        assert!(init.add_frame(&first, &s).is_none());
+        assert_eq!(init.reference_index(), Some(1));
+        let second = view(2, &truth21, &points, &descriptors, &s);
+        let got = init.add_frame(&second, &s).expect("initialised");
+        assert_eq!(init.reference_index(), None);
+        assert!(got.points.len() > 300, "{} points", got.points.len());
+        let dir = got.pose21.translation.vector.normalize();
+        let angle = dir
+            .dot(&truth21.translation.vector.normalize())
+            .clamp(-1.0, 1.0)
+            .acos();
+        assert!(angle.to_degrees() < 1.0, "translation off by {angle} rad");
+        let mut depths: Vec<f64> = got.points.iter().map(|p| p.position.z).collect();
+        depths.sort_by(f64::total_cmp);
+        assert!((depths[(depths.len() - 1) / 2] - 1.0).abs() < 1e-9);
+        // Each point is the true one at the map's scale.
+        let scale = got.pose21.translation.vector.norm() / truth21.translation.vector.norm();
+        for p in &got.points {
+            let kp = first.points[p.reference_keypoint];
+            let truth = points
+                .iter()
+                .find(|x| cam.project(x).is_some_and(|uv| (uv - kp).norm() < 1e-3))
+                .expect("a scene point");
+            assert!((p.position - truth * scale).norm() < 1e-3 * scale * truth.z);
+        }
+    }
+}
