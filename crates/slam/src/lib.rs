@@ -7,6 +7,8 @@
 //! - [`solve`]: robust absolute pose (RANSAC) for relocalisation;
 //! - [`module`]: tracking, local mapping (own thread, channels) and the keypoint-filter hook
 //!   through which the dynamic front-end removes moving keypoints;
+//! - [`place`]: place recognition, a bag of binary words trained online and the keyframe
+//!   database;
 //! - [`System`]: the entry point that ties them together.
 //!
 //! The crate works on already extracted features ([`Feature`] + [`Descriptor`]), so the ORB
@@ -25,6 +27,7 @@ pub mod data;
 pub mod matching;
 pub mod module;
 pub mod optimize;
+pub mod place;
 pub mod settings;
 pub mod solve;
 mod system;
