@@ -2,9 +2,11 @@
 //!
 //! - [`data`]: frames, keyframes, map points and the map (covisibility graph, spanning tree);
 //! - [`matching`]: descriptor matching by projection and brute force, rotation histogram;
-//! - [`optimize`]: pose-only optimisation (Huber, 4 rounds of chi-square rejection) and local
-//!   bundle adjustment with a Schur complement;
-//! - [`solve`]: robust absolute pose (RANSAC) for relocalisation;
+//! - [`optimize`]: pose-only optimisation (Huber, 4 rounds of chi-square rejection), local
+//!   bundle adjustment with a Schur complement, and SE3 pose-graph optimisation (the essential
+//!   graph of loop closing);
+//! - [`solve`]: robust absolute pose (RANSAC) for relocalisation, and the rigid transform
+//!   between two keyframes (RANSAC over 3D-3D pairs) for loop closing;
 //! - [`module`]: tracking, local mapping (own thread, channels) and the keypoint-filter hook
 //!   through which the dynamic front-end removes moving keypoints;
 //! - [`place`]: place recognition, a bag of binary words trained online and the keyframe

@@ -4,6 +4,8 @@
 //! point pairs aligned by Umeyama (rigid), scored by reprojection error of every correspondence
 //! (with or without depth). ORB-SLAM uses EPnP here; EPnP (for monocular) is left for later.
 
+pub mod rigid;
+
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3, umeyama};
 
 /// A 2D-3D correspondence, with the camera-frame point when the keypoint has depth.
