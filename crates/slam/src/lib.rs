@@ -7,8 +7,8 @@
 //!   graph of loop closing);
 //! - [`solve`]: robust absolute pose (RANSAC) for relocalisation, and the rigid transform
 //!   between two keyframes (RANSAC over 3D-3D pairs) for loop closing;
-//! - [`module`]: tracking, local mapping (own thread, channels) and the keypoint-filter hook
-//!   through which the dynamic front-end removes moving keypoints;
+//! - [`module`]: tracking, local mapping (own thread, channels), loop closing (own thread) and
+//!   the keypoint-filter hook through which the dynamic front-end removes moving keypoints;
 //! - [`place`]: place recognition, a bag of binary words trained online and the keyframe
 //!   database;
 //! - [`System`]: the entry point that ties them together.

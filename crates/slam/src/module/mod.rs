@@ -1,6 +1,8 @@
-//! The running parts: tracking (per frame), local mapping (per keyframe, own thread) and the
+//! The running parts: tracking (per frame), local mapping (per keyframe, own thread), loop
+//! closing (per keyframe after local mapping, own thread) and the
 //! hook through which the dynamic front-end removes keypoints before tracking sees them.
 
 pub mod frontend;
 pub mod local_mapping;
+pub mod loop_closing;
 pub mod tracking;
