@@ -699,7 +699,7 @@ fn loops_json(s: &RunSummary) -> serde_json::Value {
         .collect();
     serde_json::json!({
         "loops": l.loops.len(),
-        "candidates_verified": l.verified_candidates,
+        "candidates_tried": l.tried_candidates,
         "candidates_rejected": l.rejected_candidates,
         "vocabulary_trainings": l.training_ms.len(),
         "vocabulary_words": l.vocabulary_words,

@@ -34,9 +34,9 @@ pub struct LoopSettings {
     pub min_keyframes: usize,
     /// ... nor within this many keyframes after the last loop (ORB-SLAM: 10).
     pub keyframes_after_loop: usize,
-    /// A candidate's covisibility group must be found for this many consecutive keyframes
-    /// (the paper's ORB-SLAM3: 3; ORB-SLAM2's counter `mnCovisibilityConsistencyTh` = 3 starts
-    /// at 0, so it waits for a fourth).
+    /// A candidate's covisibility group must stay consistent for this many keyframes after
+    /// the one that first found it (ORB-SLAM2's `mnCovisibilityConsistencyTh` = 3: the group
+    /// is seen in four consecutive keyframes).
     pub consistency: usize,
     /// Descriptor matches between the keyframe and a candidate needed to try RANSAC (ORB-SLAM
     /// `SearchByBoW` >= 20).
@@ -141,9 +141,9 @@ pub struct LoopStats {
     pub correction_ms: Vec<f64>,
     /// Per global bundle adjustment after a correction (ms).
     pub global_ba_ms: Vec<f64>,
-    /// Candidates that passed the consistency test, and how many of them verification
-    /// rejected.
-    pub verified_candidates: usize,
+    /// Candidates that passed the consistency test and were tried by verification, and how
+    /// many of them it rejected.
+    pub tried_candidates: usize,
     pub rejected_candidates: usize,
     pub vocabulary_words: usize,
     pub loops: Vec<LoopEvent>,
@@ -229,8 +229,11 @@ impl LoopCloser {
         let training: Option<Vec<(KfId, Vec<crate::Descriptor>)>> = {
             let m = map.lock().ok()?;
             let n = m.current_keyframes().count();
+            // Only keyframes local mapping has finished (ids up to this one): newer ones have
+            // no covisibility yet, so they would not be excluded as neighbours of `kf`.
             self.db.needs_training(n, &p).then(|| {
                 m.current_keyframes()
+                    .filter(|k| k.id <= kf)
                     .map(|k| (k.id, k.descriptors.clone()))
                     .collect()
             })
@@ -253,7 +256,10 @@ impl LoopCloser {
         let t0 = Instant::now();
         let verified = {
             let m = map.lock().ok()?;
-            let k = m.keyframes.get(&kf).filter(|k| !k.bad)?;
+            let Some(k) = m.keyframes.get(&kf).filter(|k| !k.bad) else {
+                self.groups.clear();
+                return None;
+            };
             self.db.add(kf, &k.descriptors);
             self.detect(&m, kf)
                 .and_then(|candidates| self.verify(&m, kf, &candidates))
@@ -315,12 +321,17 @@ impl LoopCloser {
                 .last_loop_kf
                 .is_some_and(|l| kf < l + ls.keyframes_after_loop as KfId)
         {
+            // No consistency carried across keyframes that were not checked.
+            self.groups.clear();
             return None;
         }
         // The lowest score among the covisible keyframes sets the bar.
         let connected: BTreeSet<KfId> = k.connections.keys().copied().collect();
+        // (Only neighbours already in the database: a missing one would score 0 and lower
+        // the bar to nothing.)
         let min_score = connected
             .iter()
+            .filter(|&&c| self.db.bow(c).is_some())
             .map(|&c| self.db.score(kf, c))
             .fold(1.0f32, f32::min);
         let mut excluded = connected.clone();
@@ -331,9 +342,10 @@ impl LoopCloser {
             &excluded,
             min_score,
             |c| {
-                m.keyframes
-                    .get(&c)
-                    .is_some_and(|x| !x.bad && x.map_epoch == epoch)
+                c < kf
+                    && m.keyframes
+                        .get(&c)
+                        .is_some_and(|x| !x.bad && x.map_epoch == epoch)
             },
             |c| {
                 m.keyframes
@@ -369,7 +381,7 @@ impl LoopCloser {
                     current.push((group.clone(), n_cur));
                     extended[g] = true;
                 }
-                if n_cur + 1 >= ls.consistency && !enough_added {
+                if n_cur >= ls.consistency && !enough_added {
                     enough.push(c);
                     enough_added = true;
                 }
@@ -394,7 +406,7 @@ impl LoopCloser {
     fn verify(&mut self, m: &Map, kf: KfId, candidates: &[KfId]) -> Option<Verified> {
         let cur = m.keyframes.get(&kf)?;
         for &c in candidates {
-            self.stats.verified_candidates += 1;
+            self.stats.tried_candidates += 1;
             let Some(l) = m.keyframes.get(&c).filter(|x| !x.bad) else {
                 self.stats.rejected_candidates += 1;
                 continue;
