@@ -292,7 +292,9 @@ impl Vocabulary {
 
     /// Read a DBoW2 text vocabulary (ORB-SLAM's `ORBvoc.txt`): a header `k L scoring weighting`,
     /// then one line per node after the root: `parent is_leaf d0 .. d31 weight`. Only the tree
-    /// and the leaves' weights are used (our scoring is always TF-IDF / L1).
+    /// and the leaves' weights are used (our scoring is always TF-IDF / L1; other header
+    /// types are warned about). Word ids are assigned breadth-first, not in the file's order:
+    /// they are only used inside this program.
     pub fn from_dbow2_text(reader: impl BufRead) -> Result<Self, String> {
         let mut lines = reader.lines();
         let header = lines
@@ -310,6 +312,12 @@ impl Vocabulary {
             return Err(format!(
                 "header {header:?}: expected `k L scoring weighting`"
             ));
+        }
+        if head.get(2..4).is_some_and(|t| t != [0, 0]) {
+            tracing::warn!(
+                "vocabulary header {header:?}: scoring/weighting other than L1 / TF-IDF; \
+                 the tree and weights are used with L1 scoring"
+            );
         }
         // Parents come before their children in the file; children are gathered per parent.
         let mut parents: Vec<u32> = vec![u32::MAX];
@@ -333,7 +341,11 @@ impl Vocabulary {
             for (k, b) in d.iter_mut().enumerate() {
                 *b = t[2 + k].parse().map_err(|_| bad("descriptor byte"))?;
             }
-            let w: f32 = t[34].parse().map_err(|_| bad("weight"))?;
+            let w: f32 = t[34]
+                .parse()
+                .ok()
+                .filter(|w: &f32| w.is_finite())
+                .ok_or_else(|| bad("weight (a finite number)"))?;
             parents.push(parent);
             raw.push((d, leaf, w));
         }
@@ -546,5 +558,8 @@ mod tests {
         assert!((v.0.iter().map(|x| x.1).sum::<f32>() - 1.0).abs() < 1e-6);
         assert!(Vocabulary::from_dbow2_text("x y\n".as_bytes()).is_err());
         assert!(Vocabulary::from_dbow2_text("2 1 0 0\n5 1 0\n".as_bytes()).is_err());
+        // An infinite weight would make every bag of words NaN.
+        let inf = format!("2 1 0 0\n{}\n{}\n", line(&a, 0.5), line(&b, f32::INFINITY));
+        assert!(Vocabulary::from_dbow2_text(inf.as_bytes()).is_err());
     }
 }
