@@ -102,6 +102,14 @@ pub struct Args {
     /// (`FrontEndSettings::seated_kept_make_points`).
     #[arg(long)]
     pub seated_kept_points: Option<bool>,
+    /// Turn loop closing off (on by default: bag-of-words detection, SE3 verification,
+    /// essential-graph correction).
+    #[arg(long)]
+    pub no_loop_closing: bool,
+    /// DBoW2 text vocabulary (ORB-SLAM's ORBvoc.txt) for loop detection; by default loop closing
+    /// trains its own from the sequence's keyframes.
+    #[arg(long)]
+    pub vocabulary: Option<PathBuf>,
     /// Print a JSON summary on stdout instead of the tables.
     #[arg(long)]
     pub json: bool,
@@ -144,6 +152,10 @@ pub struct Overrides {
     pub seated_motion_px: Option<f32>,
     pub seated_first_frame: Option<bool>,
     pub seated_kept_points: Option<bool>,
+    /// Loop closing off (`--no-loop-closing`).
+    pub no_loop_closing: bool,
+    /// A DBoW2 text vocabulary instead of the one trained online.
+    pub vocabulary: Option<PathBuf>,
 }
 
 /// Per-stage times of one frame, ms.
@@ -178,6 +190,8 @@ pub struct RunSummary {
     pub moving_kept_per_frame: Option<Vec<usize>>,
     /// ... and map points at the end with at least one keyframe observation on a moving object.
     pub moving_map_points: Option<usize>,
+    /// Loop closing's statistics (`None` when it is off).
+    pub loops: Option<stillpoint_slam::module::loop_closing::LoopStats>,
 }
 
 /// The generator's mask of frame `timestamp` (255 = moving), when the sequence has one.
@@ -252,6 +266,17 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     if let Some(b) = o.overrides.points_from_pose_outliers {
         settings.no_points_from_pose_outliers = !b;
     }
+    settings.loop_closing.enabled = !o.overrides.no_loop_closing;
+    let vocabulary = match &o.overrides.vocabulary {
+        Some(p) => {
+            let f = std::fs::File::open(p).with_context(|| format!("opening {}", p.display()))?;
+            let v = stillpoint_slam::place::Vocabulary::from_dbow2_text(std::io::BufReader::new(f))
+                .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+            tracing::info!("{}: {} words", p.display(), v.words());
+            Some(v)
+        }
+        None => None,
+    };
     let orb_params = OrbParams {
         n_features: ds.orb.n_features,
         scale_factor: ds.orb.scale_factor,
@@ -348,7 +373,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     } else {
         indicatif::ProgressBar::hidden()
     };
-    let mut sys = System::new(settings);
+    let mut sys = System::with_vocabulary(settings, vocabulary);
     let mut times: Vec<FrameTimes> = Vec::with_capacity(n);
     let (mut stamps, mut poses) = (Vec::new(), Vec::new());
     let mut culled = Vec::with_capacity(n);
@@ -495,6 +520,25 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     }
     bar.finish_and_clear();
     sys.shutdown().context("local mapping")?;
+    let loops = sys.loop_stats();
+    // After a loop correction the frames tracked before it follow their keyframes (ORB-SLAM
+    // saves its trajectory this way); without one, the file written as we went stays as is.
+    if loops.as_ref().is_some_and(|l| !l.loops.is_empty()) {
+        (stamps, poses) = (Vec::new(), Vec::new());
+        for (t, p) in sys.rebuilt_trajectory() {
+            if stamps.last().is_none_or(|&l| t > l) {
+                stamps.push(t);
+                poses.push(p);
+            }
+        }
+        if let Some(p) = &o.out {
+            let t = Trajectory::from_parts(stamps.clone(), poses.clone())
+                .context("rebuilt trajectory")?;
+            stillpoint_trajectory::write_tum(p, &t)
+                .with_context(|| format!("rewriting {}", p.display()))?;
+            tracing::info!("loop closed: trajectory rebuilt through the keyframes");
+        }
+    }
     let trajectory = Trajectory::from_parts(stamps, poses).context("estimated trajectory")?;
     let mut kf = sys.keyframe_trajectory();
     kf.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -524,6 +568,12 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     timings.push(("orb", pick(|t| t.orb)));
     timings.push(("tracking", pick(|t| t.tracking)));
     timings.push(("local mapping (per keyframe)", sys.mapping_times_ms()));
+    if let Some(l) = &loops {
+        timings.push(("loop detection (per keyframe)", l.detection_ms.clone()));
+        timings.push(("loop correction", l.correction_ms.clone()));
+        timings.push(("global BA after a loop", l.global_ba_ms.clone()));
+        timings.push(("vocabulary training", l.training_ms.clone()));
+    }
     Ok(RunSummary {
         name: seq.name(),
         sensor: ds.sensor,
@@ -541,6 +591,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         detector: detector_name,
         moving_kept_per_frame: has_masks.then_some(moving_kept),
         moving_map_points,
+        loops,
     })
 }
 
@@ -648,8 +699,72 @@ pub fn accuracy(
     Some((ate, rpe))
 }
 
+/// The ground-truth pose nearest to `t` (within 0.02 s, the TUM tools' association window).
+fn gt_pose_at(gt: &Trajectory, t: f64) -> Option<stillpoint_geometry::Se3> {
+    let i = gt
+        .stamps
+        .iter()
+        .enumerate()
+        .min_by(|a, b| (a.1 - t).abs().total_cmp(&(b.1 - t).abs()))?
+        .0;
+    ((gt.stamps[i] - t).abs() <= 0.02).then(|| gt.poses[i])
+}
+
+/// Loop closing in the JSON summary: counts, and per loop the frames and how far apart the two
+/// keyframes truly are (ground truth), which tells a true revisit from a false loop.
+fn loops_json(s: &RunSummary) -> serde_json::Value {
+    let Some(l) = &s.loops else {
+        return serde_json::Value::Null;
+    };
+    let events: Vec<serde_json::Value> = l
+        .loops
+        .iter()
+        .map(|e| {
+            let truth = s.ground_truth.as_ref().and_then(|gt| {
+                let (a, b) = (
+                    gt_pose_at(gt, e.timestamp)?,
+                    gt_pose_at(gt, e.loop_timestamp)?,
+                );
+                Some((
+                    (a.translation.vector - b.translation.vector).norm(),
+                    a.rotation.angle_to(&b.rotation).to_degrees(),
+                ))
+            });
+            serde_json::json!({
+                "frame": e.frame_index, "loop_frame": e.loop_frame_index,
+                "keyframe": e.keyframe, "loop_keyframe": e.loop_keyframe,
+                "ransac_inliers": e.ransac_inliers, "refined_inliers": e.refined_inliers,
+                "loop_matches": e.loop_matches,
+                "correction_m": e.correction_m, "correction_deg": e.correction_deg,
+                "graph_keyframes": e.graph_keyframes, "graph_edges": e.graph_edges,
+                "correction_ms": e.correction_ms,
+                "gt_distance_m": truth.map(|t| t.0), "gt_angle_deg": truth.map(|t| t.1),
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "loops": l.loops.len(),
+        "candidates_tried": l.tried_candidates,
+        "candidates_rejected": l.rejected_candidates,
+        "vocabulary_trainings": l.training_ms.len(),
+        "vocabulary_words": l.vocabulary_words,
+        "events": events,
+    })
+}
+
 pub fn summary_json(s: &RunSummary) -> serde_json::Value {
     let acc = accuracy(s);
+    let ate_keyframes = s.ground_truth.as_ref().and_then(|gt| {
+        stillpoint_trajectory::ate(
+            gt,
+            &s.keyframe_trajectory,
+            &AteOptions {
+                align: Alignment::Se3,
+                ..Default::default()
+            },
+        )
+        .ok()
+    });
     let timing: serde_json::Map<String, serde_json::Value> = s
         .timings
         .iter()
@@ -688,6 +803,8 @@ pub fn summary_json(s: &RunSummary) -> serde_json::Value {
             serde_json::json!({"mean": m, "median": med, "p90": p90})
         }),
         "moving_map_points": s.moving_map_points,
+        "ate_keyframes": ate_keyframes.map(|a| serde_json::json!({"rmse": a.stats.rmse, "pairs": a.stats.count})),
+        "loop_closing": loops_json(s),
     })
 }
 
@@ -732,6 +849,15 @@ pub fn print_summary(s: &RunSummary) {
         println!("{k:<30} {m:>9.2} {med:>9.2} {p90:>9.2}");
     }
     print_culled_row(s);
+    if let Some(l) = &s.loops {
+        println!("loops closed: {}", l.loops.len());
+        for e in &l.loops {
+            println!(
+                "  frame {} -> frame {} ({} matches, keyframe moved {:.3} m / {:.2} deg)",
+                e.frame_index, e.loop_frame_index, e.loop_matches, e.correction_m, e.correction_deg
+            );
+        }
+    }
 }
 
 /// The "keypoints culled / frame" row of the text stage tables (`run`, `demo`).
@@ -776,6 +902,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             seated_motion_px: args.seated_motion_px,
             seated_first_frame: args.seated_first_frame,
             seated_kept_points: args.seated_kept_points,
+            no_loop_closing: args.no_loop_closing,
+            vocabulary: args.vocabulary.clone(),
         },
     };
     let s = run_sequence(&o)?;

@@ -9,7 +9,7 @@ use stillpoint_synth::{KinectNoise, Noise, Preset, SynthConfig, WriteOptions};
 pub struct Args {
     /// Scene and camera motion: walking_xyz, walking_static, walking_halfsphere, walking_rpy,
     /// sitting_xyz, sitting_static, sitting_halfsphere, crowd, placing_box, person_tracking,
-    /// static; "all" only with --contact-sheet.
+    /// static, loop (a lap of 20 s round the room); "all" only with --contact-sheet.
     #[arg(long, default_value = "walking_xyz")]
     preset: String,
     /// Output folder (TUM layout). Optional when only a contact sheet is wanted.

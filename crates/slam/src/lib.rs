@@ -2,11 +2,15 @@
 //!
 //! - [`data`]: frames, keyframes, map points and the map (covisibility graph, spanning tree);
 //! - [`matching`]: descriptor matching by projection and brute force, rotation histogram;
-//! - [`optimize`]: pose-only optimisation (Huber, 4 rounds of chi-square rejection) and local
-//!   bundle adjustment with a Schur complement;
-//! - [`solve`]: robust absolute pose (RANSAC) for relocalisation;
-//! - [`module`]: tracking, local mapping (own thread, channels) and the keypoint-filter hook
-//!   through which the dynamic front-end removes moving keypoints;
+//! - [`optimize`]: pose-only optimisation (Huber, 4 rounds of chi-square rejection), local
+//!   bundle adjustment with a Schur complement, and SE3 pose-graph optimisation (the essential
+//!   graph of loop closing);
+//! - [`solve`]: robust absolute pose (RANSAC) for relocalisation, and the rigid transform
+//!   between two keyframes (RANSAC over 3D-3D pairs) for loop closing;
+//! - [`module`]: tracking, local mapping (own thread, channels), loop closing (own thread) and
+//!   the keypoint-filter hook through which the dynamic front-end removes moving keypoints;
+//! - [`place`]: place recognition, a bag of binary words trained online and the keyframe
+//!   database;
 //! - [`System`]: the entry point that ties them together.
 //!
 //! The crate works on already extracted features ([`Feature`] + [`Descriptor`]), so the ORB
@@ -25,6 +29,7 @@ pub mod data;
 pub mod matching;
 pub mod module;
 pub mod optimize;
+pub mod place;
 pub mod settings;
 pub mod solve;
 mod system;

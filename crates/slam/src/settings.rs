@@ -124,6 +124,9 @@ pub struct SlamSettings {
     /// Keyframes tried per relocalisation attempt (ORB-SLAM3 uses BoW candidates; we take the most
     /// recent and the closest to the last pose).
     pub reloc_candidates: usize,
+    /// Loop closing (ORB-SLAM's, SE3 for RGB-D / stereo).
+    #[serde(default)]
+    pub loop_closing: crate::module::loop_closing::LoopSettings,
 }
 
 fn default_mapping_neighbours() -> usize {
@@ -243,6 +246,7 @@ impl SlamSettings {
             local_mapping_thread: true,
             new_map_after_lost_frames: fps.max(1.0).round() as usize,
             reloc_candidates: 20,
+            loop_closing: Default::default(),
         }
     }
 

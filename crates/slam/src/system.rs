@@ -1,4 +1,5 @@
-//! [`System`]: tracking plus local mapping (threaded or inline) over a shared map.
+//! [`System`]: tracking plus local mapping and loop closing (threaded or inline) over a shared
+//! map.
 
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
@@ -8,8 +9,10 @@ use stillpoint_geometry::Se3;
 use stillpoint_image::DepthMetres;
 
 use crate::data::{KfId, Map};
-use crate::module::local_mapping::{LocalMapper, MapperThread};
+use crate::module::local_mapping::{LocalMapper, MapperHooks, MapperThread};
+use crate::module::loop_closing::{LoopCloser, LoopStats, LoopThread};
 use crate::module::tracking::Tracker;
+use crate::place::Vocabulary;
 use crate::{Descriptor, Feature, Frame, KeypointDepth, SlamError, SlamSettings, TrackingState};
 
 /// What the system did with one frame.
@@ -34,6 +37,12 @@ enum Mapping {
     Thread(MapperThread),
 }
 
+enum Looping {
+    Off,
+    Inline(Box<LoopCloser>),
+    Thread(Box<LoopThread>),
+}
+
 /// The SLAM system: RGB-D, stereo (depth per keypoint) or monocular input (see
 /// [`SlamSettings::monocular`]).
 pub struct System {
@@ -42,20 +51,58 @@ pub struct System {
     tracker: Tracker,
     mapping: Mapping,
     mapping_ms: Arc<Mutex<Vec<f64>>>,
+    looping: Looping,
+    /// Per tracked frame: timestamp, reference keyframe, pose relative to it (T_c_ref); the
+    /// trajectory rebuilt through the keyframes after loop corrections.
+    anchors: Vec<(f64, KfId, Se3)>,
 }
 
 impl System {
     /// A system; local mapping gets its own thread when `settings.local_mapping_thread` (falls
     /// back to inline if the thread cannot be spawned).
     pub fn new(settings: SlamSettings) -> Self {
+        Self::with_vocabulary(settings, None)
+    }
+
+    /// [`System::new`] with a place-recognition vocabulary given by the user (else loop closing
+    /// trains its own from the keyframes).
+    pub fn with_vocabulary(settings: SlamSettings, vocabulary: Option<Vocabulary>) -> Self {
         let map = Arc::new(Mutex::new(Map::new()));
         let mapping_ms = Arc::new(Mutex::new(Vec::new()));
         let mapper = LocalMapper::new(settings.clone());
+        // Loop closing corrects with SE3: a monocular map drifts in scale too (ORB-SLAM
+        // corrects it with Sim3), so monocular runs go without.
+        if settings.loop_closing.enabled && settings.monocular {
+            tracing::info!("loop closing is for RGB-D and stereo; off for this monocular run");
+        }
+        let looping_on = settings.loop_closing.enabled && !settings.monocular;
+        let closer = looping_on.then(|| match vocabulary {
+            Some(v) => LoopCloser::with_vocabulary(settings.clone(), v),
+            None => LoopCloser::new(settings.clone()),
+        });
+        let mut looping = Looping::Off;
         let mapping = if settings.local_mapping_thread {
-            match MapperThread::spawn(
+            // Local mapping hands each keyframe to the loop-closing thread when both run.
+            let busy = Arc::new(Mutex::new(()));
+            let (to_loop, from_mapping) = std::sync::mpsc::channel();
+            let mut closer = closer;
+            if let Some(c) = closer.take() {
+                match LoopThread::spawn(c, map.clone(), from_mapping, busy.clone()) {
+                    Ok(t) => looping = Looping::Thread(Box::new(t)),
+                    Err(e) => tracing::warn!(
+                        "cannot start the loop-closing thread ({e}); no loop closing"
+                    ),
+                }
+            }
+            let hooks = MapperHooks {
+                processed: matches!(looping, Looping::Thread(_)).then_some(to_loop),
+                busy,
+            };
+            match MapperThread::spawn_with_hooks(
                 LocalMapper::new(settings.clone()),
                 map.clone(),
                 mapping_ms.clone(),
+                hooks,
             ) {
                 Ok(t) => Mapping::Thread(t),
                 Err(e) => {
@@ -64,6 +111,9 @@ impl System {
                 }
             }
         } else {
+            if let Some(c) = closer {
+                looping = Looping::Inline(Box::new(c));
+            }
             Mapping::Inline(Box::new(mapper))
         };
         Self {
@@ -72,6 +122,8 @@ impl System {
             map,
             mapping,
             mapping_ms,
+            looping,
+            anchors: Vec::new(),
         }
     }
 
@@ -157,7 +209,23 @@ impl System {
                 .map
                 .lock()
                 .map_err(|_| SlamError::LocalMapping("map lock poisoned".into()))?;
-            self.tracker.track(frame, &mut map, idle, queued)
+            // Corrections the loop-closing thread made since the last frame.
+            if let Looping::Thread(t) = &self.looping {
+                let pending =
+                    std::mem::take(&mut *t.corrections.lock().unwrap_or_else(|e| e.into_inner()));
+                for c in pending {
+                    self.tracker.on_map_corrected(&c.poses);
+                }
+            }
+            let outcome = self.tracker.track(frame, &mut map, idle, queued);
+            if let Some(wc) = outcome.pose_wc
+                && let Some(r) = self.tracker.reference_keyframe()
+                && let Some(k) = map.keyframes.get(&r)
+            {
+                self.anchors
+                    .push((timestamp, r, wc.inverse() * k.pose_cw.inverse()));
+            }
+            outcome
         };
         let tracking_ms = t0.elapsed().as_secs_f64() * 1e3;
         if let Some(kf) = outcome.first_keyframe {
@@ -188,6 +256,11 @@ impl System {
                 if let Ok(mut t) = self.mapping_ms.lock() {
                     t.push(t0.elapsed().as_secs_f64() * 1e3);
                 }
+                if let Looping::Inline(l) = &mut self.looping
+                    && let Some(c) = l.process(&self.map, kf, None, None)
+                {
+                    self.tracker.on_map_corrected(&c.poses);
+                }
                 Ok(())
             }
             Mapping::Thread(t) => {
@@ -205,7 +278,36 @@ impl System {
         if let Mapping::Thread(t) = &mut self.mapping {
             t.finish()?;
         }
+        // Local mapping has stopped, so the loop-closing thread's channel is closed.
+        if let Looping::Thread(t) = &mut self.looping {
+            t.finish()?;
+        }
         Ok(())
+    }
+
+    /// Loop-closing statistics (`None` when it is off, or its thread still runs).
+    pub fn loop_stats(&self) -> Option<LoopStats> {
+        match &self.looping {
+            Looping::Off => None,
+            Looping::Inline(l) => Some(l.stats().clone()),
+            Looping::Thread(t) => t.stats().cloned(),
+        }
+    }
+
+    /// (timestamp, camera-to-world) of every tracked frame, rebuilt from its pose relative to
+    /// its reference keyframe and that keyframe's pose now (ORB-SLAM's `SaveTrajectoryTUM`):
+    /// after loop corrections, the frames tracked before the loop follow their keyframes.
+    pub fn rebuilt_trajectory(&self) -> Vec<(f64, Se3)> {
+        let Ok(m) = self.map.lock() else {
+            return Vec::new();
+        };
+        self.anchors
+            .iter()
+            .filter_map(|(t, r, t_cr)| {
+                let k = m.keyframes.get(r)?;
+                Some((*t, (t_cr * k.pose_cw).inverse()))
+            })
+            .collect()
     }
 
     pub fn state(&self) -> TrackingState {

@@ -32,10 +32,14 @@ pub enum Preset {
     PersonTracking,
     /// Nothing moves but the camera (the control).
     Static,
+    /// The camera walks a circle of 1 m radius round the room looking outwards, back to its start
+    /// after 20 s and on: a revisit far from the recent keyframes, for loop closing (nothing
+    /// else moves).
+    Loop,
 }
 
 impl Preset {
-    pub const ALL: [Preset; 11] = [
+    pub const ALL: [Preset; 12] = [
         Preset::WalkingXyz,
         Preset::WalkingStatic,
         Preset::WalkingHalfsphere,
@@ -47,6 +51,7 @@ impl Preset {
         Preset::PlacingBox,
         Preset::PersonTracking,
         Preset::Static,
+        Preset::Loop,
     ];
 
     pub fn name(&self) -> &'static str {
@@ -62,6 +67,7 @@ impl Preset {
             Preset::PlacingBox => "placing_box",
             Preset::PersonTracking => "person_tracking",
             Preset::Static => "static",
+            Preset::Loop => "loop",
         }
     }
 
@@ -101,6 +107,15 @@ pub enum CameraPath {
     },
     /// Follow a walker from behind the walker's line, at a fixed height.
     Follow { route: Route, y: f64, height: f64 },
+    /// Round a horizontal circle at constant speed, looking outwards (slightly down, with a
+    /// gentle bob), one lap per `period` seconds from the angle `start`.
+    Circle {
+        centre: P3,
+        radius: f64,
+        period: f64,
+        start: f64,
+        pitch: f64,
+    },
 }
 
 /// Camera-to-world pose at `eye` looking at `target` (camera x right, y down, z forward; world z up).
@@ -182,6 +197,19 @@ impl CameraPath {
                     P3::new(0.7 * acc[0], *y, *height),
                     P3::new(acc[0], acc[1], 1.0),
                 )
+            }
+            CameraPath::Circle {
+                centre,
+                radius,
+                period,
+                start,
+                pitch,
+            } => {
+                let a = start + TAU * t / period;
+                let out = P3::new(a.cos(), a.sin(), 0.0);
+                let bob = P3::new(0.0, 0.0, 0.05 * wave(t, 4.0, 0.0));
+                let eye = centre + out * *radius + bob;
+                look_at(eye, eye + out + P3::new(0.0, 0.0, -pitch.tan()))
             }
         }
     }
@@ -781,6 +809,14 @@ pub fn build(preset: Preset, rng: &mut Pcg64Mcg, photos: &Photos) -> (Scene, Cam
             }
         }
         Preset::Static => xyz,
+        // Starts facing the back wall (shelf, desks, monitors); a lap is 6.3 m in 20 s.
+        Preset::Loop => CameraPath::Circle {
+            centre: P3::new(0.0, 0.4, 1.3),
+            radius: 1.0,
+            period: 20.0,
+            start: PI / 2.0,
+            pitch: 10f64.to_radians(),
+        },
     };
     (s, cam)
 }
@@ -812,6 +848,7 @@ mod tests {
             Preset::WalkingRpy,
             Preset::WalkingHalfsphere,
             Preset::PersonTracking,
+            Preset::Loop,
         ] {
             let (_, cam) = build_cameras_only(preset, &mut rng);
             let mut max_v: f64 = 0.0;

@@ -640,11 +640,30 @@ pub struct MapperThread {
     pub times_ms: Arc<Mutex<Vec<f64>>>,
 }
 
+/// How local mapping works with loop closing: where each processed keyframe goes next, and
+/// the lock local mapping holds while it processes a keyframe (loop correction takes it to
+/// stop local mapping between keyframes).
+#[derive(Default)]
+pub struct MapperHooks {
+    pub processed: Option<Sender<KfId>>,
+    pub busy: Arc<Mutex<()>>,
+}
+
 impl MapperThread {
     pub fn spawn(
         mapper: LocalMapper,
         map: Arc<Mutex<Map>>,
         times_ms: Arc<Mutex<Vec<f64>>>,
+    ) -> std::io::Result<Self> {
+        Self::spawn_with_hooks(mapper, map, times_ms, MapperHooks::default())
+    }
+
+    /// [`MapperThread::spawn`] feeding loop closing.
+    pub fn spawn_with_hooks(
+        mapper: LocalMapper,
+        map: Arc<Mutex<Map>>,
+        times_ms: Arc<Mutex<Vec<f64>>>,
+        hooks: MapperHooks,
     ) -> std::io::Result<Self> {
         let (tx, rx): (Sender<Msg>, Receiver<Msg>) = channel();
         let idle = Arc::new(AtomicBool::new(true));
@@ -656,10 +675,15 @@ impl MapperThread {
                 let mut mapper = mapper;
                 while let Ok(Msg::KeyFrame(kf)) = rx.recv() {
                     idle2.store(false, Ordering::SeqCst);
+                    let busy = hooks.busy.lock().unwrap_or_else(|e| e.into_inner());
                     let t0 = Instant::now();
                     mapper.process(&map, kf);
                     if let Ok(mut t) = times2.lock() {
                         t.push(t0.elapsed().as_secs_f64() * 1e3);
+                    }
+                    drop(busy);
+                    if let Some(next) = &hooks.processed {
+                        let _ = next.send(kf);
                     }
                     queued2.fetch_sub(1, Ordering::SeqCst);
                     idle2.store(queued2.load(Ordering::SeqCst) == 0, Ordering::SeqCst);

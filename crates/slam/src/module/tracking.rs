@@ -737,4 +737,26 @@ impl Tracker {
     pub fn reference_keyframe(&self) -> Option<KfId> {
         self.reference_kf
     }
+
+    /// Loop closing moved keyframes (`poses`: world-to-camera before and after): the last frame
+    /// moves with its reference keyframe (else the newest moved one), as ORB-SLAM's
+    /// `UpdateLastFrame` re-anchors it, so the motion model predicts in the corrected map.
+    pub fn on_map_corrected(&mut self, poses: &BTreeMap<KfId, (Se3, Se3)>) {
+        let anchor = self
+            .reference_kf
+            .and_then(|k| poses.get(&k))
+            .or_else(|| poses.values().next_back());
+        let Some((before, after)) = anchor else {
+            return;
+        };
+        let delta = before.inverse() * after;
+        if let Some(f) = self.last_frame.as_mut()
+            && let Some(p) = f.pose_cw
+        {
+            f.pose_cw = Some(p * delta);
+        }
+        if let Some(p) = self.last_good_pose {
+            self.last_good_pose = Some(p * delta);
+        }
+    }
 }

@@ -3,9 +3,11 @@
 
 pub mod local_ba;
 pub mod pose;
+pub mod pose_graph;
 
 pub use local_ba::{BaObservation, BaProblem, local_bundle_adjustment};
 pub use pose::{PoseObservation, optimize_pose};
+pub use pose_graph::{PoseGraph, PoseGraphEdge, PoseGraphReport, optimize_pose_graph};
 
 use nalgebra::{Matrix3, Vector3};
 use stillpoint_geometry::{PinholeCamera, Vec3};

@@ -11,6 +11,8 @@
 pub mod epnp;
 pub mod two_view;
 
+pub mod rigid;
+
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3, umeyama};
 
 /// A 2D-3D correspondence, with the camera-frame point when the keypoint has depth.

@@ -1,0 +1,525 @@
+//! Pose-graph optimisation over SE3 (ORB-SLAM's essential graph, with the scale fixed as for
+//! RGB-D and stereo): vertices are world-to-camera poses, each edge a measured relative pose.
+//!
+//! Levenberg-Marquardt on the normal equations; the system is sparse (a chain of keyframes plus
+//! a few loop and covisibility edges), so it is reordered by reverse Cuthill-McKee and solved by
+//! an envelope (profile) Cholesky: the loop edges only widen the rows they touch.
+
+use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
+use stillpoint_geometry::{Se3, skew};
+
+use super::retract;
+
+/// One relative-pose measurement: `t_ij` = T_iw * T_jw⁻¹, the pose of camera j seen from i.
+#[derive(Clone, Copy, Debug)]
+pub struct PoseGraphEdge {
+    pub i: usize,
+    pub j: usize,
+    pub t_ij: Se3,
+    /// Information weight (ORB-SLAM: identity for every edge).
+    pub weight: f64,
+}
+
+/// Poses (world-to-camera), which of them stay fixed, and the edges.
+#[derive(Clone, Debug, Default)]
+pub struct PoseGraph {
+    pub poses: Vec<Se3>,
+    pub fixed: Vec<bool>,
+    pub edges: Vec<PoseGraphEdge>,
+}
+
+/// What the optimiser did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseGraphReport {
+    pub initial_cost: f64,
+    pub final_cost: f64,
+    pub iterations: usize,
+}
+
+/// Rotation log with the translation as is: the error coordinates (ω, υ) matching [`retract`].
+fn error_of(e: &Se3) -> Vector6<f64> {
+    let w = e.rotation.scaled_axis();
+    let t = e.translation.vector;
+    Vector6::new(w.x, w.y, w.z, t.x, t.y, t.z)
+}
+
+/// Inverse of SO3's right Jacobian at φ.
+fn so3_right_jacobian_inv(phi: &Vector3<f64>) -> Matrix3<f64> {
+    let theta = phi.norm();
+    let k = skew(phi);
+    if theta < 1e-6 {
+        return Matrix3::identity() + 0.5 * k + k * k / 12.0;
+    }
+    let c = 1.0 / (theta * theta) - (1.0 + theta.cos()) / (2.0 * theta * theta.sin());
+    Matrix3::identity() + 0.5 * k + c * k * k
+}
+
+/// Adjoint of `x` in (ω, υ) coordinates: exp(δ) x = x exp(Ad(x⁻¹) δ).
+fn adjoint(x: &Se3) -> Matrix6<f64> {
+    let r = *x.rotation.to_rotation_matrix().matrix();
+    let t = x.translation.vector;
+    let mut m = Matrix6::zeros();
+    m.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    m.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    m.fixed_view_mut::<3, 3>(3, 0).copy_from(&(skew(&t) * r));
+    m
+}
+
+/// Residual and Jacobians (w.r.t. left perturbations of T_iw and T_jw) of one edge.
+fn linearise(g: &PoseGraph, e: &PoseGraphEdge) -> (Vector6<f64>, Matrix6<f64>, Matrix6<f64>) {
+    let x = g.poses[e.i] * g.poses[e.j].inverse();
+    let err = e.t_ij.inverse() * x;
+    let r = error_of(&err);
+    // d r / d ξ for err · exp(ξ): J_r⁻¹ on the rotation, R_err on the translation.
+    let mut d = Matrix6::zeros();
+    d.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&so3_right_jacobian_inv(&Vector3::new(r[0], r[1], r[2])));
+    d.fixed_view_mut::<3, 3>(3, 3)
+        .copy_from(err.rotation.to_rotation_matrix().matrix());
+    let ji = d * adjoint(&x.inverse());
+    (r, ji, -d)
+}
+
+fn cost(g: &PoseGraph) -> f64 {
+    g.edges
+        .iter()
+        .map(|e| {
+            let x = g.poses[e.i] * g.poses[e.j].inverse();
+            e.weight * error_of(&(e.t_ij.inverse() * x)).norm_squared()
+        })
+        .sum()
+}
+
+/// Optimise the free poses for at most `iterations` Levenberg-Marquardt steps. A graph without
+/// a fixed pose gets its first pose fixed (the gauge).
+pub fn optimize_pose_graph(g: &mut PoseGraph, iterations: usize) -> PoseGraphReport {
+    let n = g.poses.len();
+    g.fixed.resize(n, false);
+    if !g.fixed.iter().any(|&f| f) && n > 0 {
+        g.fixed[0] = true;
+    }
+    g.edges.retain(|e| e.i < n && e.j < n && e.i != e.j);
+    // Free vertices, reordered to keep the Cholesky envelope narrow.
+    let free: Vec<usize> = (0..n).filter(|&v| !g.fixed[v]).collect();
+    let mut slot = vec![usize::MAX; n];
+    for (k, &v) in free.iter().enumerate() {
+        slot[v] = k;
+    }
+    let mut neighbours: Vec<Vec<usize>> = vec![Vec::new(); free.len()];
+    for e in &g.edges {
+        let (a, b) = (slot[e.i], slot[e.j]);
+        if a != usize::MAX && b != usize::MAX {
+            neighbours[a].push(b);
+            neighbours[b].push(a);
+        }
+    }
+    for nb in &mut neighbours {
+        nb.sort_unstable();
+        nb.dedup();
+    }
+    let order = reverse_cuthill_mckee(&neighbours);
+    let mut position = vec![0usize; free.len()];
+    for (p, &k) in order.iter().enumerate() {
+        position[k] = p;
+    }
+    // Block row b (in the new order) starts at the block of its earliest neighbour.
+    let first_block: Vec<usize> = order
+        .iter()
+        .map(|&k| {
+            neighbours[k]
+                .iter()
+                .map(|&m| position[m])
+                .chain(std::iter::once(position[k]))
+                .min()
+                .unwrap_or(position[k])
+        })
+        .collect();
+    let dim = 6 * free.len();
+    let index = |v: usize| -> Option<usize> {
+        let k = slot[v];
+        (k != usize::MAX).then(|| 6 * position[k])
+    };
+
+    let initial_cost = cost(g);
+    let mut current = initial_cost;
+    let mut lambda = 1e-4;
+    let mut done = 0;
+    for _ in 0..iterations {
+        if free.is_empty() {
+            break;
+        }
+        done += 1;
+        let mut h = Envelope::new(dim, &first_block);
+        let mut b = vec![0.0; dim];
+        for e in &g.edges {
+            let (r, ji, jj) = linearise(g, e);
+            let blocks = [(index(e.i), ji), (index(e.j), jj)];
+            for (ia, ja) in &blocks {
+                let Some(ia) = *ia else { continue };
+                let g_a = ja.transpose() * r * e.weight;
+                for (k, v) in g_a.iter().enumerate() {
+                    b[ia + k] += v;
+                }
+                for (ib, jb) in &blocks {
+                    let Some(ib) = *ib else { continue };
+                    if ib > ia {
+                        continue; // lower triangle only
+                    }
+                    let hab = ja.transpose() * jb * e.weight;
+                    for r_ in 0..6 {
+                        for c in 0..6 {
+                            if ia + r_ >= ib + c {
+                                h.add(ia + r_, ib + c, hab[(r_, c)]);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // Levenberg-Marquardt: retry with more damping until the cost goes down.
+        let mut improved = false;
+        for _ in 0..10 {
+            let mut damped = h.clone();
+            for i in 0..dim {
+                let d = damped.get(i, i);
+                damped.set(i, i, d + lambda * d.max(1e-9));
+            }
+            let Some(step) = damped.solve(&b) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let backup = g.poses.clone();
+            for &v in &free {
+                let Some(i0) = index(v) else { continue };
+                let d = Vector6::from_fn(|k, _| -step[i0 + k]);
+                g.poses[v] = retract(&g.poses[v], &d);
+            }
+            let c = cost(g);
+            if c < current {
+                current = c;
+                lambda = (lambda / 10.0).max(1e-9);
+                improved = true;
+                break;
+            }
+            g.poses = backup;
+            lambda *= 10.0;
+        }
+        if !improved || current < 1e-18 {
+            break;
+        }
+    }
+    PoseGraphReport {
+        initial_cost,
+        final_cost: current,
+        iterations: done,
+    }
+}
+
+/// Reverse Cuthill-McKee order of an undirected graph (adjacency lists): breadth-first from a
+/// low-degree vertex of each component, neighbours by increasing degree, then reversed.
+fn reverse_cuthill_mckee(adj: &[Vec<usize>]) -> Vec<usize> {
+    let n = adj.len();
+    let mut seen = vec![false; n];
+    let mut order = Vec::with_capacity(n);
+    let mut by_degree: Vec<usize> = (0..n).collect();
+    by_degree.sort_by_key(|&v| (adj[v].len(), v));
+    for &start in &by_degree {
+        if seen[start] {
+            continue;
+        }
+        seen[start] = true;
+        let mut queue = std::collections::VecDeque::from([start]);
+        while let Some(v) = queue.pop_front() {
+            order.push(v);
+            let mut next: Vec<usize> = adj[v].iter().copied().filter(|&u| !seen[u]).collect();
+            next.sort_by_key(|&u| (adj[u].len(), u));
+            for u in next {
+                seen[u] = true;
+                queue.push_back(u);
+            }
+        }
+    }
+    order.reverse();
+    order
+}
+
+/// A symmetric matrix stored by its lower envelope: row r holds columns first[r]..=r.
+#[derive(Clone, Debug)]
+struct Envelope {
+    first: Vec<usize>,
+    start: Vec<usize>,
+    values: Vec<f64>,
+}
+
+impl Envelope {
+    /// `first_block[b]`: the first 6x6 block column of block row b.
+    fn new(dim: usize, first_block: &[usize]) -> Self {
+        let mut first = Vec::with_capacity(dim);
+        let mut start = Vec::with_capacity(dim + 1);
+        let mut len = 0;
+        for r in 0..dim {
+            let f = 6 * first_block[r / 6];
+            first.push(f);
+            start.push(len);
+            len += r + 1 - f;
+        }
+        start.push(len);
+        Self {
+            first,
+            start,
+            values: vec![0.0; len],
+        }
+    }
+
+    fn at(&self, r: usize, c: usize) -> Option<usize> {
+        (c >= self.first[r] && c <= r).then(|| self.start[r] + c - self.first[r])
+    }
+
+    fn add(&mut self, r: usize, c: usize, v: f64) {
+        if let Some(k) = self.at(r, c) {
+            self.values[k] += v;
+        }
+    }
+
+    fn get(&self, r: usize, c: usize) -> f64 {
+        self.at(r, c).map_or(0.0, |k| self.values[k])
+    }
+
+    fn set(&mut self, r: usize, c: usize, v: f64) {
+        if let Some(k) = self.at(r, c) {
+            self.values[k] = v;
+        }
+    }
+
+    /// Solve A x = b by an in-place Cholesky factorisation of the envelope; `None` when A is
+    /// not positive definite.
+    fn solve(mut self, b: &[f64]) -> Option<Vec<f64>> {
+        let n = self.first.len();
+        for r in 0..n {
+            let fr = self.first[r];
+            for c in fr..=r {
+                let fc = self.first[c];
+                let k0 = fr.max(fc);
+                let (sr, sc) = (self.start[r] - fr, self.start[c] - fc);
+                let mut s = self.values[sr + c];
+                for k in k0..c {
+                    s -= self.values[sr + k] * self.values[sc + k];
+                }
+                if c == r {
+                    if s.is_nan() || s <= 0.0 {
+                        return None;
+                    }
+                    self.values[sr + r] = s.sqrt();
+                } else {
+                    self.values[sr + c] = s / self.values[sc + c];
+                }
+            }
+        }
+        // L y = b, then Lᵀ x = y.
+        let mut y = b.to_vec();
+        for r in 0..n {
+            let (fr, sr) = (self.first[r], self.start[r]);
+            let row = &self.values[sr..sr + r - fr];
+            let dot: f64 = row.iter().zip(&y[fr..r]).map(|(l, x)| l * x).sum();
+            y[r] = (y[r] - dot) / self.values[sr + r - fr];
+        }
+        for r in (0..n).rev() {
+            let (fr, sr) = (self.first[r], self.start[r]);
+            y[r] /= self.values[sr + r - fr];
+            let yr = y[r];
+            let row = &self.values[sr..sr + r - fr];
+            for (x, l) in y[fr..r].iter_mut().zip(row) {
+                *x -= l * yr;
+            }
+        }
+        y.iter().all(|v| v.is_finite()).then_some(y)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Camera-to-world poses around a circle of radius 3 m, looking outwards.
+    fn circle(n: usize) -> Vec<Se3> {
+        (0..n)
+            .map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / n as f64;
+                Se3::new(
+                    Vector3::new(3.0 * a.cos(), 3.0 * a.sin(), 0.1 * (3.0 * a).sin()),
+                    Vector3::new(0.0, a, 0.0),
+                )
+            })
+            .collect()
+    }
+
+    fn position_error(a: &[Se3], b: &[Se3]) -> f64 {
+        // Both gauges fix pose 0, so poses compare directly.
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x.inverse().translation.vector - y.inverse().translation.vector).norm())
+            .fold(0.0, f64::max)
+    }
+
+    /// Dead reckoning with a biased step: the drifted poses, and the measured steps.
+    fn drifted(truth: &[Se3]) -> (Vec<Se3>, Vec<Se3>) {
+        let bias = Se3::new(
+            Vector3::new(0.01, -0.004, 0.006),
+            Vector3::new(0.002, -0.003, 0.004),
+        );
+        let mut poses = vec![truth[0]];
+        let mut steps = Vec::new();
+        for k in 1..truth.len() {
+            let measured = truth[k - 1] * truth[k].inverse() * bias;
+            poses.push(measured.inverse() * poses[k - 1]);
+            steps.push(measured);
+        }
+        (poses, steps)
+    }
+
+    fn edge(i: usize, j: usize, t_ij: Se3) -> PoseGraphEdge {
+        PoseGraphEdge {
+            i,
+            j,
+            t_ij,
+            weight: 1.0,
+        }
+    }
+
+    #[test]
+    fn drifted_poses_converge_onto_consistent_edges() {
+        // Every edge exact (chain, loop, a few chords); the start is the drifted dead
+        // reckoning: the optimiser must find the truth again.
+        let n = 60;
+        let truth: Vec<Se3> = circle(n).iter().map(|p| p.inverse()).collect();
+        let (start, _) = drifted(&truth);
+        let rel = |i: usize, j: usize| truth[i] * truth[j].inverse();
+        let mut edges: Vec<PoseGraphEdge> = (1..n).map(|k| edge(k - 1, k, rel(k - 1, k))).collect();
+        edges.push(edge(n - 1, 0, rel(n - 1, 0)));
+        for k in (2..n).step_by(7) {
+            edges.push(edge(k - 2, k, rel(k - 2, k)));
+        }
+        let before = position_error(&start, &truth);
+        let mut g = PoseGraph {
+            poses: start,
+            fixed: vec![false; n],
+            edges,
+        };
+        g.fixed[0] = true;
+        let report = optimize_pose_graph(&mut g, 20);
+        let after = position_error(&g.poses, &truth);
+        assert!(before > 0.5, "drift {before}");
+        assert!(after < 1e-6, "before {before} after {after} ({report:?})");
+        assert_eq!(g.poses[0], truth[0], "the fixed pose moved");
+    }
+
+    #[test]
+    fn a_loop_edge_spreads_the_drift_of_biased_odometry() {
+        // Biased odometry, one exact loop edge: the drift is spread along the loop, so the
+        // worst position error drops well below the dead reckoning's.
+        let n = 60;
+        let truth: Vec<Se3> = circle(n).iter().map(|p| p.inverse()).collect();
+        let (start, steps) = drifted(&truth);
+        let mut edges: Vec<PoseGraphEdge> = steps
+            .iter()
+            .enumerate()
+            .map(|(k, s)| edge(k, k + 1, *s))
+            .collect();
+        edges.push(edge(n - 1, 0, truth[n - 1] * truth[0].inverse()));
+        let before = position_error(&start, &truth);
+        let mut g = PoseGraph {
+            poses: start,
+            fixed: vec![false; n],
+            edges,
+        };
+        g.fixed[0] = true;
+        let report = optimize_pose_graph(&mut g, 20);
+        let after = position_error(&g.poses, &truth);
+        eprintln!("worst position error {before:.3} -> {after:.3} m ({report:?})");
+        assert!(after < 0.4 * before, "before {before} after {after}");
+        assert!(report.final_cost < 0.1 * report.initial_cost, "{report:?}");
+    }
+
+    #[test]
+    fn consistent_graph_stays_and_no_fixed_pose_fixes_the_first() {
+        let truth: Vec<Se3> = circle(8).iter().map(|p| p.inverse()).collect();
+        let edges: Vec<PoseGraphEdge> = (1..8)
+            .map(|k| PoseGraphEdge {
+                i: k - 1,
+                j: k,
+                t_ij: truth[k - 1] * truth[k].inverse(),
+                weight: 1.0,
+            })
+            .collect();
+        let mut g = PoseGraph {
+            poses: truth.clone(),
+            fixed: Vec::new(),
+            edges,
+        };
+        let r = optimize_pose_graph(&mut g, 10);
+        assert!(r.initial_cost < 1e-20 && position_error(&g.poses, &truth) < 1e-9);
+        assert!(g.fixed[0]);
+    }
+
+    #[test]
+    fn envelope_cholesky_solves_a_banded_system_with_a_far_corner() {
+        // 12x12 (two blocks), SPD with coupling between the blocks.
+        let dim = 12;
+        let mut a = nalgebra::DMatrix::<f64>::zeros(dim, dim);
+        for i in 0..dim {
+            a[(i, i)] = 4.0 + i as f64;
+            if i > 0 {
+                a[(i, i - 1)] = 1.0;
+                a[(i - 1, i)] = 1.0;
+            }
+        }
+        a[(11, 0)] = 0.5;
+        a[(0, 11)] = 0.5;
+        let mut env = Envelope::new(dim, &[0, 0]);
+        for r in 0..dim {
+            for c in 0..=r {
+                env.add(r, c, a[(r, c)]);
+            }
+        }
+        let b: Vec<f64> = (0..dim).map(|i| i as f64 - 3.0).collect();
+        let x = env.solve(&b).unwrap();
+        let ax = &a * nalgebra::DVector::from_vec(x);
+        for i in 0..dim {
+            assert!((ax[i] - b[i]).abs() < 1e-10);
+        }
+    }
+
+    #[test]
+    fn jacobians_match_finite_differences() {
+        let a = Se3::new(Vector3::new(0.3, -0.2, 1.0), Vector3::new(0.1, 0.5, -0.2));
+        let b = Se3::new(Vector3::new(-0.4, 0.1, 0.2), Vector3::new(-0.3, 0.2, 0.4));
+        let m = Se3::new(Vector3::new(0.05, 0.0, -0.02), Vector3::new(0.2, -0.1, 0.3));
+        let e = PoseGraphEdge {
+            i: 0,
+            j: 1,
+            t_ij: m,
+            weight: 1.0,
+        };
+        let g = PoseGraph {
+            poses: vec![a, b],
+            fixed: vec![false, false],
+            edges: vec![e],
+        };
+        let (r0, ji, jj) = linearise(&g, &e);
+        for (v, j) in [(0usize, ji), (1, jj)] {
+            for k in 0..6 {
+                let mut d = Vector6::zeros();
+                d[k] = 1e-7;
+                let mut g2 = g.clone();
+                g2.poses[v] = retract(&g2.poses[v], &d);
+                let (r1, _, _) = linearise(&g2, &e);
+                let fd = (r1 - r0) / 1e-7;
+                assert!(
+                    (fd - j.column(k)).norm() < 1e-4 * (1.0 + fd.norm()),
+                    "vertex {v} column {k}: {fd} vs {}",
+                    j.column(k)
+                );
+            }
+        }
+    }
+}
