@@ -16,10 +16,10 @@ use std::time::Instant;
 use stillpoint_geometry::{Se3, Vec3};
 use tracing::{debug, info};
 
-use crate::data::{KeyFrame, KfId, Map, MpId};
+use crate::data::{KeyFrame, KfId, Map, MapPoint, MpId};
 use crate::optimize::{PoseGraph, PoseGraphEdge, optimize_pose_graph};
 use crate::place::{DatabaseParams, KeyFrameDatabase, Vocabulary};
-use crate::solve::rigid::{RigidPair, RigidRansacParams, ransac_rigid, refine_rigid};
+use crate::solve::rigid::{RigidPair, RigidRansacParams, apply, ransac_rigid, refine_rigid};
 use crate::{SlamSettings, hamming};
 
 /// Loop-closing parameters, ORB-SLAM's values unless said otherwise.
@@ -659,12 +659,7 @@ impl LoopCloser {
             let Some(p) = m.points.get(&mp).filter(|p| !p.bad) else {
                 continue;
             };
-            let po = p.position - center;
-            let dist = po.norm();
-            if dist < 0.8 * p.min_distance
-                || dist > 1.2 * p.max_distance
-                || po.dot(&p.normal) < 0.5 * dist
-            {
+            if !in_viewing_range(p, &center) {
                 continue;
             }
             let pc = apply(pose, &p.position);
@@ -1018,12 +1013,7 @@ impl LoopCloser {
             if p.observations.contains_key(&g) {
                 continue;
             }
-            let po = p.position - center;
-            let dist = po.norm();
-            if dist < 0.8 * p.min_distance
-                || dist > 1.2 * p.max_distance
-                || po.dot(&p.normal) < 0.5 * dist
-            {
+            if !in_viewing_range(p, &center) {
                 continue;
             }
             let pc = apply(&pose, &p.position);
@@ -1221,8 +1211,12 @@ fn update_normal_and_depth(m: &mut Map, mp: MpId, scales: &[f64]) {
 }
 
 /// A point moved by a pose (nalgebra's `Isometry * Vector` would only rotate it).
-fn apply(t: &Se3, p: &Vec3) -> Vec3 {
-    t.transform_point(&nalgebra::Point3::from(*p)).coords
+/// Whether a camera at `center` sees `p` within its scale range (x0.8 .. x1.2) and viewing cone
+/// (60 degrees from its normal), as ORB-SLAM's loop-closing projections ask.
+fn in_viewing_range(p: &MapPoint, center: &Vec3) -> bool {
+    let po = p.position - center;
+    let dist = po.norm();
+    dist >= 0.8 * p.min_distance && dist <= 1.2 * p.max_distance && po.dot(&p.normal) >= 0.5 * dist
 }
 
 /// Keypoints of `a` and `b` that both observe good map points, matched by descriptor (TH_LOW,

@@ -254,12 +254,17 @@ impl Tracker {
             epoch = map.epoch,
             "map initialised"
         );
+        self.start_tracking_from(kf, frame.index);
+        Some(kf)
+    }
+
+    /// A new map's first keyframe `kf` (frame `frame_index`) is where tracking goes on from.
+    fn start_tracking_from(&mut self, kf: KfId, frame_index: usize) {
         self.state = TrackingState::Ok;
         self.reference_kf = Some(kf);
-        self.last_kf_frame = frame.index;
+        self.last_kf_frame = frame_index;
         self.velocity = None;
         self.lost_frames = 0;
-        Some(kf)
     }
 
     /// Monocular initialisation: the frame goes to the two-view initialiser; once it reconstructs,
@@ -306,11 +311,7 @@ impl Tracker {
             epoch = map.epoch,
             "monocular map initialised"
         );
-        self.state = TrackingState::Ok;
-        self.reference_kf = Some(kf);
-        self.last_kf_frame = frame.index;
-        self.velocity = None;
-        self.lost_frames = 0;
+        self.start_tracking_from(kf, frame.index);
         Some((first, kf))
     }
 

@@ -48,10 +48,10 @@ impl Default for RansacParams {
     }
 }
 
-/// xorshift64*: a tiny deterministic generator for sampling.
-struct Rng(u64);
+/// xorshift64*: a tiny deterministic generator for sampling (every solver here uses it).
+pub(crate) struct Rng(pub(crate) u64);
 impl Rng {
-    fn below(&mut self, n: usize) -> usize {
+    pub(crate) fn below(&mut self, n: usize) -> usize {
         self.0 ^= self.0 >> 12;
         self.0 ^= self.0 << 25;
         self.0 ^= self.0 >> 27;

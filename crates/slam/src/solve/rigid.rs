@@ -2,6 +2,7 @@
 //! `Sim3Solver` with the scale fixed, as for RGB-D and stereo): RANSAC over 3-point Umeyama
 //! fits, scored by the reprojection error in both images, refined on the inliers.
 
+use super::Rng;
 use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3, umeyama};
 
 /// A matched pair: a map point in camera 1's frame and one in camera 2's, with the keypoints
@@ -62,17 +63,6 @@ pub fn rigid_inliers(t12: &Se3, pairs: &[RigidPair], cam: &PinholeCamera, chi2: 
 /// A point moved by a pose (nalgebra's `Isometry * Vector` would only rotate it).
 pub fn apply(t: &Se3, p: &Vec3) -> Vec3 {
     t.transform_point(&nalgebra::Point3::from(*p)).coords
-}
-
-/// xorshift64*, as the other solvers.
-struct Rng(u64);
-impl Rng {
-    fn below(&mut self, n: usize) -> usize {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 33) as usize % n.max(1)
-    }
 }
 
 fn fit(pairs: &[RigidPair], idx: impl Iterator<Item = usize> + Clone) -> Option<Se3> {
