@@ -693,6 +693,16 @@ impl LoopCloser {
         }
         let epoch = cur.map_epoch;
         m.update_connections(kf, self.s.covisibility_min_shared);
+        // Local mapping may have linked the two since detection (threaded): the loop keyframe
+        // would then be moved with the group and held fixed at once.
+        if m.keyframes[&kf].connections.contains_key(&v.loop_kf) {
+            debug!(
+                keyframe = kf,
+                loop_keyframe = v.loop_kf,
+                "loop keyframe now covisible; not corrected"
+            );
+            return None;
+        }
         let before: BTreeMap<KfId, Se3> = m
             .keyframes
             .values()
