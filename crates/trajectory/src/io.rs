@@ -315,13 +315,31 @@ fn tum_line(t: f64, pose: &Se3) -> String {
     )
 }
 
+/// Write `text` to a sibling temporary file, then rename it over `path`: a file already there
+/// (say, the trajectory written frame by frame before a loop correction rewrote it) is
+/// replaced whole or left as it was, never cut short.
+fn write_replacing(path: &Path, text: &str) -> Result<(), TrajectoryError> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".partial");
+    let tmp = std::path::PathBuf::from(tmp);
+    if std::fs::write(&tmp, text)
+        .and_then(|()| std::fs::rename(&tmp, path))
+        .is_ok()
+    {
+        return Ok(());
+    }
+    // A folder we may not create files in (e.g. `/dev/stdout`): write in place.
+    let _ = std::fs::remove_file(&tmp);
+    std::fs::write(path, text).map_err(io_err(path))
+}
+
 /// Write a whole trajectory in TUM format.
 pub fn write_tum(path: &Path, traj: &Trajectory) -> Result<(), TrajectoryError> {
     let mut s = String::from("# timestamp tx ty tz qx qy qz qw\n");
     for (t, p) in traj.stamps.iter().zip(&traj.poses) {
         s.push_str(&tum_line(*t, p));
     }
-    std::fs::write(path, s).map_err(io_err(path))
+    write_replacing(path, &s)
 }
 
 /// Write a whole trajectory in KITTI format (stamps are dropped).
@@ -333,7 +351,7 @@ pub fn write_kitti(path: &Path, traj: &Trajectory) -> Result<(), TrajectoryError
         s.push_str(&row.join(" "));
         s.push('\n');
     }
-    std::fs::write(path, s).map_err(io_err(path))
+    write_replacing(path, &s)
 }
 
 /// Writes a TUM trajectory one pose at a time, each line flushed to the file at once, so a run

@@ -116,6 +116,17 @@ fn files_roundtrip_and_missing_file_is_named() {
         w.write(*t, p).unwrap();
     }
     assert_eq!(read_tum(&live).unwrap().len(), 5);
+    // A whole-file write over it (as after a loop correction) replaces it whole, through a
+    // sibling file that does not stay behind.
+    let shorter =
+        Trajectory::from_parts(traj.stamps[..3].to_vec(), traj.poses[..3].to_vec()).unwrap();
+    write_tum(&live, &shorter).unwrap();
+    assert_eq!(read_tum(&live).unwrap().len(), 3);
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        3,
+        "a.txt, k.txt, live.txt"
+    );
     drop(w);
     let missing = dir.path().join("nope.txt");
     let e = read_trajectory_lenient(&missing, TrajectoryFormat::Tum)
