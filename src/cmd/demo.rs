@@ -133,11 +133,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "stage (ms)", "mean", "median", "p90", "off: mean"
     );
     for (k, v) in &on.timings {
+        let off_times = off.timings.iter().find(|(name, _)| name == k);
+        // Stages that ran in neither run (no loop closed: no correction) have no row.
+        if v.is_empty() && off_times.is_none_or(|(_, b)| b.is_empty()) {
+            continue;
+        }
         let (m, med, p90) = stats(v);
-        let base = off
-            .timings
-            .iter()
-            .find(|(name, _)| name == k)
+        let base = off_times
+            .filter(|(_, b)| !b.is_empty())
             .map_or("-".to_string(), |(_, b)| format!("{:.2}", stats(b).0));
         println!("{k:<30} {m:>9.2} {med:>9.2} {p90:>9.2} {base:>12}");
     }

@@ -844,7 +844,8 @@ pub fn print_summary(s: &RunSummary) {
         "{:<30} {:>9} {:>9} {:>9}",
         "stage", "mean ms", "median", "p90"
     );
-    for (k, v) in &s.timings {
+    // Stages that never ran (no loop closed: no correction) have no row.
+    for (k, v) in s.timings.iter().filter(|(_, v)| !v.is_empty()) {
         let (m, med, p90) = stats(v);
         println!("{k:<30} {m:>9.2} {med:>9.2} {p90:>9.2}");
     }
