@@ -13,8 +13,19 @@ fn stillpoint() -> Command {
 /// `stillpoint run --sequential --json` without the dynamic front-end (nothing moves); the JSON
 /// summary.
 fn run(seq: &Path, out: &Path, frames: usize, loop_closing: bool) -> serde_json::Value {
+    run_with(seq, out, frames, loop_closing, true)
+}
+
+/// [`run`], or with local mapping and loop closing on their own threads (`run`'s default).
+fn run_with(
+    seq: &Path,
+    out: &Path,
+    frames: usize,
+    loop_closing: bool,
+    sequential: bool,
+) -> serde_json::Value {
     let mut cmd = stillpoint();
-    cmd.args(["run", "--no-dynamic", "--sequential", "--json", "--frames"])
+    cmd.args(["run", "--no-dynamic", "--json", "--frames"])
         .arg(frames.to_string())
         .arg("--dataset")
         .arg(seq)
@@ -22,6 +33,9 @@ fn run(seq: &Path, out: &Path, frames: usize, loop_closing: bool) -> serde_json:
         .arg(out);
     if !loop_closing {
         cmd.arg("--no-loop-closing");
+    }
+    if sequential {
+        cmd.arg("--sequential");
     }
     let o = cmd.output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -66,15 +80,7 @@ fn the_loop_is_closed_at_the_revisit_and_the_ate_drops() {
     eprintln!("loop closing: {}", on["loop_closing"]);
     assert_eq!(on["tracked"].as_u64(), Some(frames as u64), "{on}");
     assert_eq!(off["tracked"].as_u64(), Some(frames as u64), "{off}");
-    let event = &on["loop_closing"]["events"][0];
-    let (frame, loop_frame) = (
-        event["frame"].as_u64().unwrap(),
-        event["loop_frame"].as_u64().unwrap(),
-    );
-    // The true revisit: a lap apart, and the two keyframes' true poses close.
-    assert!(frame > loop_frame + 400, "{event}");
-    assert!(event["gt_distance_m"].as_f64().unwrap() < 0.3, "{event}");
-    assert!(event["gt_angle_deg"].as_f64().unwrap() < 20.0, "{event}");
+    assert_true_revisit(&on["loop_closing"]["events"][0]);
     let (ate_on, ate_off) = (
         on["ate"]["rmse"].as_f64().unwrap(),
         off["ate"]["rmse"].as_f64().unwrap(),
@@ -85,4 +91,24 @@ fn the_loop_is_closed_at_the_revisit_and_the_ate_drops() {
     // The file on disk is the corrected trajectory, one line per frame.
     let t = stillpoint_trajectory::read_tum(&a).unwrap();
     assert_eq!(t.len(), frames);
+
+    // With its own threads (the default) the same loop is found: one loop, a true revisit.
+    let threaded = run_with(&seq, &a, frames, true, false);
+    assert_eq!(
+        threaded["loop_closing"]["loops"].as_u64(),
+        Some(1),
+        "{threaded}"
+    );
+    assert_true_revisit(&threaded["loop_closing"]["events"][0]);
+}
+
+/// A lap apart, and the two keyframes' true poses close.
+fn assert_true_revisit(event: &serde_json::Value) {
+    let (frame, loop_frame) = (
+        event["frame"].as_u64().unwrap(),
+        event["loop_frame"].as_u64().unwrap(),
+    );
+    assert!(frame > loop_frame + 400, "{event}");
+    assert!(event["gt_distance_m"].as_f64().unwrap() < 0.3, "{event}");
+    assert!(event["gt_angle_deg"].as_f64().unwrap() < 20.0, "{event}");
 }
