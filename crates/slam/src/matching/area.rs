@@ -3,7 +3,7 @@
 
 use stillpoint_geometry::Vec2;
 
-use super::rotation_outliers;
+use super::{NearestTwo, rotation_outliers};
 use crate::data::Frame;
 use crate::hamming;
 
@@ -29,27 +29,26 @@ pub fn search_for_initialisation(
             continue;
         }
         let at = prev_matched[i1];
-        let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
-        for i2 in cur.features_in_area(at.x, at.y, window, 0, 0) {
-            let d = hamming(&reference.descriptors[i1], &cur.descriptors[i2]);
-            if distance21[i2] <= d {
-                continue;
-            }
-            if d < best.0 {
-                second = best.0;
-                best = (d, i2);
-            } else if d < second {
-                second = d;
-            }
-        }
-        if best.0 <= th_low && (best.0 as f32) < ratio * second as f32 {
-            let i2 = best.1;
+        // A keypoint of `cur` already matched at least as closely is no candidate.
+        let best = NearestTwo::of(
+            cur.features_in_area(at.x, at.y, window, 0, 0)
+                .into_iter()
+                .map(|i2| {
+                    (
+                        i2,
+                        hamming(&reference.descriptors[i1], &cur.descriptors[i2]),
+                    )
+                })
+                .filter(|&(i2, d)| distance21[i2] > d),
+        );
+        if best.accepted(th_low, ratio) {
+            let i2 = best.index;
             if let Some(old) = matches21[i2] {
                 matches12[old] = None;
             }
             matches12[i1] = Some(i2);
             matches21[i2] = Some(i1);
-            distance21[i2] = best.0;
+            distance21[i2] = best.distance;
         }
     }
     let rot: Vec<(usize, f32)> = matches12

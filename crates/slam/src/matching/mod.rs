@@ -13,6 +13,42 @@ use crate::{Descriptor, SlamSettings, hamming};
 /// Bins of the rotation histogram (ORB-SLAM `HISTO_LENGTH`).
 const HISTO_LENGTH: usize = 30;
 
+/// The nearest of some candidates by descriptor distance, and the second-nearest distance
+/// (ORB-SLAM's bestDist / bestDist2 loops); `u32::MAX` where there is none.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct NearestTwo {
+    pub distance: u32,
+    pub index: usize,
+    pub second: u32,
+}
+
+impl NearestTwo {
+    /// Over (candidate index, Hamming distance) pairs; on ties the first candidate stays.
+    pub fn of(candidates: impl IntoIterator<Item = (usize, u32)>) -> Self {
+        let mut n = NearestTwo {
+            distance: u32::MAX,
+            index: usize::MAX,
+            second: u32::MAX,
+        };
+        for (i, d) in candidates {
+            if d < n.distance {
+                n.second = n.distance;
+                n.distance = d;
+                n.index = i;
+            } else if d < n.second {
+                n.second = d;
+            }
+        }
+        n
+    }
+
+    /// ORB-SLAM's acceptance: within `th_low` and clearly nearer than the second
+    /// (`distance < ratio x second`).
+    pub fn accepted(&self, th_low: u32, ratio: f32) -> bool {
+        self.distance <= th_low && (self.distance as f32) < ratio * self.second as f32
+    }
+}
+
 /// Keep only matches whose orientation change falls in the three most populated bins of a
 /// 30-bin histogram (ORB-SLAM's `ComputeThreeMaxima`). `matches` holds (frame keypoint,
 /// rotation change in degrees); returns the indices into `matches` to discard.
@@ -236,23 +272,17 @@ pub fn search_by_descriptors(
             continue;
         }
         let d_kf: &Descriptor = &kf.descriptors[i];
-        let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
-        for (c, dc) in cur.descriptors.iter().enumerate() {
-            if cur.map_points[c].is_some() {
-                continue;
-            }
-            let d = hamming(d_kf, dc);
-            if d < best.0 {
-                second = best.0;
-                best = (d, c);
-            } else if d < second {
-                second = d;
-            }
-        }
-        if best.0 <= th_low && (best.0 as f32) < ratio * second as f32 {
-            let c = best.1;
-            if taken[c].is_none_or(|(d, _)| best.0 < d) {
-                taken[c] = Some((best.0, i));
+        let best = NearestTwo::of(
+            cur.descriptors
+                .iter()
+                .enumerate()
+                .filter(|(c, _)| cur.map_points[*c].is_none())
+                .map(|(c, dc)| (c, hamming(d_kf, dc))),
+        );
+        if best.accepted(th_low, ratio) {
+            let c = best.index;
+            if taken[c].is_none_or(|(d, _)| best.distance < d) {
+                taken[c] = Some((best.distance, i));
             }
         }
     }
@@ -274,6 +304,19 @@ pub fn search_by_descriptors(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn nearest_two_keeps_the_first_of_ties_and_tracks_the_second() {
+        let n = NearestTwo::of([(4, 30), (7, 20), (9, 20), (2, 50)]);
+        assert_eq!((n.distance, n.index, n.second), (20, 7, 20));
+        assert!(!n.accepted(50, 0.9), "a tie is not clearly nearer");
+        let n = NearestTwo::of([(1, 40), (3, 10)]);
+        assert_eq!((n.distance, n.index, n.second), (10, 3, 40));
+        assert!(n.accepted(50, 0.9) && !n.accepted(9, 0.9));
+        let none = NearestTwo::of([]);
+        assert_eq!(none.index, usize::MAX);
+        assert!(!none.accepted(u32::MAX, 1.0));
+    }
 
     #[test]
     fn rotation_histogram_drops_inconsistent_matches() {

@@ -17,6 +17,7 @@ use stillpoint_geometry::{Se3, Vec3};
 use tracing::{debug, info};
 
 use crate::data::{KeyFrame, KfId, Map, MapPoint, MpId};
+use crate::matching::NearestTwo;
 use crate::optimize::{PoseGraph, PoseGraphEdge, optimize_pose_graph};
 use crate::place::{DatabaseParams, KeyFrameDatabase, Vocabulary};
 use crate::solve::rigid::{RigidPair, RigidRansacParams, apply, ransac_rigid, refine_rigid};
@@ -1251,20 +1252,16 @@ fn match_by_descriptor(
     let (ga, gb) = (good(a), good(b));
     let mut best_for_b: BTreeMap<usize, (u32, usize)> = BTreeMap::new();
     for &i in &ga {
-        let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
-        for &j in &gb {
-            let d = hamming(&a.descriptors[i], &b.descriptors[j]);
-            if d < best.0 {
-                second = best.0;
-                best = (d, j);
-            } else if d < second {
-                second = d;
-            }
-        }
-        if best.0 <= th_low && (best.0 as f32) < ratio * second as f32 {
-            let e = best_for_b.entry(best.1).or_insert((u32::MAX, usize::MAX));
-            if best.0 < e.0 {
-                *e = (best.0, i);
+        let best = NearestTwo::of(
+            gb.iter()
+                .map(|&j| (j, hamming(&a.descriptors[i], &b.descriptors[j]))),
+        );
+        if best.accepted(th_low, ratio) {
+            let e = best_for_b
+                .entry(best.index)
+                .or_insert((u32::MAX, usize::MAX));
+            if best.distance < e.0 {
+                *e = (best.distance, i);
             }
         }
     }
