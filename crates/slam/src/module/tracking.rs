@@ -93,24 +93,22 @@ impl Tracker {
     ) -> TrackOutcome {
         let mut out = TrackOutcome::default();
         let ok = match self.state {
-            TrackingState::NotInitialized if self.s.monocular => {
-                let origin = self.last_good_pose.unwrap_or_else(Se3::identity);
-                if let Some((first, kf)) = self.initialise_monocular(&mut frame, map, origin) {
-                    out.initialised = true;
-                    out.new_map = std::mem::take(&mut self.new_map_pending);
-                    out.first_keyframe = Some(first);
-                    out.new_keyframe = Some(kf);
-                    out.pose_wc = frame.pose_cw.map(|p| p.inverse());
-                    out.inliers = frame.map_points.iter().flatten().count();
-                    self.finish_frame(frame, true);
-                    return out;
-                }
-                false
-            }
             TrackingState::NotInitialized => {
                 let origin = self.last_good_pose.unwrap_or_else(Se3::identity);
-                if let Some(kf) = self.initialise(&mut frame, map, origin) {
+                // Monocular maps start from two keyframes (the reference one comes first).
+                let started = if self.s.monocular {
+                    self.initialise_monocular(&mut frame, map, origin)
+                        .map(|(first, kf)| (Some(first), kf))
+                } else {
+                    self.initialise(&mut frame, map, origin)
+                        .map(|kf| (None, kf))
+                };
+                if let Some((first, kf)) = started {
                     out.initialised = true;
+                    if first.is_some() {
+                        out.new_map = std::mem::take(&mut self.new_map_pending);
+                    }
+                    out.first_keyframe = first;
                     out.new_keyframe = Some(kf);
                     out.pose_wc = frame.pose_cw.map(|p| p.inverse());
                     out.inliers = frame.map_points.iter().flatten().count();
