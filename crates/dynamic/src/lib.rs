@@ -128,10 +128,12 @@ pub mod judge;
 pub mod keypoint_motion;
 pub mod memory;
 pub mod motion_consistency;
+pub mod objects;
 pub mod seated_motion;
 pub mod settings;
 #[cfg(test)]
 mod test_texture;
+pub mod world_motion;
 
 pub use cull::{cull, cull_with, near_outliers};
 pub use depth::{DepthCullInput, ObjectDepth, cull_frame, cull_with_depth};
@@ -147,12 +149,18 @@ pub use motion_consistency::{
     GeometryTimings, MotionCheck, MotionModel, TrackedPoint, motion_consistency,
     motion_consistency_pyramids,
 };
+pub use objects::{
+    Evidence, ObjectDecision, ObjectParams, ObjectTracker, TrackedObject, evidence_of,
+};
 pub use seated_motion::{
     SeatedMotionParams, apply_seated_motion, camera_motion, seated_candidates, seated_residual,
 };
 pub use settings::{
     BoxMemoryParams, CullParams, DepthParams, DynamicSettings, GeometryParams, JudgeParams,
     KeypointMotionParams,
+};
+pub use world_motion::{
+    WorldMotion, WorldMotionParams, WorldSource, judge_against_world, world_motion, world_residuals,
 };
 
 #[cfg(test)]

@@ -80,7 +80,7 @@ impl Default for SeatedMotionParams {
 /// Depth at the pixel nearest `p`, when valid and smooth: every pixel of the 3x3 window within
 /// [`DEPTH_EDGE_SHARE`] of the centre (corners sit on depth edges, where rounding the position
 /// picks either side).
-fn smooth_depth_at(depth: &DepthMetres, p: [f32; 2], range: [f32; 2]) -> Option<f64> {
+pub(crate) fn smooth_depth_at(depth: &DepthMetres, p: [f32; 2], range: [f32; 2]) -> Option<f64> {
     let z = depth_at(depth, p, range)? as f32;
     let (x, y) = (p[0].round() as isize, p[1].round() as isize);
     for dy in -1..=1 {
@@ -104,11 +104,11 @@ fn depth_at(depth: &DepthMetres, p: [f32; 2], range: [f32; 2]) -> Option<f64> {
 /// Largest relative depth step inside a 3x3 window that still counts as smooth.
 const DEPTH_EDGE_SHARE: f32 = 0.02;
 
-fn lift(cam: &PinholeCamera, p: [f32; 2], z: f64) -> Vec3 {
+pub(crate) fn lift(cam: &PinholeCamera, p: [f32; 2], z: f64) -> Vec3 {
     cam.unproject(&Vec2::new(p[0] as f64, p[1] as f64), z)
 }
 
-fn reprojection(cam: &PinholeCamera, t: &Se3, p: &Vec3, px: [f32; 2]) -> f64 {
+pub(crate) fn reprojection(cam: &PinholeCamera, t: &Se3, p: &Vec3, px: [f32; 2]) -> f64 {
     match cam.project(&(t.rotation * p + t.translation.vector)) {
         Some(q) => ((q.x - px[0] as f64).powi(2) + (q.y - px[1] as f64).powi(2)).sqrt(),
         None => f64::INFINITY,

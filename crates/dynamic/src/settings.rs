@@ -17,6 +17,12 @@ pub struct DynamicSettings {
     /// Per-keypoint motion evidence inside dynamic boxes (ours; see
     /// [`crate::keypoint_motion`](mod@crate::keypoint_motion)).
     pub keypoint_motion: KeypointMotionParams,
+    /// Motion judged against the static world instead of a two-frame consensus, RGB-D (ours;
+    /// see [`crate::world_motion`](mod@crate::world_motion)).
+    pub world: crate::world_motion::WorldMotionParams,
+    /// Objects tracked across frames, with hysteresis on their state (ours; see
+    /// [`crate::objects`]).
+    pub objects: crate::objects::ObjectParams,
 }
 
 impl DynamicSettings {
@@ -31,6 +37,8 @@ impl DynamicSettings {
         s.depth.enabled = false;
         s.memory.enabled = false;
         s.keypoint_motion.enabled = false;
+        s.world.enabled = false;
+        s.objects.enabled = false;
         s
     }
 }
