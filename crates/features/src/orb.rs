@@ -96,6 +96,9 @@ pub struct OrbExtractor {
     blur_tmp: Vec<u16>,
     timings: OrbTimings,
     score: OrbScore,
+    /// Rectangles `[x1, y1, x2, y2]` (level-0 pixels) where no corner is kept, so the budget
+    /// goes to the rest of the image.
+    exclude: Vec<[f32; 4]>,
 }
 
 /// Which corner score picks the keypoint kept in each quadtree node.
@@ -167,7 +170,26 @@ impl OrbExtractor {
             blur_tmp: Vec::new(),
             timings: OrbTimings::default(),
             score: OrbScore::default(),
+            exclude: Vec::new(),
         }
+    }
+
+    /// Keep no corner inside these rectangles (`[x1, y1, x2, y2]`, level-0 pixels) in the next
+    /// extractions, so that the feature budget is spent on the rest of the image (the boxes of
+    /// objects seen moving, whose keypoints would be culled anyway). Empty = the whole image.
+    ///
+    /// ```
+    /// use stillpoint_features::{OrbExtractor, OrbParams};
+    /// use stillpoint_image::Gray8;
+    /// let mut img = Gray8::new(320, 240, 0);
+    /// for y in 0..240 { for x in 0..320 { img.set(x, y, ((x / 6 * 37 + y / 6 * 91) % 200 + 20) as u8); } }
+    /// let mut orb = OrbExtractor::new(OrbParams { n_features: 300, ..Default::default() });
+    /// orb.set_exclusion(vec![[0.0, 0.0, 160.0, 240.0]]);
+    /// let f = orb.extract(&img);
+    /// assert!(f.keypoints.len() > 150 && f.keypoints.iter().all(|k| k.x >= 160.0));
+    /// ```
+    pub fn set_exclusion(&mut self, rects: Vec<[f32; 4]>) {
+        self.exclude = rects;
     }
 
     /// Choose the score that picks the keypoint of each quadtree node (and is reported as
@@ -230,6 +252,16 @@ impl OrbExtractor {
             }
             corners.clear();
             detect_in_cells(level_img, &self.params, &mut corners);
+            if !self.exclude.is_empty() {
+                let scale = self.scale_factors[level];
+                let exclude = &self.exclude;
+                corners.retain(|c| {
+                    let (x, y) = (c.x as f32 * scale, c.y as f32 * scale);
+                    !exclude
+                        .iter()
+                        .any(|r| x >= r[0] && x <= r[2] && y >= r[1] && y <= r[3])
+                });
+            }
             // The Harris score is part of detection, so it counts in `fast_ms`.
             let scores: Vec<f32> = match self.score {
                 OrbScore::Harris => corners

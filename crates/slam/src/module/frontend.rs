@@ -38,6 +38,10 @@ pub trait KeypointFilter: Send {
     /// Judge the keypoints (level-0 pixels) of a frame.
     fn judge(&mut self, frame: &FilterInput, keypoints: &[[f32; 2]]) -> FilterOutcome;
     fn name(&self) -> &str;
+    /// The pose tracking gave frame `index` (camera-to-world; `None` when it was not tracked),
+    /// called after each frame: a filter that judges motion against the static world predicts
+    /// the next frame's camera motion from these (the map's constant-velocity prior).
+    fn observe_pose(&mut self, _index: usize, _pose_wc: Option<&stillpoint_geometry::Se3>) {}
 }
 
 /// The baseline: keeps everything (`--no-dynamic`).

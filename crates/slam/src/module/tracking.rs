@@ -219,7 +219,9 @@ impl Tracker {
 
     /// Enough keypoints, and enough with depth, to start a map.
     fn can_initialise(&self, frame: &Frame) -> bool {
-        frame.len() > self.s.init_min_keypoints && frame.with_depth() >= self.s.init_min_with_depth
+        frame.len() > self.s.init_min_keypoints
+            && frame.with_depth() >= self.s.init_min_with_depth
+            && cells_with_depth(frame, &self.s.camera) >= self.s.init_min_cells_with_depth
     }
 
     /// RGB-D / stereo initialisation: every keypoint with depth becomes a map point of the first
@@ -596,7 +598,8 @@ impl Tracker {
         let (mut tracked_close, mut untracked_close) = (0, 0);
         for i in 0..frame.len() {
             let z = frame.depth[i];
-            if z > 0.0 && z < close {
+            // Keypoints that may not create points (on a possible mover) ask for no keyframe.
+            if z > 0.0 && z < close && !frame.no_new_point[i] {
                 if frame.map_points[i].is_some() && !frame.outliers[i] {
                     tracked_close += 1;
                 } else {
@@ -758,4 +761,18 @@ impl Tracker {
             self.last_good_pose = Some(p * delta);
         }
     }
+}
+
+/// Cells of a 4 x 4 grid over the image that hold a keypoint with depth.
+fn cells_with_depth(frame: &Frame, camera: &stillpoint_geometry::PinholeCamera) -> usize {
+    let (w, h) = (camera.width.max(1) as f64, camera.height.max(1) as f64);
+    let mut cells = [false; 16];
+    for (p, &z) in frame.points.iter().zip(&frame.depth) {
+        if z > 0.0 && p.x.is_finite() && p.y.is_finite() {
+            let cx = ((p.x / w * 4.0) as usize).min(3);
+            let cy = ((p.y / h * 4.0) as usize).min(3);
+            cells[cy * 4 + cx] = true;
+        }
+    }
+    cells.iter().filter(|&&c| c).count()
 }
