@@ -102,6 +102,18 @@ pub struct Args {
     /// (`FrontEndSettings::seated_kept_make_points`).
     #[arg(long)]
     pub seated_kept_points: Option<bool>,
+    /// Judge tracked points against the camera motion of the static world (map prior refined
+    /// on static tracks with depth; `dynamic::world_motion`) instead of a two-frame F alone.
+    #[arg(long)]
+    pub world_motion: Option<bool>,
+    /// Follow detected objects over time with hysteresis on their moving/static state
+    /// (`dynamic::objects`).
+    #[arg(long)]
+    pub objects: Option<bool>,
+    /// Feature budget: ORB keeps no corner in the boxes of objects that moved in the last frame
+    /// (`FrontEndSettings::orb_exclusion`).
+    #[arg(long)]
+    pub orb_exclusion: Option<bool>,
     /// Turn loop closing off (on by default: bag-of-words detection, SE3 verification,
     /// essential-graph correction).
     #[arg(long)]
@@ -152,6 +164,12 @@ pub struct Overrides {
     pub seated_motion_px: Option<f32>,
     pub seated_first_frame: Option<bool>,
     pub seated_kept_points: Option<bool>,
+    /// Judge motion against the static world (`dynamic::world_motion`).
+    pub world_motion: Option<bool>,
+    /// Objects tracked over time with hysteresis (`dynamic::objects`).
+    pub objects: Option<bool>,
+    /// ORB keeps no corner in the boxes of objects that moved in the last frame.
+    pub orb_exclusion: Option<bool>,
     /// Loop closing off (`--no-loop-closing`).
     pub no_loop_closing: bool,
     /// A DBoW2 text vocabulary instead of the one trained online.
@@ -337,6 +355,20 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
                 settings.seated_track_only = k;
             }
             settings.seated_motion.camera = Some(ds.camera);
+            settings.dynamic.world.camera = Some(ds.camera);
+            if o.paper_cull {
+                settings.dynamic.world.enabled = false;
+                settings.dynamic.objects.enabled = false;
+            }
+            if let Some(k) = o.overrides.world_motion {
+                settings.dynamic.world.enabled = k;
+            }
+            if let Some(k) = o.overrides.objects {
+                settings.dynamic.objects.enabled = k;
+            }
+            if let Some(k) = o.overrides.orb_exclusion {
+                settings.orb_exclusion = k;
+            }
             if let Some(k) = o.overrides.seated_motion {
                 settings.seated_motion.enabled = k;
             }
@@ -400,6 +432,9 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         }
         let mut t = FrameTimes::default();
         let t0 = Instant::now();
+        if let Some(f) = front.as_ref() {
+            orb.set_exclusion(f.orb_exclusion());
+        }
         let left_orb = match orb_init.as_mut() {
             Some(o) if sys.initialising() => o,
             _ => &mut orb,
@@ -493,6 +528,9 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             )
             .with_context(|| format!("frame {i} of {}", o.dataset.display()))?;
         t.tracking = report.tracking_ms;
+        if let Some(f) = front.as_mut() {
+            f.observe_pose(frame.index, report.pose_wc.as_ref());
+        }
         tracing::debug!(
             frame = i,
             state = ?report.state,
@@ -903,6 +941,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             seated_motion_px: args.seated_motion_px,
             seated_first_frame: args.seated_first_frame,
             seated_kept_points: args.seated_kept_points,
+            world_motion: args.world_motion,
+            objects: args.objects,
+            orb_exclusion: args.orb_exclusion,
             no_loop_closing: args.no_loop_closing,
             vocabulary: args.vocabulary.clone(),
         },

@@ -46,10 +46,11 @@ use std::time::Instant;
 
 use stillpoint_detect::{DetectInput, Detection, Detector};
 use stillpoint_dynamic::{
-    BoxPart, BoxState, CulledFrame, DynamicSettings, RememberedBox, SeatedMotionParams,
-    TrackedPoint, Verdict,
+    BoxPart, BoxState, CulledFrame, DynamicSettings, Evidence, ObjectDecision, ObjectTracker,
+    RememberedBox, SeatedMotionParams, TrackedPoint, Verdict, WorldSource,
 };
 use stillpoint_features::LkPyramid;
+use stillpoint_geometry::Se3;
 use stillpoint_image::{DepthMetres, Gray8};
 use stillpoint_slam::module::frontend::{FilterInput, FilterOutcome, KeypointFilter};
 
@@ -144,6 +145,12 @@ pub struct FrontEndSettings {
     /// measured before the cut-box rule, 1.0 px: same sitting ATE, YOLOX walking_xyz 2.04 with
     /// points against 1.98 without).
     pub seated_kept_make_points: bool,
+    /// Ours (feature budget): ORB extraction keeps no corner inside the boxes of objects that
+    /// moved in the last frame ([`DynamicFrontEnd::orb_exclusion`]), so its budget goes to the
+    /// static scene.
+    pub orb_exclusion: bool,
+    /// Growth of those boxes on each side, as a share of their size (ours: 0.05).
+    pub orb_exclusion_margin: f32,
 }
 
 impl Default for FrontEndSettings {
@@ -159,6 +166,8 @@ impl Default for FrontEndSettings {
             seated_motion: SeatedMotionParams::default(),
             seated_kept_on_first_frame: true,
             seated_kept_make_points: false,
+            orb_exclusion: false,
+            orb_exclusion_margin: 0.05,
         }
     }
 }
@@ -174,8 +183,15 @@ pub struct DynamicFrontEnd {
     prev_pyramid: Option<LkPyramid>,
     /// Boxes judged dynamic in the previous frame, or carried into it (`dynamic::memory`).
     memory: Vec<RememberedBox>,
-    /// The previous frame's depth, for the seated-part 3D motion test.
+    /// The previous frame's depth, for the static-world and seated-part 3D motion tests.
     prev_depth: Option<DepthMetres>,
+    /// Objects followed across frames, with hysteresis on their state.
+    objects: ObjectTracker,
+    /// The last two poses tracking gave (frame index, world-to-camera), newest last: the map's
+    /// constant-velocity prior for the static-world motion test.
+    poses: Vec<(usize, Se3)>,
+    /// What the last frame's static-world test did, for the logs and benches.
+    last_world: Option<WorldSource>,
 }
 
 impl DynamicFrontEnd {
@@ -187,7 +203,153 @@ impl DynamicFrontEnd {
             prev_pyramid: None,
             memory: Vec::new(),
             prev_depth: None,
+            objects: ObjectTracker::default(),
+            poses: Vec::new(),
+            last_world: None,
         }
+    }
+
+    /// Where the next frame's ORB extraction should spend no budget (`[x1, y1, x2, y2]`): the
+    /// boxes of objects moving in the last frame, grown by
+    /// [`FrontEndSettings::orb_exclusion_margin`] of their size on each side; empty when
+    /// [`FrontEndSettings::orb_exclusion`] is off.
+    pub fn orb_exclusion(&self) -> Vec<[f32; 4]> {
+        if !self.settings.orb_exclusion {
+            return Vec::new();
+        }
+        let last = self.objects.objects().iter().map(|o| o.last_seen).max();
+        let m = self.settings.orb_exclusion_margin;
+        self.objects
+            .objects()
+            .iter()
+            .filter(|o| o.moving && Some(o.last_seen) == last)
+            .map(|o| {
+                let b = &o.bbox;
+                let (dx, dy) = (m * b.width(), m * b.height());
+                [b.x1 - dx, b.y1 - dy, b.x2 + dx, b.y2 + dy]
+            })
+            .collect()
+    }
+
+    /// How the last frame's camera motion was judged against the static world (`None`: not
+    /// judged; the paper's two-frame check decided).
+    pub fn last_world_source(&self) -> Option<WorldSource> {
+        self.last_world
+    }
+
+    /// The map's prediction of the camera motion into frame `index` (previous- to
+    /// current-camera coordinates): the motion between the two frames before it, when tracking
+    /// gave both.
+    fn predicted_motion(&self, index: usize) -> Option<Se3> {
+        match self.poses.as_slice() {
+            [(i0, cw0), (i1, cw1)] if *i1 + 1 == index && *i0 + 1 == *i1 => {
+                let mut v = cw1 * cw0.inverse();
+                v.rotation.renormalize();
+                Some(v)
+            }
+            _ => None,
+        }
+    }
+
+    /// Judge the tracks against the static world (RGB-D with a camera): tracks in boxes of
+    /// movable classes, of objects seen moving, or of remembered dynamic boxes take no part in
+    /// the camera motion; then every track's outlier flag is its residual against that motion.
+    /// Returns whether the check was replaced.
+    fn judge_against_world(
+        &mut self,
+        index: usize,
+        check: &mut stillpoint_dynamic::MotionCheck,
+        dets: &[Detection],
+        prev_depth: Option<&DepthMetres>,
+    ) -> bool {
+        self.last_world = None;
+        let p = &self.settings.dynamic.world;
+        let Some(prev_depth) = prev_depth.filter(|_| p.enabled && p.camera.is_some()) else {
+            return false;
+        };
+        let movable = &self.settings.dynamic.objects.movable_classes;
+        let excluded: Vec<bool> = check
+            .points
+            .iter()
+            .map(|t| {
+                let [x, y] = t.cur;
+                let [px, py] = t.prev;
+                dets.iter()
+                    .any(|d| movable.contains(&d.class_id) && d.bbox.contains_strict(x, y))
+                    || self
+                        .objects
+                        .objects()
+                        .iter()
+                        .any(|o| o.moving && o.bbox.contains_strict(px, py))
+                    || self.memory.iter().any(|m| m.bbox.contains_strict(px, py))
+            })
+            .collect();
+        let prior = self.predicted_motion(index);
+        let Some(world) = stillpoint_dynamic::world_motion(
+            &check.points,
+            &excluded,
+            prev_depth,
+            prior.as_ref(),
+            p,
+        ) else {
+            return false;
+        };
+        let residuals =
+            stillpoint_dynamic::world_residuals(&check.points, prev_depth, &world.prev_to_cur, p);
+        let before = check.outliers();
+        let after =
+            stillpoint_dynamic::judge_against_world(check, &residuals, &world.prev_to_cur, p);
+        tracing::debug!(
+            frame = index,
+            source = ?world.source,
+            inliers = world.inliers,
+            excluded = excluded.iter().filter(|&&e| e).count(),
+            tracks = check.points.len(),
+            two_frame_outliers = before,
+            world_outliers = after,
+            "judged against the static world"
+        );
+        self.last_world = Some(world.source);
+        true
+    }
+
+    /// Map hygiene: kept keypoints inside the box of an object not yet proven still for
+    /// `ObjectParams::still_frames_to_map` frames create no map points, unless their depth puts
+    /// them clearly behind the object (background seen past a person).
+    fn movable_hygiene(
+        kps: &[[f32; 2]],
+        dynamic: &[bool],
+        states: &[BoxState],
+        decisions: &[ObjectDecision],
+        depth: Option<&DepthMetres>,
+        settings: &DynamicSettings,
+    ) -> Vec<bool> {
+        let blocked: Vec<&BoxState> = states
+            .iter()
+            .zip(decisions)
+            .filter(|(_, d)| !d.may_create_points)
+            .map(|(s, _)| s)
+            .collect();
+        if blocked.is_empty() {
+            return vec![false; kps.len()];
+        }
+        let depths =
+            depth.map(|d| stillpoint_dynamic::depth::keypoint_depths(d, kps, &settings.depth));
+        kps.iter()
+            .enumerate()
+            .map(|(i, &[x, y])| {
+                !dynamic[i]
+                    && blocked.iter().any(|s| {
+                        s.bbox.contains_strict(x, y) && {
+                            let behind = match (&depths, s.depth) {
+                                (Some(d), Some(o)) => d[i] > o.far,
+                                _ => false,
+                            };
+                            !behind
+                        }
+                    })
+            })
+            .collect()
     }
 
     pub fn settings(&self) -> &FrontEndSettings {
@@ -225,6 +387,17 @@ impl DynamicFrontEnd {
                 s.verdict = Verdict::Dynamic;
             }
         }
+        // Nothing is known of the objects yet: movable ones start moving.
+        let evidence: Vec<Evidence> = states
+            .iter()
+            .map(|s| stillpoint_dynamic::evidence_of(s, false, usize::MAX))
+            .collect();
+        let decisions = self.objects.update(
+            frame.index,
+            &mut states,
+            &evidence,
+            &self.settings.dynamic.objects,
+        );
         out.dynamic_boxes = states.iter().filter(|s| s.is_dynamic()).count();
         self.memory = stillpoint_dynamic::remember(&states, dets.len(), &[]);
         out.dynamic = stillpoint_dynamic::cull_frame(
@@ -235,7 +408,39 @@ impl DynamicFrontEnd {
             &self.settings.dynamic,
         );
         out.no_new_points = self.no_new_points(kps, &out.dynamic, &states, &[]);
+        self.add_hygiene(&mut out, kps, &states, &decisions, frame.depth);
         out
+    }
+
+    /// Merge [`DynamicFrontEnd::movable_hygiene`] into the outcome's `no_new_points`.
+    fn add_hygiene(
+        &self,
+        out: &mut FilterOutcome,
+        kps: &[[f32; 2]],
+        states: &[BoxState],
+        decisions: &[ObjectDecision],
+        depth: Option<&DepthMetres>,
+    ) {
+        if !self.settings.dynamic.objects.enabled {
+            return;
+        }
+        let blocked = Self::movable_hygiene(
+            kps,
+            &out.dynamic,
+            states,
+            decisions,
+            depth,
+            &self.settings.dynamic,
+        );
+        if !blocked.contains(&true) {
+            return;
+        }
+        if out.no_new_points.len() != kps.len() {
+            out.no_new_points = vec![false; kps.len()];
+        }
+        for (n, b) in out.no_new_points.iter_mut().zip(blocked) {
+            *n |= b;
+        }
     }
 
     /// Which kept keypoints must not create map points (empty when no rule is on).
@@ -314,11 +519,12 @@ impl KeypointFilter for DynamicFrontEnd {
             ..Default::default()
         };
         let prev = self.prev_gray.replace(frame.gray.clone());
-        let prev_depth = if self.settings.seated_motion.enabled {
-            std::mem::replace(&mut self.prev_depth, frame.depth.cloned())
-        } else {
-            None
-        };
+        let prev_depth =
+            if self.settings.seated_motion.enabled || self.settings.dynamic.world.enabled {
+                std::mem::replace(&mut self.prev_depth, frame.depth.cloned())
+            } else {
+                None
+            };
         let prev_pyramid = self.prev_pyramid.take();
         let (Some(prev), Some(prev_pyramid)) = (prev, prev_pyramid) else {
             self.prev_pyramid = Some(LkPyramid::new(
@@ -355,6 +561,15 @@ impl KeypointFilter for DynamicFrontEnd {
         });
         out.semantic_ms = semantic_ms;
         out.geometry_ms = geometry_ms;
+        let mut check = check;
+        let t0 = Instant::now();
+        let world = self.judge_against_world(
+            frame.index,
+            &mut check,
+            &dets,
+            prev_depth.as_ref().filter(|_| frame.depth.is_some()),
+        );
+        out.geometry_ms += t0.elapsed().as_secs_f64() * 1e3;
         let settings = &self.settings.dynamic;
         let mut states = stillpoint_dynamic::judge_boxes(&dets, &check.points, &settings.judge);
         // Box memory (ours): dynamic boxes of the previous frame that the detector missed now.
@@ -378,6 +593,14 @@ impl KeypointFilter for DynamicFrontEnd {
             &check.points,
             dets.len(),
         ));
+        // Objects over time (ours): each box's verdict is its object's state, with hysteresis.
+        let evidence: Vec<Evidence> = states
+            .iter()
+            .map(|s| stillpoint_dynamic::evidence_of(s, world, settings.objects.still_min_tracks))
+            .collect();
+        let decisions = self
+            .objects
+            .update(frame.index, &mut states, &evidence, &settings.objects);
         self.memory = stillpoint_dynamic::remember(&states, dets.len(), &carried);
         out.dynamic_boxes = states
             .iter()
@@ -449,12 +672,25 @@ impl KeypointFilter for DynamicFrontEnd {
                 *n |= t;
             }
         }
+        self.add_hygiene(&mut out, kps, &states, &decisions, frame.depth);
         self.prev_pyramid = Some(pyramid);
         out
     }
 
     fn name(&self) -> &str {
         "dynamic"
+    }
+
+    fn observe_pose(&mut self, index: usize, pose_wc: Option<&Se3>) {
+        match pose_wc {
+            Some(wc) => {
+                self.poses.push((index, wc.inverse()));
+                if self.poses.len() > 2 {
+                    self.poses.remove(0);
+                }
+            }
+            None => self.poses.clear(),
+        }
     }
 }
 
