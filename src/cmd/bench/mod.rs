@@ -4,6 +4,7 @@
 pub mod detect;
 pub mod dynamic;
 pub mod features;
+pub mod matrix;
 pub mod tum;
 
 #[derive(clap::Subcommand)]
@@ -16,6 +17,8 @@ pub enum BenchCommand {
     Dynamic(dynamic::Args),
     /// SLAM accuracy table (ATE, RPE) with the dynamic front-end on and off.
     Tum(tum::Args),
+    /// ATE and map points on movers over synthetic presets x seeds x {off, gt, yolox}.
+    Matrix(matrix::Args),
 }
 
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
@@ -24,5 +27,6 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Detect(a) => detect::run(a),
         BenchCommand::Dynamic(a) => dynamic::run(a),
         BenchCommand::Tum(a) => tum::run(a),
+        BenchCommand::Matrix(a) => matrix::run(a),
     }
 }
