@@ -114,6 +114,18 @@ pub struct Args {
     /// (`FrontEndSettings::orb_exclusion`).
     #[arg(long)]
     pub orb_exclusion: Option<bool>,
+    /// Map hygiene: kept keypoints in boxes of movable objects not proven still create no map
+    /// points (`FrontEndSettings::movable_hygiene`).
+    #[arg(long)]
+    pub movable_hygiene: Option<bool>,
+    /// Seated people's parts (NHBC's split) start still in the object tracker
+    /// (`dynamic::ObjectParams::seated_parts_start_still`).
+    #[arg(long)]
+    pub seated_start_still: Option<bool>,
+    /// Keypoints that may not create map points count toward a new keyframe, as in ORB-SLAM
+    /// (`SlamSettings::kf_count_blocked_close`).
+    #[arg(long)]
+    pub kf_count_blocked: Option<bool>,
     /// Turn loop closing off (on by default: bag-of-words detection, SE3 verification,
     /// essential-graph correction).
     #[arg(long)]
@@ -170,6 +182,12 @@ pub struct Overrides {
     pub objects: Option<bool>,
     /// ORB keeps no corner in the boxes of objects that moved in the last frame.
     pub orb_exclusion: Option<bool>,
+    /// Movable objects' kept keypoints create no map points until proven still.
+    pub movable_hygiene: Option<bool>,
+    /// Seated people's parts start still in the object tracker.
+    pub seated_start_still: Option<bool>,
+    /// Keypoints that may not create points count toward a keyframe (`SlamSettings`).
+    pub kf_count_blocked: Option<bool>,
     /// Loop closing off (`--no-loop-closing`).
     pub no_loop_closing: bool,
     /// A DBoW2 text vocabulary instead of the one trained online.
@@ -285,6 +303,9 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         settings.no_points_from_pose_outliers = !b;
     }
     settings.loop_closing.enabled = !o.overrides.no_loop_closing;
+    if let Some(k) = o.overrides.kf_count_blocked {
+        settings.kf_count_blocked_close = k;
+    }
     let vocabulary = match &o.overrides.vocabulary {
         Some(p) => {
             let f = std::fs::File::open(p).with_context(|| format!("opening {}", p.display()))?;
@@ -368,6 +389,12 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             }
             if let Some(k) = o.overrides.orb_exclusion {
                 settings.orb_exclusion = k;
+            }
+            if let Some(k) = o.overrides.movable_hygiene {
+                settings.movable_hygiene = k;
+            }
+            if let Some(k) = o.overrides.seated_start_still {
+                settings.dynamic.objects.seated_parts_start_still = k;
             }
             if let Some(k) = o.overrides.seated_motion {
                 settings.seated_motion.enabled = k;
@@ -944,6 +971,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             world_motion: args.world_motion,
             objects: args.objects,
             orb_exclusion: args.orb_exclusion,
+            movable_hygiene: args.movable_hygiene,
+            seated_start_still: args.seated_start_still,
+            kf_count_blocked: args.kf_count_blocked,
             no_loop_closing: args.no_loop_closing,
             vocabulary: args.vocabulary.clone(),
         },

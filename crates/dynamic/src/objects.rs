@@ -76,6 +76,10 @@ pub struct ObjectParams {
     /// Frames an object is remembered without a box (ours: 30); a box that reappears within
     /// them continues it.
     pub forget_after_frames: usize,
+    /// A seated person's parts (NHBC's split) start still instead of moving: the paper's own
+    /// case, a person at a desk, whose still torso the map may use from the first frame; one
+    /// frame of motion evidence makes a part moving as for any object.
+    pub seated_parts_start_still: bool,
 }
 
 impl Default for ObjectParams {
@@ -90,6 +94,7 @@ impl Default for ObjectParams {
             still_frames_to_map: 60,
             still_min_tracks: 8,
             forget_after_frames: 30,
+            seated_parts_start_still: false,
         }
     }
 }
@@ -174,6 +179,8 @@ impl ObjectTracker {
         let mut out = Vec::with_capacity(states.len());
         for (s, st) in states.iter_mut().enumerate() {
             let movable = p.movable_classes.contains(&st.class_id);
+            let starts_still =
+                !movable || (p.seated_parts_start_still && st.part != BoxPart::Whole);
             let o = match object_of[s] {
                 Some(o) => o,
                 None => {
@@ -182,9 +189,9 @@ impl ObjectTracker {
                         class_id: st.class_id,
                         part: st.part,
                         bbox: st.bbox,
-                        moving: movable,
+                        moving: !starts_still,
                         // Furniture is static from the start, as if long seen still.
-                        still_frames: if movable { 0 } else { p.still_frames_to_map },
+                        still_frames: if starts_still { p.still_frames_to_map } else { 0 },
                         last_seen: frame,
                         seen: 0,
                     });

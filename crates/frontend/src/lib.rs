@@ -149,6 +149,10 @@ pub struct FrontEndSettings {
     /// moved in the last frame ([`DynamicFrontEnd::orb_exclusion`]), so its budget goes to the
     /// static scene.
     pub orb_exclusion: bool,
+    /// Ours (map hygiene): kept keypoints inside the box of a movable object not proven still
+    /// for `ObjectParams::still_frames_to_map` frames create no map points, unless their depth
+    /// puts them behind the object.
+    pub movable_hygiene: bool,
     /// Growth of those boxes on each side, as a share of their size (ours: 0.05).
     pub orb_exclusion_margin: f32,
 }
@@ -167,6 +171,7 @@ impl Default for FrontEndSettings {
             seated_kept_on_first_frame: true,
             seated_kept_make_points: false,
             orb_exclusion: false,
+            movable_hygiene: true,
             orb_exclusion_margin: 0.05,
         }
     }
@@ -421,7 +426,7 @@ impl DynamicFrontEnd {
         decisions: &[ObjectDecision],
         depth: Option<&DepthMetres>,
     ) {
-        if !self.settings.dynamic.objects.enabled {
+        if !self.settings.dynamic.objects.enabled || !self.settings.movable_hygiene {
             return;
         }
         let blocked = Self::movable_hygiene(

@@ -69,6 +69,9 @@ pub struct SlamSettings {
     pub kf_close_tracked_max: usize,
     /// ... untracked close points above this force a keyframe (ORB-SLAM3: 100 / 70).
     pub kf_close_untracked_min: usize,
+    /// Count keypoints that may not create map points (on a possible mover) among the close
+    /// untracked ones that ask for a keyframe (ORB-SLAM counts every keypoint).
+    pub kf_count_blocked_close: bool,
     /// Fewer tracked inliers than this also ask for a keyframe (ours, not in ORB-SLAM3: 50). In
     /// dynamic scenes the front-end removes a third to half of the keypoints; measured on
     /// synthetic walking_xyz (gt boxes), inliers sank from ~100 to 42 over 18 frames without a
@@ -238,6 +241,7 @@ impl SlamSettings {
             kf_ref_ratio: 0.75,
             kf_close_tracked_max: 100,
             kf_close_untracked_min: 70,
+            kf_count_blocked_close: false,
             kf_weak_tracking_inliers: 50,
             no_points_from_pose_outliers: false,
             point_max_rejections: 0,

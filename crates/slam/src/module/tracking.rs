@@ -599,7 +599,7 @@ impl Tracker {
         for i in 0..frame.len() {
             let z = frame.depth[i];
             // Keypoints that may not create points (on a possible mover) ask for no keyframe.
-            if z > 0.0 && z < close && !frame.no_new_point[i] {
+            if z > 0.0 && z < close && (self.s.kf_count_blocked_close || !frame.no_new_point[i]) {
                 if frame.map_points[i].is_some() && !frame.outliers[i] {
                     tracked_close += 1;
                 } else {
