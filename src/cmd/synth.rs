@@ -9,7 +9,9 @@ use stillpoint_synth::{KinectNoise, Noise, Preset, SynthConfig, WriteOptions};
 pub struct Args {
     /// Scene and camera motion: walking_xyz, walking_static, walking_halfsphere, walking_rpy,
     /// sitting_xyz, sitting_static, sitting_halfsphere, crowd, placing_box, person_tracking,
-    /// static, loop (a lap of 20 s round the room); "all" only with --contact-sheet.
+    /// static, loop (a lap of 20 s round the room); living_cross, living_close, living_turn,
+    /// living_empty (a low-texture living room, a hand-held camera and one textured person
+    /// close to it; Kinect noise by default); "all" only with --contact-sheet.
     #[arg(long, default_value = "walking_xyz")]
     preset: String,
     /// Output folder (TUM layout). Optional when only a contact sheet is wanted.
@@ -27,9 +29,10 @@ pub struct Args {
     /// Image size WxH; the TUM fr3 intrinsics are scaled to it.
     #[arg(long, default_value = "640x480")]
     size: String,
-    /// Sensor noise: none or kinect.
-    #[arg(long, default_value = "none")]
-    noise: String,
+    /// Sensor noise: none or kinect. Default: kinect for the living_* presets, none for the
+    /// others.
+    #[arg(long)]
+    noise: Option<String>,
     /// Also write a KITTI-layout stereo sequence (image_0, image_1, calib.txt, times.txt, poses.txt,
     /// settings_stereo.toml) in the same folder; `stillpoint run --kind kitti` reads it as stereo.
     #[arg(long)]
@@ -84,10 +87,11 @@ fn config(args: &Args, preset: Preset) -> anyhow::Result<SynthConfig> {
     cam.cy = (cam.cy + 0.5) * sy - 0.5;
     cam.width = w;
     cam.height = h;
-    let noise = match args.noise.as_str() {
-        "none" => Noise::None,
-        "kinect" => Noise::Kinect(KinectNoise::default()),
-        other => bail!("--noise {other:?}: expected none or kinect"),
+    let noise = match args.noise.as_deref() {
+        None => preset.default_noise(),
+        Some("none") => Noise::None,
+        Some("kinect") => Noise::Kinect(KinectNoise::default()),
+        Some(other) => bail!("--noise {other:?}: expected none or kinect"),
     };
     if args.mask_min_motion.is_nan() || args.mask_min_motion < 0.0 {
         bail!(

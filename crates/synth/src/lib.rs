@@ -14,6 +14,7 @@
 //! }
 //! ```
 
+pub mod living;
 pub mod mesh;
 pub mod noise;
 pub mod presets;

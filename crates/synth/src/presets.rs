@@ -36,10 +36,24 @@ pub enum Preset {
     /// after 20 s and on: a revisit far from the recent keyframes, for loop closing (nothing
     /// else moves).
     Loop,
+    /// A low-texture living room (plain walls and floor, a few sparse items), a hand-held camera,
+    /// and one richly textured person who walks across the view close to the camera (0.8-2.5
+    /// m), stops, turns and crosses back: in view in ~1/3-1/2 of the frames, 20-50 % of the
+    /// image at times. Kinect-like noise by default.
+    LivingCross,
+    /// The living room with the person close in front of the camera for most of the sequence
+    /// (walking, stopping, turning, crossing the image; often 30-50 % of the image): the
+    /// "dominant textured mover".
+    LivingClose,
+    /// The living room with a fast-turning hand-held camera (yaw up to ~50 deg/s) while the person
+    /// crosses once (in view ~1/4 of the frames).
+    LivingTurn,
+    /// The living room and hand-held camera with nobody in it (the control).
+    LivingEmpty,
 }
 
 impl Preset {
-    pub const ALL: [Preset; 12] = [
+    pub const ALL: [Preset; 16] = [
         Preset::WalkingXyz,
         Preset::WalkingStatic,
         Preset::WalkingHalfsphere,
@@ -52,6 +66,10 @@ impl Preset {
         Preset::PersonTracking,
         Preset::Static,
         Preset::Loop,
+        Preset::LivingCross,
+        Preset::LivingClose,
+        Preset::LivingTurn,
+        Preset::LivingEmpty,
     ];
 
     pub fn name(&self) -> &'static str {
@@ -68,6 +86,28 @@ impl Preset {
             Preset::PersonTracking => "person_tracking",
             Preset::Static => "static",
             Preset::Loop => "loop",
+            Preset::LivingCross => "living_cross",
+            Preset::LivingClose => "living_close",
+            Preset::LivingTurn => "living_turn",
+            Preset::LivingEmpty => "living_empty",
+        }
+    }
+
+    /// The living-room presets (their own room, hand-held camera, Kinect noise by default).
+    pub fn is_living(&self) -> bool {
+        matches!(
+            self,
+            Preset::LivingCross | Preset::LivingClose | Preset::LivingTurn | Preset::LivingEmpty
+        )
+    }
+
+    /// The sensor noise a sequence of this preset gets unless told otherwise: Kinect-like for
+    /// the living-room presets (they imitate real RGB-D footage), none for the others.
+    pub fn default_noise(&self) -> crate::Noise {
+        if self.is_living() {
+            crate::Noise::Kinect(crate::KinectNoise::default())
+        } else {
+            crate::Noise::None
         }
     }
 
@@ -116,6 +156,27 @@ pub enum CameraPath {
         start: f64,
         pitch: f64,
     },
+    /// Hand-held: looking from `base` at `target`, with smooth sums of sinusoids added to the
+    /// position (world x, y, z, metres) and to the orientation (yaw, pitch, roll in the camera
+    /// frame, radians, as in `Rpy`).
+    Handheld {
+        base: P3,
+        target: P3,
+        pos: [Vec<Wave>; 3],
+        rot: [Vec<Wave>; 3],
+    },
+}
+
+/// One sinusoid of a hand-held camera path: `amp * sin(2 pi t / period + phase)`.
+#[derive(Clone, Copy, Debug)]
+pub struct Wave {
+    pub amp: f64,
+    pub period: f64,
+    pub phase: f64,
+}
+
+fn waves(t: f64, w: &[Wave]) -> f64 {
+    w.iter().map(|w| w.amp * wave(t, w.period, w.phase)).sum()
 }
 
 /// Camera-to-world pose at `eye` looking at `target` (camera x right, y down, z forward; world z up).
@@ -211,6 +272,22 @@ impl CameraPath {
                 let eye = centre + out * *radius + bob;
                 look_at(eye, eye + out + P3::new(0.0, 0.0, -pitch.tan()))
             }
+            CameraPath::Handheld {
+                base,
+                target,
+                pos,
+                rot,
+            } => {
+                let p = look_at(*base, *target);
+                let r = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), waves(t, &rot[0]))
+                    * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), waves(t, &rot[1]))
+                    * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), waves(t, &rot[2]));
+                let off = P3::new(waves(t, &pos[0]), waves(t, &pos[1]), waves(t, &pos[2]));
+                Isometry3::from_parts(
+                    Translation3::from(p.translation.vector + off),
+                    p.rotation * r,
+                )
+            }
         }
     }
 }
@@ -224,7 +301,7 @@ pub struct Photos {
     pub people: Vec<Texture>,
 }
 
-fn pose_xy(x: f64, y: f64, z: f64, yaw: f64) -> Se3 {
+pub(crate) fn pose_xy(x: f64, y: f64, z: f64, yaw: f64) -> Se3 {
     Isometry3::from_parts(
         Translation3::new(x, y, z),
         UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
@@ -506,7 +583,7 @@ fn random_outfit(s: &mut Scene, rng: &mut Pcg64Mcg) -> Outfit {
 }
 
 /// Height of a billboard person standing (m); cut-outs are scaled to it keeping their aspect.
-const BILLBOARD_HEIGHT: f64 = 1.45;
+pub const BILLBOARD_HEIGHT: f64 = 1.45;
 
 fn add_walker(
     s: &mut Scene,
@@ -598,6 +675,9 @@ fn add_seated(
 
 /// Build a preset's scene and camera path.
 pub fn build(preset: Preset, rng: &mut Pcg64Mcg, photos: &Photos) -> (Scene, CameraPath) {
+    if preset.is_living() {
+        return crate::living::build(preset, rng, photos);
+    }
     let mut s = Scene::new();
     furnish(&mut s, rng, photos);
     let eye = P3::new(0.0, -1.35, 1.35);
@@ -817,6 +897,9 @@ pub fn build(preset: Preset, rng: &mut Pcg64Mcg, photos: &Photos) -> (Scene, Cam
             start: PI / 2.0,
             pitch: 10f64.to_radians(),
         },
+        Preset::LivingCross | Preset::LivingClose | Preset::LivingTurn | Preset::LivingEmpty => {
+            unreachable!("the living-room presets are built by living::build")
+        }
     };
     (s, cam)
 }

@@ -19,6 +19,7 @@ pub mod coco {
     pub const BOTTLE: u16 = 39;
     pub const CUP: u16 = 41;
     pub const CHAIR: u16 = 56;
+    pub const COUCH: u16 = 57;
     pub const POTTED_PLANT: u16 = 58;
     /// Desks: COCO's "dining table".
     pub const DINING_TABLE: u16 = 60;

@@ -161,6 +161,33 @@ pub enum Style {
     Books,
     /// Leaves.
     Leaves,
+    /// Painted plaster (the living room's walls and ceiling): a plain colour with only very
+    /// low-contrast smooth variation and a soft shading from top to bottom; no marks, so it
+    /// gives ORB next to no corners.
+    Paint([f32; 3]),
+    /// Wall-to-wall carpet or matt floor: a plain colour with low-contrast smooth variation and
+    /// a fine, faint pile.
+    Carpet([f32; 3]),
+    /// A rug in a colour with a border band of a second colour and a faint lozenge pattern, all
+    /// low contrast.
+    Rug([f32; 3], [f32; 3]),
+    /// A framed painting (frame in the texture): soft sky, hills and a sun, mid contrast.
+    Painting,
+    /// Upholstery: a colour with soft folds and a faint weave.
+    Upholstery([f32; 3]),
+    /// A painted door or cabinet front: plain, with two faint recessed panels.
+    Panel([f32; 3]),
+    /// Wood grain without anything lying on it.
+    Grain([f32; 3]),
+    /// A checked (plaid) shirt: bands of the second colour crossing over the first, thin dark
+    /// lines, soft folds (high contrast, like the shirt in TUM fr3/walking).
+    Plaid([f32; 3], [f32; 3]),
+    /// A loud printed shirt: flowers of saturated colours over a base colour.
+    Floral([f32; 3]),
+    /// Denim: diagonal twill, fading, seams with contrast stitching and pockets.
+    Denim([f32; 3]),
+    /// Camouflage trousers: blotches of four colours (as the shorts in TUM fr3/walking).
+    Camo,
 }
 
 impl Canvas {
@@ -357,6 +384,35 @@ impl Canvas {
             g,
             [0.05, 0.05, 0.05],
         );
+    }
+
+    /// Multiply brightness by 1 + `amp` at the top row down to 1 - `amp` at the bottom (light from
+    /// above).
+    pub fn shade_vertical(&mut self, amp: f32) {
+        for y in 0..self.height {
+            let m = 1.0 + amp * (1.0 - 2.0 * y as f32 / self.height.max(1) as f32);
+            for p in &mut self.data[y * self.width..(y + 1) * self.width] {
+                for ch in p.iter_mut() {
+                    *ch *= m;
+                }
+            }
+        }
+    }
+
+    /// A lozenge (a square turned 45 degrees) outline of half-diagonal `r`, 2 texels wide.
+    pub fn lozenge(&mut self, cx: f32, cy: f32, r: f32, c: [f32; 3], alpha: f32) {
+        let ya = (cy - r).max(0.0) as usize;
+        let yb = ((cy + r).min(self.height as f32 - 1.0).max(0.0)) as usize;
+        let xa = (cx - r).max(0.0) as usize;
+        let xb = ((cx + r).min(self.width as f32 - 1.0).max(0.0)) as usize;
+        for y in ya..=yb {
+            for x in xa..=xb {
+                let d = (x as f32 - cx).abs() + (y as f32 - cy).abs();
+                if d <= r && d > r - 2.0 {
+                    blend(&mut self.data[y * self.width + x], c, alpha);
+                }
+            }
+        }
     }
 
     /// Finish: clamp to bytes, fully opaque.
@@ -603,6 +659,214 @@ pub fn procedural(style: Style, width: usize, height: usize, rng: &mut Pcg64Mcg)
                 x += bw + 1.0;
             }
             c.value_noise(rng, 4.0, 0.08, 1.0);
+        }
+        Style::Paint(base) => {
+            c = Canvas::new(width, height, base);
+            c.fbm(rng, big / 3.0, 0.025);
+            c.shade_vertical(0.05);
+        }
+        Style::Carpet(base) => {
+            c = Canvas::new(width, height, base);
+            c.fbm(rng, big / 4.0, 0.04);
+            c.value_noise(rng, 2.0, 0.02, 1.0);
+        }
+        Style::Rug(base, border) => {
+            c = Canvas::new(width, height, base);
+            let (w, h) = (width as f32, height as f32);
+            let b = 0.08 * w.min(h);
+            c.rect(0.0, 0.0, w, h, border, 1.0);
+            c.rect(b, b, w - b, h - b, base, 1.0);
+            // faint lozenges in the field
+            let cell = 0.12 * w.min(h);
+            let mut yy = b + cell;
+            while yy < h - b - cell * 0.5 {
+                let mut xx = b + cell;
+                while xx < w - b - cell * 0.5 {
+                    c.lozenge(xx, yy, cell * 0.35, border, 0.25);
+                    xx += cell;
+                }
+                yy += cell;
+            }
+            c.fbm(rng, big / 4.0, 0.05);
+            c.value_noise(rng, 2.0, 0.03, 1.0);
+        }
+        Style::Painting => {
+            let (w, h) = (width as f32, height as f32);
+            let sky = [
+                rng.random_range(0.45..0.65f32),
+                rng.random_range(0.6..0.75),
+                rng.random_range(0.75..0.85),
+            ];
+            c = Canvas::new(width, height, sky);
+            // the frame and a light mat
+            let f = 0.06 * w.min(h);
+            let m = 0.1 * w.min(h);
+            c.rect(0.0, 0.0, w, h, [0.25, 0.18, 0.12], 1.0);
+            c.rect(f, f, w - f, h - f, [0.88, 0.86, 0.8], 1.0);
+            c.rect(m + f, m + f, w - m - f, h - m - f, sky, 1.0);
+            let (x0, y0, x1, y1) = (m + f, m + f, w - m - f, h - m - f);
+            let sun = [0.95, 0.85, 0.55];
+            let r = 0.07 * (x1 - x0);
+            c.ellipse(
+                x0 + rng.random_range(0.2..0.8f32) * (x1 - x0),
+                y0 + 0.25 * (y1 - y0),
+                r,
+                r,
+                sun,
+                0.8,
+            );
+            for k in 0..3 {
+                let g = 0.55 - 0.1 * k as f32;
+                let col = [g * 0.6, g, g * 0.5];
+                let cy = y0 + (0.55 + 0.12 * k as f32) * (y1 - y0);
+                let cx = x0 + rng.random_range(0.0..1.0f32) * (x1 - x0);
+                let rx = rng.random_range(0.5..0.9f32) * (x1 - x0);
+                c.ellipse(cx, cy + 0.3 * (y1 - y0), rx, 0.35 * (y1 - y0), col, 1.0);
+            }
+            // keep the hills inside the mat
+            c.rect(0.0, y1, w, h, [0.88, 0.86, 0.8], 1.0);
+            c.rect(0.0, h - f, w, h, [0.25, 0.18, 0.12], 1.0);
+            c.rect(0.0, 0.0, x0, h, [0.88, 0.86, 0.8], 1.0);
+            c.rect(x1, 0.0, w, h, [0.88, 0.86, 0.8], 1.0);
+            c.rect(0.0, 0.0, f, h, [0.25, 0.18, 0.12], 1.0);
+            c.rect(w - f, 0.0, w, h, [0.25, 0.18, 0.12], 1.0);
+            c.fbm(rng, big / 4.0, 0.04);
+        }
+        Style::Upholstery(base) => {
+            c = Canvas::new(width, height, base);
+            c.fbm(rng, big / 3.0, 0.07);
+            c.value_noise(rng, 2.0, 0.025, 1.0);
+        }
+        Style::Panel(base) => {
+            c = Canvas::new(width, height, base);
+            let (w, h) = (width as f32, height as f32);
+            let shadow = [base[0] * 0.8, base[1] * 0.8, base[2] * 0.8];
+            for (ya, yb) in [(0.08, 0.45), (0.53, 0.92)] {
+                let r = [w * 0.15, h * ya, w * 0.85, h * yb];
+                c.rect(r[0], r[1], r[2], r[3], shadow, 0.35);
+                c.rect(r[0] + 3.0, r[1] + 3.0, r[2] - 3.0, r[3] - 3.0, base, 1.0);
+            }
+            c.fbm(rng, big / 3.0, 0.02);
+        }
+        Style::Grain(base) => {
+            c = Canvas::new(width, height, base);
+            c.value_noise(rng, big / 16.0, 0.2, 8.0);
+            c.value_noise(rng, big / 64.0, 0.1, 10.0);
+            c.value_noise(rng, 3.0, 0.04, 6.0);
+        }
+        Style::Plaid(a, b) => {
+            c = Canvas::new(width, height, a);
+            let period = (big / 20.0).max(8.0);
+            let dark = [a[0] * 0.2, a[1] * 0.2, a[2] * 0.2];
+            let light = [0.92, 0.92, 0.9];
+            for y in 0..height {
+                for x in 0..width {
+                    let (fx, fy) = ((x as f32 / period).fract(), (y as f32 / period).fract());
+                    let p = &mut c.data[y * width + x];
+                    if fx < 0.45 {
+                        blend(p, b, 0.6);
+                    }
+                    if fy < 0.45 {
+                        blend(p, b, 0.6);
+                    }
+                    if (0.62..0.7).contains(&fx) || (0.62..0.7).contains(&fy) {
+                        blend(p, light, 0.7);
+                    }
+                    if (0.84..0.9).contains(&fx) || (0.84..0.9).contains(&fy) {
+                        blend(p, dark, 0.8);
+                    }
+                }
+            }
+            c.fbm(rng, big / 3.0, 0.12);
+            c.value_noise(rng, 1.5, 0.04, 1.0);
+        }
+        Style::Floral(base) => {
+            c = Canvas::new(width, height, base);
+            let n = width * height / 700;
+            for _ in 0..n {
+                let x = rng.random_range(0.0..width as f32);
+                let y = rng.random_range(0.0..height as f32);
+                let r = rng.random_range(big * 0.012..big * 0.035);
+                let col = random_colour(rng);
+                let ang = rng.random_range(0.0..std::f32::consts::TAU);
+                if rng.random_bool(0.3) {
+                    // a leaf
+                    let leaf = [0.1, rng.random_range(0.3..0.55), 0.12];
+                    let d = [ang.cos(), ang.sin()];
+                    c.line(
+                        [x, y],
+                        [x + 2.0 * r * d[0], y + 2.0 * r * d[1]],
+                        r * 0.6,
+                        leaf,
+                    );
+                    continue;
+                }
+                for k in 0..5 {
+                    let a = ang + k as f32 * std::f32::consts::TAU / 5.0;
+                    c.ellipse(x + r * a.cos(), y + r * a.sin(), r * 0.6, r * 0.6, col, 1.0);
+                }
+                c.ellipse(x, y, r * 0.45, r * 0.45, [0.95, 0.85, 0.2], 1.0);
+            }
+            c.fbm(rng, big / 3.0, 0.1);
+        }
+        Style::Denim(base) => {
+            c = Canvas::new(width, height, base);
+            let (w, h) = (width as f32, height as f32);
+            for y in 0..height {
+                for x in 0..width {
+                    if (x + y) % 4 < 2 {
+                        let p = &mut c.data[y * width + x];
+                        for ch in p.iter_mut() {
+                            *ch *= 0.85;
+                        }
+                    }
+                }
+            }
+            c.fbm(rng, big / 3.0, 0.2);
+            // faded front (u = 0.5 faces forward) and knees
+            c.ellipse(w * 0.5, h * 0.55, w * 0.12, h * 0.2, [0.6, 0.68, 0.8], 0.35);
+            let stitch = [0.8, 0.6, 0.25];
+            for u in [0.25, 0.75] {
+                c.rect(w * u - 2.0, 0.0, w * u + 2.0, h, [0.1, 0.12, 0.2], 0.8);
+                c.rect(w * u + 3.0, 0.0, w * u + 4.0, h, stitch, 0.9);
+                c.rect(w * u - 4.0, 0.0, w * u - 3.0, h, stitch, 0.9);
+            }
+            // pocket outlines near the top, back and front, and a hem
+            for u in [0.05, 0.4, 0.6, 0.95] {
+                let (x0, x1) = (w * u - w * 0.06, w * u + w * 0.06);
+                c.rect(x0, h * 0.02, x1, h * 0.02 + 2.0, stitch, 0.9);
+                c.rect(x0, h * 0.02, x0 + 2.0, h * 0.18, stitch, 0.9);
+                c.rect(x1 - 2.0, h * 0.02, x1, h * 0.18, stitch, 0.9);
+                c.rect(x0, h * 0.18, x1, h * 0.18 + 2.0, stitch, 0.9);
+            }
+            c.rect(0.0, h - 6.0, w, h - 4.0, stitch, 0.9);
+            c.value_noise(rng, 1.5, 0.05, 1.0);
+        }
+        Style::Camo => {
+            c = Canvas::new(width, height, [0.55, 0.52, 0.38]);
+            let palette = [[0.3, 0.33, 0.18], [0.35, 0.25, 0.15], [0.12, 0.12, 0.1]];
+            for col in palette {
+                for _ in 0..(width * height / 900) {
+                    let x = rng.random_range(0.0..width as f32);
+                    let y = rng.random_range(0.0..height as f32);
+                    let r = rng.random_range(big * 0.02..big * 0.06);
+                    for _ in 0..3 {
+                        let dx = rng.random_range(-r..r);
+                        let dy = rng.random_range(-r..r);
+                        let rx = r * rng.random_range(0.5..1.0);
+                        c.ellipse(
+                            x + dx,
+                            y + dy,
+                            rx,
+                            rx * rng.random_range(0.5..1.0),
+                            col,
+                            1.0,
+                        );
+                    }
+                }
+            }
+            c.fbm(rng, big / 3.0, 0.1);
+            c.value_noise(rng, 1.5, 0.04, 1.0);
         }
         Style::Leaves => {
             c = Canvas::new(width, height, [0.12, 0.3, 0.1]);
