@@ -671,6 +671,7 @@ fn count_moving_points(sys: &System, dataset: &Path) -> usize {
         let Some(mask) = moving_mask(dataset, kf.timestamp) else {
             continue;
         };
+        let before = created.len();
         for (i, mp) in kf.map_points.iter().enumerate() {
             if let Some(mp) = mp
                 && on_mask(&mask, kf.points[i].x, kf.points[i].y)
@@ -679,8 +680,23 @@ fn count_moving_points(sys: &System, dataset: &Path) -> usize {
                 moving.insert(*mp);
                 if p.first_kf == kf.id {
                     created.insert(*mp);
+                    tracing::trace!(
+                        "keyframe {} point {mp} created on a mover at ({:.0}, {:.0}) depth {:.2}",
+                        kf.id,
+                        kf.points[i].x,
+                        kf.points[i].y,
+                        kf.depth.get(i).copied().unwrap_or(0.0)
+                    );
                 }
             }
+        }
+        if created.len() > before {
+            tracing::debug!(
+                "keyframe {} (frame at {:.3}): {} map points created on movers",
+                kf.id,
+                kf.timestamp,
+                created.len() - before
+            );
         }
     }
     tracing::info!(

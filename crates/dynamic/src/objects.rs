@@ -191,7 +191,11 @@ impl ObjectTracker {
                         bbox: st.bbox,
                         moving: !starts_still,
                         // Furniture is static from the start, as if long seen still.
-                        still_frames: if starts_still { p.still_frames_to_map } else { 0 },
+                        still_frames: if starts_still {
+                            p.still_frames_to_map
+                        } else {
+                            0
+                        },
                         last_seen: frame,
                         seen: 0,
                     });
