@@ -122,6 +122,10 @@ pub struct Args {
     /// (`dynamic::ObjectParams::seated_parts_start_still`).
     #[arg(long)]
     pub seated_start_still: Option<bool>,
+    /// Ring around a movable object's box, as a share of its size, in which keypoints at the
+    /// object's depth create no map points (`FrontEndSettings::movable_hygiene_margin`).
+    #[arg(long)]
+    pub hygiene_margin: Option<f32>,
     /// Keypoints that may not create map points count toward a new keyframe, as in ORB-SLAM
     /// (`SlamSettings::kf_count_blocked_close`).
     #[arg(long)]
@@ -186,6 +190,8 @@ pub struct Overrides {
     pub movable_hygiene: Option<bool>,
     /// Seated people's parts start still in the object tracker.
     pub seated_start_still: Option<bool>,
+    /// Ring around movable boxes covered by the hygiene rule, share of the box's size.
+    pub hygiene_margin: Option<f32>,
     /// Keypoints that may not create points count toward a keyframe (`SlamSettings`).
     pub kf_count_blocked: Option<bool>,
     /// Loop closing off (`--no-loop-closing`).
@@ -392,6 +398,9 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             }
             if let Some(k) = o.overrides.movable_hygiene {
                 settings.movable_hygiene = k;
+            }
+            if let Some(m) = o.overrides.hygiene_margin {
+                settings.movable_hygiene_margin = m;
             }
             if let Some(k) = o.overrides.seated_start_still {
                 settings.dynamic.objects.seated_parts_start_still = k;
@@ -989,6 +998,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             orb_exclusion: args.orb_exclusion,
             movable_hygiene: args.movable_hygiene,
             seated_start_still: args.seated_start_still,
+            hygiene_margin: args.hygiene_margin,
             kf_count_blocked: args.kf_count_blocked,
             no_loop_closing: args.no_loop_closing,
             vocabulary: args.vocabulary.clone(),
