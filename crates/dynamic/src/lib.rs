@@ -176,7 +176,8 @@ pub use settings::{
     KeypointMotionParams,
 };
 pub use world_motion::{
-    WorldMotion, WorldMotionParams, WorldSource, judge_against_world, world_motion, world_residuals,
+    WorldMotion, WorldMotionParams, WorldSource, judge_against_world, keypoint_world_residual,
+    world_motion, world_residuals,
 };
 
 #[cfg(test)]

@@ -60,6 +60,19 @@ pub struct WorldMotionParams {
     /// ... and the ratio of the smaller to the larger eigenvalue at least this (ours: 0.1;
     /// below it the patch is an edge).
     pub min_corner_ratio: f32,
+    /// Kept keypoints that would make map points are tracked back and judged against the static
+    /// world too; those that moved make none (ours, on: a person's knee entering the image
+    /// edge, too little of them for the detector, made close untracked points that asked for a
+    /// keyframe every other frame and went into the map).
+    pub check_new_points: bool,
+    /// A keypoint checked that way moved when its residual exceeds this, pixels (ours: 3; ORB
+    /// keypoints of coarse pyramid levels sit on a grid of up to 2-4 px, and at 1.5 px 1 % of a
+    /// still plain room's keypoints a frame were called moving).
+    pub new_point_moving_above_px: f32,
+    /// Kept keypoints within this many pixels of at least two such moving keypoints, at their
+    /// depth (within max(0.3 m, 15 %)), make no map points either (ours: 40; a mover's blurred
+    /// or plain parts give no evidence of their own).
+    pub new_point_radius_px: f32,
 }
 
 impl Default for WorldMotionParams {
@@ -75,6 +88,9 @@ impl Default for WorldMotionParams {
             ransac_iterations: 200,
             min_corner_strength: 60.0,
             min_corner_ratio: 0.1,
+            check_new_points: true,
+            new_point_moving_above_px: 3.0,
+            new_point_radius_px: 40.0,
         }
     }
 }
@@ -282,6 +298,32 @@ pub fn world_residuals(
         .collect()
 }
 
+/// The residual of a keypoint of the current frame against the static world: lifted with its
+/// (smooth) current depth, moved back by `prev_to_cur`, projected into the previous frame and
+/// compared with `prev_px`, where its backward track found it. `None` without a smooth depth or
+/// where the current patch is no corner ([`is_corner`]).
+pub fn keypoint_world_residual(
+    keypoint: [f32; 2],
+    prev_px: [f32; 2],
+    cur_gray: &Gray8,
+    cur_depth: &DepthMetres,
+    prev_to_cur: &Se3,
+    p: &WorldMotionParams,
+) -> Option<f32> {
+    let cam = p.camera.as_ref()?;
+    if !is_corner(cur_gray, keypoint, p) {
+        return None;
+    }
+    let z = smooth_depth_at(cur_depth, keypoint, p.depth_range)?;
+    let r = reprojection(
+        cam,
+        &prev_to_cur.inverse(),
+        &lift(cam, keypoint, z),
+        prev_px,
+    );
+    r.is_finite().then_some(r as f32)
+}
+
 /// True when the 7x7 patch of `img` around `at` is a corner LK can follow: the smaller
 /// eigenvalue of its structure tensor (central differences, mean per pixel) is at least
 /// [`WorldMotionParams::min_corner_strength`] and at least [`WorldMotionParams::min_corner_ratio`]
@@ -364,9 +406,9 @@ mod tests {
     /// A checkerboard of 19 px squares whose corners lie on the tracks' grid (20 + 38 k).
     fn board() -> Gray8 {
         let mut img = Gray8::new(640, 480, 0);
-        for y in 0..480 {
-            for x in 0..640 {
-                let dark = ((x + 18) / 19 + (y + 18) / 19) % 2 == 0;
+        for y in 0..480usize {
+            for x in 0..640usize {
+                let dark = (x.div_ceil(19) + y.div_ceil(19)) % 2 == 0;
                 img.set(x, y, if dark { 40 } else { 200 });
             }
         }

@@ -212,6 +212,8 @@ pub struct DynamicFrontEnd {
     poses: Vec<(usize, Se3)>,
     /// What the last frame's static-world test did, for the logs and benches.
     last_world: Option<WorldSource>,
+    /// ... and the camera motion it found (previous to current camera).
+    last_world_motion: Option<Se3>,
 }
 
 impl DynamicFrontEnd {
@@ -226,6 +228,7 @@ impl DynamicFrontEnd {
             objects: ObjectTracker::default(),
             poses: Vec::new(),
             last_world: None,
+            last_world_motion: None,
         }
     }
 
@@ -284,6 +287,7 @@ impl DynamicFrontEnd {
         prev_depth: Option<&DepthMetres>,
     ) -> bool {
         self.last_world = None;
+        self.last_world_motion = None;
         let p = &self.settings.dynamic.world;
         let Some(prev_depth) = prev_depth.filter(|_| p.enabled && p.camera.is_some()) else {
             return false;
@@ -361,7 +365,78 @@ impl DynamicFrontEnd {
             "judged against the static world"
         );
         self.last_world = Some(world.source);
+        self.last_world_motion = Some(world.prev_to_cur);
         true
+    }
+
+    /// Map hygiene against movers no box covers: each kept keypoint that may make a map point
+    /// is tracked back into the previous frame and judged against the static world's camera
+    /// motion; one that moved makes none (`WorldMotionParams::check_new_points`).
+    #[allow(clippy::too_many_arguments)]
+    fn bar_moving_new_points(
+        &self,
+        out: &mut FilterOutcome,
+        kps: &[[f32; 2]],
+        gray: &Gray8,
+        depth: &DepthMetres,
+        motion: &Se3,
+        (prev_pyramid, pyramid): (&LkPyramid, &LkPyramid),
+        check: &stillpoint_dynamic::MotionCheck,
+    ) {
+        let p = &self.settings.dynamic.world;
+        if !p.check_new_points {
+            return;
+        }
+        let barred = |i: usize| out.no_new_points.get(i).copied().unwrap_or(false);
+        let candidates: Vec<bool> = (0..kps.len())
+            .map(|i| !out.dynamic[i] && !barred(i))
+            .collect();
+        if !candidates.contains(&true) {
+            return;
+        }
+        let km = &self.settings.dynamic.keypoint_motion;
+        let motion_of =
+            stillpoint_dynamic::keypoint_motion(prev_pyramid, pyramid, kps, &candidates, check, km);
+        let depths =
+            stillpoint_dynamic::depth::keypoint_depths(depth, kps, &self.settings.dynamic.depth);
+        let mut moving: Vec<usize> = Vec::new();
+        for (i, m) in motion_of.iter().enumerate() {
+            let Some(m) = m.filter(|m| candidates[i] && m.fb_error <= km.max_fb_error_px) else {
+                continue;
+            };
+            let r =
+                stillpoint_dynamic::keypoint_world_residual(kps[i], m.prev, gray, depth, motion, p);
+            if r.is_some_and(|r| r > p.new_point_moving_above_px) {
+                moving.push(i);
+            }
+        }
+        if moving.is_empty() {
+            return;
+        }
+        if out.no_new_points.len() != kps.len() {
+            out.no_new_points = vec![false; kps.len()];
+        }
+        let r2 = p.new_point_radius_px * p.new_point_radius_px;
+        let mut barred_near = 0;
+        for i in (0..kps.len()).filter(|&i| candidates[i]) {
+            let d = depths[i];
+            let near = moving
+                .iter()
+                .filter(|&&m| {
+                    let (dx, dy) = (kps[m][0] - kps[i][0], kps[m][1] - kps[i][1]);
+                    let dm = depths[m];
+                    dx * dx + dy * dy <= r2 && d > 0.0 && (d - dm).abs() <= (0.3f32).max(0.15 * dm)
+                })
+                .count();
+            if moving.contains(&i) || near >= 2 {
+                out.no_new_points[i] = true;
+                barred_near += (!moving.contains(&i)) as usize;
+            }
+        }
+        tracing::debug!(
+            "{} kept keypoints moved against the static world, {barred_near} beside them: no new points",
+            moving.len()
+        );
     }
 
     /// Map hygiene: kept keypoints inside the box of an object not yet proven still for
@@ -722,6 +797,17 @@ impl KeypointFilter for DynamicFrontEnd {
             }
         }
         self.add_hygiene(&mut out, kps, &states, &decisions, frame.depth);
+        if let (Some(motion), Some(depth)) = (self.last_world_motion, frame.depth) {
+            self.bar_moving_new_points(
+                &mut out,
+                kps,
+                frame.gray,
+                depth,
+                &motion,
+                (&prev_pyramid, &pyramid),
+                &check,
+            );
+        }
         self.prev_pyramid = Some(pyramid);
         out
     }
@@ -1068,7 +1154,10 @@ mod tests {
             share(before)
         );
         assert!(share(ours) < 0.01, "{ours} of {total}");
-        assert!(share(before) > 5.0 * share(ours).max(0.002), "{before} of {total}");
+        assert!(
+            share(before) > 5.0 * share(ours).max(0.002),
+            "{before} of {total}"
+        );
     }
 
     #[test]
