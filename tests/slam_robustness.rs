@@ -74,10 +74,23 @@ fn blank_black_and_depthless_frames_do_not_abort() {
     assert!(ate < 0.02, "{summary}");
 }
 
-/// Truly lost: 15 frames from another place (the same room with other textures: no descriptor
-/// matches the map) spliced into a sequence. Tracking must not follow the foreign frames onto the
-/// map, must come back by relocalisation (or a new map) once the sequence returns, and the
-/// trajectory file must stay valid and accurate.
+/// Mirrors an image left to right in place.
+fn mirror<T: Copy>(img: &mut stillpoint_image::ImageBuf<T>) {
+    for y in 0..img.height {
+        for x in 0..img.width / 2 {
+            let (a, b) = (img.get(x, y), img.get(img.width - 1 - x, y));
+            img.set(x, y, b);
+            img.set(img.width - 1 - x, y, a);
+        }
+    }
+}
+
+/// Truly lost: 15 frames from another place spliced into a sequence: the same room with other
+/// textures, mirrored left to right (the synthetic rooms share their geometry and camera path, so
+/// unmirrored frames would agree with the map at the true pose, and tracking them is right).
+/// Tracking must not follow the foreign frames onto the map, must come back by relocalisation
+/// (or a new map) once the sequence returns, and the trajectory file must stay valid and
+/// accurate.
 #[test]
 fn frames_from_another_place_are_lost_then_relocalised() {
     let tmp = tempfile::tempdir().unwrap();
@@ -90,11 +103,19 @@ fn frames_from_another_place_are_lost_then_relocalised() {
         let theirs = sorted_names(&other.join(sub));
         let ours = sorted_names(&seq.join(sub));
         for i in foreign.clone() {
-            std::fs::copy(
+            let (from, to) = (
                 other.join(sub).join(&theirs[i]),
                 seq.join(sub).join(&ours[i]),
-            )
-            .unwrap();
+            );
+            if sub == "rgb" {
+                let mut img = stillpoint_image::read_rgb(&from).unwrap();
+                mirror(&mut img);
+                stillpoint_image::write_rgb(&to, &img).unwrap();
+            } else {
+                let mut img = stillpoint_image::read_depth16(&from).unwrap();
+                mirror(&mut img);
+                stillpoint_image::write_depth16(&to, &img).unwrap();
+            }
         }
     }
     let traj = tmp.path().join("traj.txt");
