@@ -3,17 +3,14 @@
 //! keyframe trajectory at the end, then a timing table like the paper's table 6.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use anyhow::{Context, bail};
 use stillpoint_datasets::{DatasetKind, GroundTruthFormat, Sensor, Sequence};
 use stillpoint_detect::{DetectSettings, GtDetectorParams};
-use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
 use stillpoint_image::Gray8;
-use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths};
-use stillpoint_slam::module::frontend::{FilterInput, KeypointFilter, remove_dynamic};
-use stillpoint_slam::{Feature, KeypointDepth, SlamSettings, System};
+use stillpoint_pipeline::{FrameTimings, Pipeline, PipelineSettings};
+use stillpoint_slam::System;
 use stillpoint_trajectory::{Alignment, AteOptions, RpeOptions, Trajectory, TumWriter};
 
 #[derive(clap::Args)]
@@ -200,15 +197,6 @@ pub struct Overrides {
     pub vocabulary: Option<PathBuf>,
 }
 
-/// Per-stage times of one frame, ms.
-#[derive(Clone, Copy, Default)]
-struct FrameTimes {
-    semantic: f64,
-    geometry: f64,
-    orb: f64,
-    tracking: f64,
-}
-
 /// What a run produced.
 pub struct RunSummary {
     pub name: String,
@@ -245,20 +233,6 @@ fn moving_mask(dataset: &Path, timestamp: f64) -> Option<Gray8> {
 fn on_mask(mask: &Gray8, x: f64, y: f64) -> bool {
     mask.get_checked(x.round() as isize, y.round() as isize)
         .is_some_and(|v| v > 127)
-}
-
-/// SLAM settings from a dataset's settings: monocular for a monocular sequence, else RGB-D (also
-/// for stereo, whose depth comes per keypoint; `bf` defaults to ORB-SLAM's TUM 40).
-pub fn slam_settings(s: &stillpoint_datasets::Settings) -> SlamSettings {
-    let mut out = if s.sensor == Sensor::Mono {
-        SlamSettings::monocular(s.camera, s.fps)
-    } else {
-        SlamSettings::rgbd(s.camera, s.bf.unwrap_or(40.0), s.fps)
-    };
-    out.th_depth = s.th_depth;
-    out.scale_factor = s.orb.scale_factor as f64;
-    out.n_levels = s.orb.n_levels.max(1);
-    out
 }
 
 /// Read a sequence's ground truth in its format. KITTI poses carry no stamps (line i is frame i):
@@ -300,7 +274,8 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         stillpoint_datasets::open(&o.dataset, o.kind, o.settings.as_deref())
             .with_context(|| format!("opening {}", o.dataset.display()))?;
     let ds = seq.settings().clone();
-    let mut settings = slam_settings(&ds);
+    let mut pipeline_settings = PipelineSettings::from_dataset(&ds);
+    let settings = &mut pipeline_settings.slam;
     settings.local_mapping_thread = !o.sequential;
     if let Some(n) = o.overrides.point_max_rejections {
         settings.point_max_rejections = n;
@@ -322,26 +297,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         }
         None => None,
     };
-    let orb_params = OrbParams {
-        n_features: ds.orb.n_features,
-        scale_factor: ds.orb.scale_factor,
-        n_levels: ds.orb.n_levels,
-        ini_th_fast: ds.orb.ini_th_fast,
-        min_th_fast: ds.orb.min_th_fast,
-    };
-    let mut orb = OrbExtractor::new(orb_params.clone());
-    // Monocular initialisation matches level-0 keypoints only: more features until the map
-    // exists (ORB-SLAM3's initialisation extractor).
-    let mut orb_init = settings.monocular.then(|| {
-        OrbExtractor::new(OrbParams {
-            n_features: orb_params.n_features * settings.mono_init.feature_factor.max(1),
-            ..orb_params.clone()
-        })
-    });
-    // Stereo: the right image gets its own extractor (its pyramid is kept for matching).
-    let mut orb_right = OrbExtractor::new(orb_params);
-    let (bf, fx) = (settings.bf, settings.camera.fx);
-    let mut front = match &o.detector {
+    let front = match &o.detector {
         None => None,
         Some(name) => {
             let boxes = seq.boxes();
@@ -441,9 +397,9 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     } else {
         indicatif::ProgressBar::hidden()
     };
-    let mut sys = System::with_vocabulary(settings, vocabulary);
-    let mut times: Vec<FrameTimes> = Vec::with_capacity(n);
-    let (mut stamps, mut poses) = (Vec::new(), Vec::new());
+    let mut pipeline = Pipeline::new(pipeline_settings, front, vocabulary);
+    let mut times: Vec<FrameTimings> = Vec::with_capacity(n);
+    let mut written: Option<f64> = None;
     let mut culled = Vec::with_capacity(n);
     let (mut tracked, mut relocs, mut new_maps) = (0, 0, 0);
     let has_masks = o.dataset.join("mask").is_dir();
@@ -466,165 +422,63 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
                 tracing::warn!("frame {i}: {w}");
             }
         }
-        let mut t = FrameTimes::default();
-        let t0 = Instant::now();
-        if let Some(f) = front.as_ref() {
-            orb.set_exclusion(f.orb_exclusion());
-        }
-        let left_orb = match orb_init.as_mut() {
-            Some(o) if sys.initialising() => o,
-            _ => &mut orb,
-        };
-        // Left and right images in parallel, as ORB-SLAM does.
-        let (feats, right_feats) = std::thread::scope(|sc| {
-            let right = frame
-                .right
-                .as_ref()
-                .map(|r| sc.spawn(|| orb_right.extract(r)));
-            let left = left_orb.extract(&frame.gray);
-            (left, right.and_then(|h| h.join().ok()))
-        });
-        t.orb = t0.elapsed().as_secs_f64() * 1e3;
-        let mut features: Vec<Feature> = feats.keypoints.iter().map(Feature::from).collect();
-        let mut descriptors = feats.descriptors;
-        let mut n_culled = 0;
-        let mut no_new_points = Vec::new();
-        if let Some(f) = front.as_mut() {
-            let kps: Vec<[f32; 2]> = features.iter().map(|k| [k.x, k.y]).collect();
-            let input = FilterInput {
-                index: frame.index,
-                timestamp: frame.timestamp,
-                gray: &frame.gray,
-                rgb: frame.rgb.as_ref(),
-                depth: frame.depth.as_ref(),
-            };
-            let outcome = f.judge(&input, &kps);
-            t.semantic = outcome.semantic_ms;
-            t.geometry = outcome.geometry_ms;
-            if outcome.no_new_points.len() == outcome.dynamic.len() {
-                no_new_points = outcome
-                    .no_new_points
-                    .iter()
-                    .zip(&outcome.dynamic)
-                    .filter(|(_, d)| !**d)
-                    .map(|(n, _)| *n)
-                    .collect();
-            }
-            n_culled = remove_dynamic(&mut features, &mut descriptors, &outcome.dynamic);
-        }
+        let r = pipeline
+            .track(&frame)
+            .with_context(|| format!("{}", o.dataset.display()))?;
+        let n_culled = r.culled();
         culled.push(n_culled);
         if has_masks {
             let mask = moving_mask(&o.dataset, frame.timestamp);
             moving_kept.push(mask.map_or(0, |m| {
-                features
+                r.keypoints
                     .iter()
-                    .filter(|f| on_mask(&m, f.x as f64, f.y as f64))
+                    .zip(&r.dynamic)
+                    .filter(|(k, d)| !**d && on_mask(&m, k[0] as f64, k[1] as f64))
                     .count()
             }));
         }
-        // Stereo: depth for the kept left keypoints by matching them along the rows.
-        let stereo_depth = match (&frame.right, &right_feats) {
-            (Some(right), Some(rf)) => {
-                let t1 = Instant::now();
-                let right_keypoints: Vec<Feature> =
-                    rf.keypoints.iter().map(Feature::from).collect();
-                let d = stereo_depths(
-                    &StereoView {
-                        keypoints: &features,
-                        descriptors: &descriptors,
-                        levels: orb.pyramid(&frame.gray),
-                    },
-                    &StereoView {
-                        keypoints: &right_keypoints,
-                        descriptors: &rf.descriptors,
-                        levels: orb_right.pyramid(right),
-                    },
-                    bf,
-                    fx,
-                    orb.scale_factors(),
-                    &StereoParams::default(),
-                );
-                t.orb += t1.elapsed().as_secs_f64() * 1e3;
-                Some(d)
-            }
-            _ => None,
-        };
-        let depth = match &stereo_depth {
-            Some(d) => KeypointDepth::PerKeypoint(d),
-            None => frame.depth.as_ref().into(),
-        };
-        let report = sys
-            .track_rgbd_masked(
-                i,
-                frame.timestamp,
-                &features,
-                &descriptors,
-                depth,
-                &no_new_points,
-            )
-            .with_context(|| format!("frame {i} of {}", o.dataset.display()))?;
-        t.tracking = report.tracking_ms;
-        if let Some(f) = front.as_mut() {
-            f.observe_pose(frame.index, report.pose_wc.as_ref());
-        }
         tracing::debug!(
             frame = i,
-            state = ?report.state,
-            keypoints = report.keypoints,
+            state = ?r.state,
+            keypoints = r.keypoints.len() - n_culled,
             culled = n_culled,
-            inliers = report.inliers,
-            keyframe = report.new_keyframe,
+            inliers = r.inliers,
+            keyframe = r.new_keyframe,
             "tracked"
         );
-        relocs += report.relocalised as usize;
-        new_maps += report.new_map as usize;
-        if let Some(p) = report.pose_wc {
+        relocs += r.relocalised as usize;
+        new_maps += r.new_map as usize;
+        if let Some(p) = r.pose_wc {
             tracked += 1;
-            if stamps.last().is_none_or(|&l| frame.timestamp > l) {
-                stamps.push(frame.timestamp);
-                poses.push(p);
+            if written.is_none_or(|l| frame.timestamp > l) {
+                written = Some(frame.timestamp);
                 if let Some(w) = writer.as_mut() {
                     w.write(frame.timestamp, &p)
                         .with_context(|| format!("writing frame {i}"))?;
                 }
             }
         }
-        bar.set_message(format!("{:?}, {} kf", report.state, sys.keyframe_count()));
-        times.push(t);
+        bar.set_message(format!(
+            "{:?}, {} kf",
+            r.state,
+            pipeline.system().keyframe_count()
+        ));
+        times.push(r.timings);
     }
     bar.finish_and_clear();
-    sys.shutdown().context("local mapping")?;
-    let loops = sys.loop_stats();
-    // After a loop correction the frames tracked before it follow their keyframes (ORB-SLAM
-    // saves its trajectory this way); without one, the file written as we went stays as is.
-    if loops.as_ref().is_some_and(|l| !l.loops.is_empty()) {
-        (stamps, poses) = (Vec::new(), Vec::new());
-        for (t, p) in sys.rebuilt_trajectory() {
-            if stamps.last().is_none_or(|&l| t > l) {
-                stamps.push(t);
-                poses.push(p);
-            }
-        }
-        if let Some(p) = &o.out {
-            let t = Trajectory::from_parts(stamps.clone(), poses.clone())
-                .context("rebuilt trajectory")?;
-            stillpoint_trajectory::write_tum(p, &t)
-                .with_context(|| format!("rewriting {}", p.display()))?;
-            tracing::info!("loop closed: trajectory rebuilt through the keyframes");
-        }
+    let fin = pipeline.finish().context("local mapping")?;
+    // After a loop correction the frames tracked before it follow their keyframes; without
+    // one, the file written as we went stays as is.
+    if fin.rebuilt
+        && let Some(p) = &o.out
+    {
+        stillpoint_trajectory::write_tum(p, &fin.trajectory)
+            .with_context(|| format!("rewriting {}", p.display()))?;
+        tracing::info!("loop closed: trajectory rebuilt through the keyframes");
     }
-    let trajectory = Trajectory::from_parts(stamps, poses).context("estimated trajectory")?;
-    let mut kf = sys.keyframe_trajectory();
-    kf.sort_by(|a, b| a.0.total_cmp(&b.0));
-    kf.dedup_by(|a, b| a.0 == b.0);
-    let keyframe_trajectory = Trajectory::from_parts(
-        kf.iter().map(|k| k.0).collect(),
-        kf.iter().map(|k| k.1).collect(),
-    )
-    .context("keyframe trajectory")?;
     if let Some(p) = &o.out {
         let kp = keyframe_path(p);
-        stillpoint_trajectory::write_tum(&kp, &keyframe_trajectory)
+        stillpoint_trajectory::write_tum(&kp, &fin.keyframe_trajectory)
             .with_context(|| format!("writing {}", kp.display()))?;
     }
     let ground_truth = seq.ground_truth().and_then(|p| {
@@ -632,16 +486,17 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             .map_err(|e| tracing::warn!("ground truth unreadable: {e:#}"))
             .ok()
     });
-    let moving_map_points = has_masks.then(|| count_moving_points(&sys, &o.dataset));
-    let pick = |f: fn(&FrameTimes) -> f64| times.iter().map(f).collect::<Vec<f64>>();
+    let moving_map_points = has_masks.then(|| count_moving_points(&fin.system, &o.dataset));
+    let pick = |f: fn(&FrameTimings) -> f64| times.iter().map(f).collect::<Vec<f64>>();
     let mut timings = vec![];
     if o.detector.is_some() {
-        timings.push(("semantic", pick(|t| t.semantic)));
-        timings.push(("geometry", pick(|t| t.geometry)));
+        timings.push(("semantic", pick(|t| t.semantic_ms)));
+        timings.push(("geometry", pick(|t| t.geometry_ms)));
     }
-    timings.push(("orb", pick(|t| t.orb)));
-    timings.push(("tracking", pick(|t| t.tracking)));
-    timings.push(("local mapping (per keyframe)", sys.mapping_times_ms()));
+    timings.push(("orb", pick(|t| t.orb_ms)));
+    timings.push(("tracking", pick(|t| t.tracking_ms)));
+    let loops = fin.loops;
+    timings.push(("local mapping (per keyframe)", fin.mapping_ms));
     if let Some(l) = &loops {
         timings.push(("loop detection (per keyframe)", l.detection_ms.clone()));
         timings.push(("loop correction", l.correction_ms.clone()));
@@ -653,13 +508,13 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         sensor: ds.sensor,
         frames: n,
         tracked,
-        keyframes: sys.keyframe_count(),
-        map_points: sys.map_point_count(),
+        keyframes: fin.keyframes,
+        map_points: fin.map_points,
         relocalisations: relocs,
         new_maps,
         culled_per_frame: culled,
-        trajectory,
-        keyframe_trajectory,
+        trajectory: fin.trajectory,
+        keyframe_trajectory: fin.keyframe_trajectory,
         ground_truth,
         timings,
         detector: detector_name,

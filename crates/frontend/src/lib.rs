@@ -59,7 +59,7 @@ use stillpoint_dynamic::{
     RememberedBox, SeatedMotionParams, TrackedPoint, Verdict, WorldSource,
 };
 use stillpoint_features::LkPyramid;
-use stillpoint_geometry::Se3;
+use stillpoint_geometry::{PinholeCamera, Se3};
 use stillpoint_image::{DepthMetres, Gray8};
 use stillpoint_slam::module::frontend::{FilterInput, FilterOutcome, KeypointFilter};
 
@@ -230,6 +230,14 @@ impl DynamicFrontEnd {
             last_world: None,
             last_world_motion: None,
         }
+    }
+
+    /// Give the checks that project through the camera (motion against the static world, seated
+    /// people's parts) the camera's intrinsics where the settings left them unset; the pipeline
+    /// calls this with its own camera.
+    pub fn use_camera(&mut self, camera: PinholeCamera) {
+        self.settings.dynamic.world.camera.get_or_insert(camera);
+        self.settings.seated_motion.camera.get_or_insert(camera);
     }
 
     /// Where the next frame's ORB extraction should spend no budget (`[x1, y1, x2, y2]`): the

@@ -1,0 +1,400 @@
+//! stillpoint-pipeline: the whole system on images.
+//!
+//! [`Pipeline`] takes a dataset's frames ([`stillpoint_datasets::Frame`]: gray, colour, depth or
+//! a right image) and does everything between pixels and poses: ORB extraction (a bigger
+//! extractor while a monocular map initialises, the right image in parallel for stereo), the
+//! dynamic front-end when one is given (boxes, motion against the static world, culling, which
+//! kept keypoints may not create map points), stereo depth per keypoint, tracking, local mapping
+//! and loop closing. [`Pipeline::track`] returns what happened to one frame
+//! ([`FrameResult`]); [`Pipeline::finish`] stops the threads and returns the trajectory (rebuilt
+//! through the keyframes after a loop closed), the keyframe trajectory and the map.
+//!
+//! ```no_run
+//! use stillpoint_pipeline::{Pipeline, PipelineSettings};
+//! let seq = stillpoint_datasets::open("rgbd_dataset_freiburg3_walking_xyz".as_ref(), None, None)?;
+//! let mut slam = Pipeline::new(PipelineSettings::from_dataset(seq.settings()), None, None);
+//! for i in 0..seq.len() {
+//!     let result = slam.track(&seq.frame(i)?)?;
+//!     println!("{} {:?}", result.timestamp, result.pose_wc);
+//! }
+//! let run = slam.finish()?;
+//! println!("{} poses, {} map points", run.trajectory.len(), run.map_points);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+#![deny(missing_docs)]
+
+use std::time::Instant;
+
+use stillpoint_datasets::{Frame, Sensor};
+use stillpoint_features::{OrbExtractor, OrbParams};
+use stillpoint_frontend::DynamicFrontEnd;
+use stillpoint_geometry::Se3;
+use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths};
+use stillpoint_slam::module::frontend::{FilterInput, KeypointFilter, remove_dynamic};
+use stillpoint_slam::module::loop_closing::LoopStats;
+use stillpoint_slam::place::Vocabulary;
+use stillpoint_slam::{Feature, KeypointDepth, SlamError, SlamSettings, System, TrackingState};
+use stillpoint_trajectory::{Trajectory, TrajectoryError};
+
+/// Why the pipeline stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    /// Tracking refused a frame (bad input) or local mapping stopped.
+    #[error("frame {index}: {source}")]
+    Slam {
+        /// The frame's index.
+        index: usize,
+        /// What the SLAM said.
+        source: SlamError,
+    },
+    /// Stopping local mapping and loop closing failed.
+    #[error("stopping: {0}")]
+    Shutdown(SlamError),
+    /// The poses do not make a trajectory (never expected: stamps are kept increasing).
+    #[error("{0}")]
+    Trajectory(#[from] TrajectoryError),
+}
+
+/// Everything the pipeline needs besides a front-end and a vocabulary.
+#[derive(Clone, Debug)]
+pub struct PipelineSettings {
+    /// Tracking, mapping and loop closing.
+    pub slam: SlamSettings,
+    /// The ORB extractor (the right image of a stereo pair uses the same).
+    pub orb: OrbParams,
+    /// Stereo matching along the rows (stereo pairs only).
+    pub stereo: StereoParams,
+}
+
+impl PipelineSettings {
+    /// Settings from a dataset's settings: monocular for a monocular sequence, else RGB-D (also
+    /// for stereo, whose depth comes per keypoint; `bf` defaults to ORB-SLAM's TUM 40).
+    pub fn from_dataset(s: &stillpoint_datasets::Settings) -> Self {
+        let mut slam = if s.sensor == Sensor::Mono {
+            SlamSettings::monocular(s.camera, s.fps)
+        } else {
+            SlamSettings::rgbd(s.camera, s.bf.unwrap_or(40.0), s.fps)
+        };
+        slam.th_depth = s.th_depth;
+        slam.scale_factor = s.orb.scale_factor as f64;
+        slam.n_levels = s.orb.n_levels.max(1);
+        let orb = OrbParams {
+            n_features: s.orb.n_features,
+            scale_factor: s.orb.scale_factor,
+            n_levels: s.orb.n_levels,
+            ini_th_fast: s.orb.ini_th_fast,
+            min_th_fast: s.orb.min_th_fast,
+        };
+        Self {
+            slam,
+            orb,
+            stereo: StereoParams::default(),
+        }
+    }
+}
+
+/// Milliseconds spent on one frame, per stage.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct FrameTimings {
+    /// The detector (0 without a front-end).
+    pub semantic_ms: f64,
+    /// The front-end's motion check (0 without a front-end).
+    pub geometry_ms: f64,
+    /// ORB extraction, and stereo matching for a pair.
+    pub orb_ms: f64,
+    /// Tracking (frame building included).
+    pub tracking_ms: f64,
+}
+
+/// What happened to one frame.
+#[derive(Clone, Debug)]
+pub struct FrameResult {
+    /// Position of the frame in its sequence.
+    pub index: usize,
+    /// The frame's time (seconds).
+    pub timestamp: f64,
+    /// Camera-to-world pose when tracked (TUM convention).
+    pub pose_wc: Option<Se3>,
+    /// Tracking's state after the frame.
+    pub state: TrackingState,
+    /// Every keypoint ORB found (level-0 pixels), culled ones included.
+    pub keypoints: Vec<[f32; 2]>,
+    /// Per keypoint: `true` = judged on a moving object and removed before tracking.
+    pub dynamic: Vec<bool>,
+    /// Per keypoint: kept for tracking but barred from creating map points (on an object not
+    /// proven still); empty when none is.
+    pub no_new_points: Vec<bool>,
+    /// Boxes the front-end judged moving.
+    pub dynamic_boxes: usize,
+    /// Map points matched by tracking (pose inliers).
+    pub inliers: usize,
+    /// The frame became a keyframe.
+    pub new_keyframe: bool,
+    /// Tracking was lost and came back in the same map.
+    pub relocalised: bool,
+    /// A new map was started.
+    pub new_map: bool,
+    /// Time per stage.
+    pub timings: FrameTimings,
+}
+
+impl FrameResult {
+    /// Keypoints removed as dynamic.
+    pub fn culled(&self) -> usize {
+        self.dynamic.iter().filter(|&&d| d).count()
+    }
+}
+
+/// What a finished run leaves.
+pub struct Finished {
+    /// One pose per tracked frame, stamps increasing; after a loop closed, every frame follows
+    /// its keyframe (ORB-SLAM saves its trajectory this way).
+    pub trajectory: Trajectory,
+    /// `true` when a loop closed and [`Finished::trajectory`] was rebuilt through the keyframes
+    /// (it then differs from the poses [`Pipeline::track`] returned).
+    pub rebuilt: bool,
+    /// The keyframes' poses, in time order.
+    pub keyframe_trajectory: Trajectory,
+    /// Keyframes in the map.
+    pub keyframes: usize,
+    /// Map points in the map.
+    pub map_points: usize,
+    /// Local mapping's time per keyframe (ms).
+    pub mapping_ms: Vec<f64>,
+    /// Loop closing's statistics (`None` when it is off).
+    pub loops: Option<LoopStats>,
+    /// The stopped system: its map, for saving or inspection.
+    pub system: System,
+}
+
+/// The whole system: frames in, poses and a map out.
+pub struct Pipeline {
+    system: System,
+    orb: OrbExtractor,
+    /// Monocular initialisation matches level-0 keypoints only: more features until the map
+    /// exists (ORB-SLAM3's initialisation extractor).
+    orb_init: Option<OrbExtractor>,
+    /// Stereo: the right image gets its own extractor (its pyramid is kept for matching).
+    orb_right: OrbExtractor,
+    front_end: Option<DynamicFrontEnd>,
+    stereo: StereoParams,
+    bf: f64,
+    fx: f64,
+    stamps: Vec<f64>,
+    poses: Vec<Se3>,
+}
+
+impl Pipeline {
+    /// A pipeline; `front_end` `None` runs the baseline (no dynamic front-end), `vocabulary`
+    /// `None` trains loop closing's vocabulary online. The front-end gets the camera of
+    /// `settings` where its own settings left it unset.
+    pub fn new(
+        settings: PipelineSettings,
+        mut front_end: Option<DynamicFrontEnd>,
+        vocabulary: Option<Vocabulary>,
+    ) -> Self {
+        let slam = settings.slam;
+        if let Some(f) = front_end.as_mut() {
+            f.use_camera(slam.camera);
+        }
+        let orb_init = slam.monocular.then(|| {
+            OrbExtractor::new(OrbParams {
+                n_features: settings.orb.n_features * slam.mono_init.feature_factor.max(1),
+                ..settings.orb.clone()
+            })
+        });
+        Self {
+            orb: OrbExtractor::new(settings.orb.clone()),
+            orb_init,
+            orb_right: OrbExtractor::new(settings.orb),
+            front_end,
+            stereo: settings.stereo,
+            bf: slam.bf,
+            fx: slam.camera.fx,
+            system: System::with_vocabulary(slam, vocabulary),
+            stamps: Vec::new(),
+            poses: Vec::new(),
+        }
+    }
+
+    /// The SLAM system (map, keyframe count, state) while the pipeline runs.
+    pub fn system(&self) -> &System {
+        &self.system
+    }
+
+    /// The dynamic front-end, when there is one.
+    pub fn front_end(&self) -> Option<&DynamicFrontEnd> {
+        self.front_end.as_ref()
+    }
+
+    /// Track one frame: features, the front-end's judgement, depth, pose.
+    pub fn track(&mut self, frame: &Frame) -> Result<FrameResult, PipelineError> {
+        let mut timings = FrameTimings::default();
+        let t0 = Instant::now();
+        if let Some(f) = self.front_end.as_ref() {
+            self.orb.set_exclusion(f.orb_exclusion());
+        }
+        let left_orb = match self.orb_init.as_mut() {
+            Some(o) if self.system.initialising() => o,
+            _ => &mut self.orb,
+        };
+        let orb_right = &mut self.orb_right;
+        // Left and right images in parallel, as ORB-SLAM does.
+        let (feats, right_feats) = std::thread::scope(|sc| {
+            let right = frame
+                .right
+                .as_ref()
+                .map(|r| sc.spawn(|| orb_right.extract(r)));
+            let left = left_orb.extract(&frame.gray);
+            (left, right.and_then(|h| h.join().ok()))
+        });
+        timings.orb_ms = ms(t0);
+        let mut features: Vec<Feature> = feats.keypoints.iter().map(Feature::from).collect();
+        let keypoints: Vec<[f32; 2]> = features.iter().map(|k| [k.x, k.y]).collect();
+        let mut descriptors = feats.descriptors;
+        let (mut dynamic, mut no_new_points, mut dynamic_boxes) = (Vec::new(), Vec::new(), 0);
+        if let Some(f) = self.front_end.as_mut() {
+            let input = FilterInput {
+                index: frame.index,
+                timestamp: frame.timestamp,
+                gray: &frame.gray,
+                rgb: frame.rgb.as_ref(),
+                depth: frame.depth.as_ref(),
+            };
+            let outcome = f.judge(&input, &keypoints);
+            timings.semantic_ms = outcome.semantic_ms;
+            timings.geometry_ms = outcome.geometry_ms;
+            dynamic_boxes = outcome.dynamic_boxes;
+            remove_dynamic(&mut features, &mut descriptors, &outcome.dynamic);
+            if outcome.no_new_points.len() == outcome.dynamic.len() {
+                no_new_points = outcome.no_new_points;
+            }
+            dynamic = outcome.dynamic;
+        }
+        if dynamic.len() != keypoints.len() {
+            dynamic = vec![false; keypoints.len()];
+        }
+        // The kept keypoints' flags, in the order tracking sees them.
+        let kept_no_new_points: Vec<bool> = if no_new_points.is_empty() {
+            Vec::new()
+        } else {
+            no_new_points
+                .iter()
+                .zip(&dynamic)
+                .filter(|(_, d)| !**d)
+                .map(|(n, _)| *n)
+                .collect()
+        };
+        // Stereo: depth for the kept left keypoints by matching them along the rows.
+        let stereo_depth = match (&frame.right, &right_feats) {
+            (Some(right), Some(rf)) => {
+                let t1 = Instant::now();
+                let right_keypoints: Vec<Feature> =
+                    rf.keypoints.iter().map(Feature::from).collect();
+                let d = stereo_depths(
+                    &StereoView {
+                        keypoints: &features,
+                        descriptors: &descriptors,
+                        levels: self.orb.pyramid(&frame.gray),
+                    },
+                    &StereoView {
+                        keypoints: &right_keypoints,
+                        descriptors: &rf.descriptors,
+                        levels: self.orb_right.pyramid(right),
+                    },
+                    self.bf,
+                    self.fx,
+                    self.orb.scale_factors(),
+                    &self.stereo,
+                );
+                timings.orb_ms += ms(t1);
+                Some(d)
+            }
+            _ => None,
+        };
+        let depth = match &stereo_depth {
+            Some(d) => KeypointDepth::PerKeypoint(d),
+            None => frame.depth.as_ref().into(),
+        };
+        let report = self
+            .system
+            .track_rgbd_masked(
+                frame.index,
+                frame.timestamp,
+                &features,
+                &descriptors,
+                depth,
+                &kept_no_new_points,
+            )
+            .map_err(|source| PipelineError::Slam {
+                index: frame.index,
+                source,
+            })?;
+        timings.tracking_ms = report.tracking_ms;
+        if let Some(f) = self.front_end.as_mut() {
+            f.observe_pose(frame.index, report.pose_wc.as_ref());
+        }
+        if let Some(p) = report.pose_wc
+            && self.stamps.last().is_none_or(|&l| frame.timestamp > l)
+        {
+            self.stamps.push(frame.timestamp);
+            self.poses.push(p);
+        }
+        Ok(FrameResult {
+            index: frame.index,
+            timestamp: frame.timestamp,
+            pose_wc: report.pose_wc,
+            state: report.state,
+            keypoints,
+            dynamic,
+            no_new_points,
+            dynamic_boxes,
+            inliers: report.inliers,
+            new_keyframe: report.new_keyframe,
+            relocalised: report.relocalised,
+            new_map: report.new_map,
+            timings,
+        })
+    }
+
+    /// Stop local mapping and loop closing (waiting for their queues) and return the
+    /// trajectory, the keyframes and the map.
+    pub fn finish(mut self) -> Result<Finished, PipelineError> {
+        self.system.shutdown().map_err(PipelineError::Shutdown)?;
+        let loops = self.system.loop_stats();
+        let rebuilt = loops.as_ref().is_some_and(|l| !l.loops.is_empty());
+        let (mut stamps, mut poses) = (self.stamps, self.poses);
+        if rebuilt {
+            (stamps, poses) = (Vec::new(), Vec::new());
+            for (t, p) in self.system.rebuilt_trajectory() {
+                if stamps.last().is_none_or(|&l| t > l) {
+                    stamps.push(t);
+                    poses.push(p);
+                }
+            }
+        }
+        let trajectory = Trajectory::from_parts(stamps, poses)?;
+        let mut kf = self.system.keyframe_trajectory();
+        kf.sort_by(|a, b| a.0.total_cmp(&b.0));
+        kf.dedup_by(|a, b| a.0 == b.0);
+        let keyframe_trajectory = Trajectory::from_parts(
+            kf.iter().map(|k| k.0).collect(),
+            kf.iter().map(|k| k.1).collect(),
+        )?;
+        Ok(Finished {
+            trajectory,
+            rebuilt,
+            keyframe_trajectory,
+            keyframes: self.system.keyframe_count(),
+            map_points: self.system.map_point_count(),
+            mapping_ms: self.system.mapping_times_ms(),
+            loops,
+            system: self.system,
+        })
+    }
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
