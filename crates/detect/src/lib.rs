@@ -15,7 +15,6 @@
 //! ```
 
 pub mod backend;
-pub mod classes;
 pub mod detector;
 pub mod draw;
 pub mod error;
@@ -25,41 +24,16 @@ pub mod settings;
 pub mod thread;
 pub mod yolox;
 
-pub use classes::COCO_CLASSES;
 pub use detector::{YoloxDetector, open_detector};
 pub use error::DetectError;
 pub use gt::{GtDetector, GtDetectorParams, NoDetector};
 pub use settings::{Backend, DetectSettings};
 pub use thread::{DetectOutput, DetectorThread};
 
-use serde::{Deserialize, Serialize};
-pub use stillpoint_geometry::bbox::BBox;
+// The detection type and the classes live in `stillpoint-detection` (no inference backend), so
+// that the box judgement builds without one; these paths stay for users of this crate.
+pub use stillpoint_detection::{BBox, COCO_CLASSES, Detection, classes};
 use stillpoint_image::Rgb8;
-
-/// One detected object.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Detection {
-    /// COCO class index (0 person, 62 tv, ...; see [`COCO_CLASSES`]).
-    pub class_id: u16,
-    /// Confidence in 0..1 (YOLOX: objectness x class probability; ground truth: 1).
-    pub score: f32,
-    /// Box in the input frame's pixels, clipped to the frame.
-    pub bbox: BBox,
-}
-
-impl Detection {
-    /// The COCO name of the class, or `"unknown"` for ids beyond the 80 COCO classes (a user's
-    /// model may have more).
-    ///
-    /// ```
-    /// # use stillpoint_detect::{Detection, BBox};
-    /// let d = Detection { class_id: 0, score: 0.9, bbox: BBox::default() };
-    /// assert_eq!(d.class_name(), "person");
-    /// ```
-    pub fn class_name(&self) -> &'static str {
-        classes::class_name(self.class_id)
-    }
-}
 
 /// One frame handed to a detector.
 #[derive(Clone, Copy, Debug)]

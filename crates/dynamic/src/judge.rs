@@ -10,7 +10,7 @@
 use crate::motion_consistency::TrackedPoint;
 use crate::settings::JudgeParams;
 use serde::Serialize;
-use stillpoint_detect::Detection;
+use stillpoint_detection::Detection;
 use stillpoint_geometry::BBox;
 
 /// What the judgement decided for one box or part box.
@@ -93,7 +93,7 @@ pub fn only_in_dynamic_boxes_where(
 /// so they come out [`Verdict::StaticUnknown`] (never a panic, never NaN).
 ///
 /// ```
-/// use stillpoint_detect::{BBox, Detection};
+/// use stillpoint_detection::{BBox, Detection};
 /// use stillpoint_dynamic::{JudgeParams, TrackedPoint, Verdict, judge_boxes};
 /// let walker = Detection { class_id: 0, score: 0.9, bbox: BBox::new(100.0, 50.0, 150.0, 350.0) };
 /// let hand = TrackedPoint { prev: [120.0, 200.0], cur: [124.0, 200.0], epipolar_distance: 4.0, outlier: true };

@@ -11,7 +11,7 @@
 //!    static box.
 //!
 //! ```
-//! use stillpoint_detect::{BBox, Detection};
+//! use stillpoint_detection::{BBox, Detection};
 //! use stillpoint_dynamic::{JudgeParams, TrackedPoint, cull, judge_boxes};
 //! let person = Detection { class_id: 0, score: 0.9, bbox: BBox::new(100.0, 40.0, 160.0, 400.0) };
 //! let moved = TrackedPoint { prev: [130.0, 100.0], cur: [135.0, 100.0], epipolar_distance: 5.0, outlier: true };

@@ -18,7 +18,7 @@
 //! in the first 12 frames (nothing to remember) and one detected as a chair.
 //!
 //! ```
-//! use stillpoint_detect::Detection;
+//! use stillpoint_detection::Detection;
 //! use stillpoint_dynamic::{BoxMemoryParams, RememberedBox, TrackedPoint, carry_forward};
 //! use stillpoint_geometry::BBox;
 //! let walker = RememberedBox { bbox: BBox::new(100.0, 50.0, 150.0, 350.0), class_id: 0, age: 0 };
@@ -32,7 +32,7 @@
 use crate::judge::{BoxPart, BoxState, Rule, Verdict};
 use crate::motion_consistency::TrackedPoint;
 use crate::settings::BoxMemoryParams;
-use stillpoint_detect::Detection;
+use stillpoint_detection::Detection;
 use stillpoint_geometry::BBox;
 
 /// A box judged dynamic in an earlier frame.

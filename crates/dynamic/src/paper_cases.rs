@@ -1,7 +1,7 @@
 //! The paper's own cases for algorithms 1 and 3, as unit tests.
 
 use crate::*;
-use stillpoint_detect::{BBox, Detection};
+use stillpoint_detection::{BBox, Detection};
 
 const PERSON: u16 = 0;
 const CHAIR: u16 = 56;

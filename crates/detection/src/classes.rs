@@ -95,7 +95,7 @@ pub fn class_name(class_id: u16) -> &'static str {
 /// Class id of a COCO name (exact, lower case as in the table).
 ///
 /// ```
-/// assert_eq!(stillpoint_detect::classes::class_id("tvmonitor"), Some(62));
+/// assert_eq!(stillpoint_detection::classes::class_id("tvmonitor"), Some(62));
 /// ```
 pub fn class_id(name: &str) -> Option<u16> {
     COCO_CLASSES
