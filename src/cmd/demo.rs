@@ -66,8 +66,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         frames: None,
         progress: true,
         paper_cull: false,
-        box_points_make_map_points: false,
-        box_memory: true,
         model: None,
         overrides: Default::default(),
     };

@@ -5,4 +5,5 @@ pub mod demo;
 pub mod detect;
 pub mod eval;
 pub mod run;
+pub mod settings;
 pub mod synth;

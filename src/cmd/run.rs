@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use stillpoint_datasets::{DatasetKind, GroundTruthFormat, Sensor, Sequence};
-use stillpoint_detect::{DetectSettings, GtDetectorParams};
+use stillpoint_detect::GtDetectorParams;
 use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
 use stillpoint_image::Gray8;
-use stillpoint_pipeline::{FrameTimings, Pipeline, PipelineSettings};
+use stillpoint_pipeline::{FrameTimings, Layered, Pipeline, SettingsTree};
 use stillpoint_slam::System;
 use stillpoint_trajectory::{Alignment, AteOptions, RpeOptions, Trajectory, TumWriter};
 
@@ -45,88 +45,17 @@ pub struct Args {
     /// unknown-objects rule.
     #[arg(long)]
     pub paper_cull: bool,
-    /// Let keypoints that the front-end keeps inside a moving object's box because a static box
-    /// protects them (paper algorithm 3) create map points. By default they are only tracked.
-    #[arg(long)]
-    pub box_points_make_map_points: bool,
-    /// Turn off the box memory (ours): by default a box judged dynamic is carried, moved by the
-    /// optical flow, into up to 5 following frames in which the detector misses the object.
-    #[arg(long)]
-    pub no_box_memory: bool,
     /// Only the first N frames.
     #[arg(long)]
     pub frames: Option<usize>,
-    /// Map hygiene (ours): kept keypoints within this many pixels of a geometric outlier create
-    /// no map points (0 = off; `FrontEndSettings::outlier_guard_radius_px`).
+    /// stillpoint settings file (TOML; tables `slam`, `orb`, `stereo`, `front_end`, `detect`:
+    /// `stillpoint settings` prints them all), laid over the defaults and `--settings`.
     #[arg(long)]
-    pub outlier_guard_px: Option<f32>,
-    /// Outliers needed within `--outlier-guard-px`.
-    #[arg(long)]
-    pub outlier_guard_min: Option<usize>,
-    /// Map hygiene (ours): erase a map point rejected this many times by tracking's chi-square
-    /// test (0 = off; `SlamSettings::point_max_rejections`).
-    #[arg(long)]
-    pub point_max_rejections: Option<u32>,
-    /// Map hygiene (ours): whether keypoints rejected by the final pose optimisation may create
-    /// map points in a new keyframe (`SlamSettings::no_points_from_pose_outliers`).
-    #[arg(long)]
-    pub points_from_pose_outliers: Option<bool>,
-    /// Per-keypoint motion evidence inside dynamic boxes (`dynamic::keypoint_motion`, ours):
-    /// true / false; the dynamic crate's default when omitted.
-    #[arg(long)]
-    pub keypoint_motion: Option<bool>,
-    /// Seated people (NHBC's split parts): cull only around their geometric outliers, not the
-    /// whole part at the person's depth (`dynamic::DepthParams::seated_parts_local`).
-    #[arg(long)]
-    pub seated_local: Option<bool>,
-    /// Seated people's parts: track, create no map points, instead of culling
-    /// (`FrontEndSettings::seated_track_only`).
-    #[arg(long)]
-    pub seated_track_only: Option<bool>,
-    /// Seated people's culled keypoints: 3D reprojection test with depth, keep the still ones
-    /// (`FrontEndSettings::seated_motion`, `dynamic::seated_motion`).
-    #[arg(long)]
-    pub seated_motion: Option<bool>,
-    /// Reprojection residual (px) above which a seated keypoint moved
-    /// (`SeatedMotionParams::dynamic_above_px`).
-    #[arg(long)]
-    pub seated_motion_px: Option<f32>,
-    /// Seated people's parts are not taken as moving on the first frame
-    /// (`FrontEndSettings::seated_kept_on_first_frame`).
-    #[arg(long)]
-    pub seated_first_frame: Option<bool>,
-    /// Keypoints kept by the seated motion test may create map points
-    /// (`FrontEndSettings::seated_kept_make_points`).
-    #[arg(long)]
-    pub seated_kept_points: Option<bool>,
-    /// Judge tracked points against the camera motion of the static world (map prior refined
-    /// on static tracks with depth; `dynamic::world_motion`) instead of a two-frame F alone.
-    #[arg(long)]
-    pub world_motion: Option<bool>,
-    /// Follow detected objects over time with hysteresis on their moving/static state
-    /// (`dynamic::objects`).
-    #[arg(long)]
-    pub objects: Option<bool>,
-    /// Feature budget: ORB keeps no corner in the boxes of objects that moved in the last frame
-    /// (`FrontEndSettings::orb_exclusion`).
-    #[arg(long)]
-    pub orb_exclusion: Option<bool>,
-    /// Map hygiene: kept keypoints in boxes of movable objects not proven still create no map
-    /// points (`FrontEndSettings::movable_hygiene`).
-    #[arg(long)]
-    pub movable_hygiene: Option<bool>,
-    /// Seated people's parts (NHBC's split) start still in the object tracker
-    /// (`dynamic::ObjectParams::seated_parts_start_still`).
-    #[arg(long)]
-    pub seated_start_still: Option<bool>,
-    /// Ring around a movable object's box, as a share of its size, in which keypoints at the
-    /// object's depth create no map points (`FrontEndSettings::movable_hygiene_margin`).
-    #[arg(long)]
-    pub hygiene_margin: Option<f32>,
-    /// Keypoints that may not create map points count toward a new keyframe, as in ORB-SLAM
-    /// (`SlamSettings::kf_count_blocked_close`).
-    #[arg(long)]
-    pub kf_count_blocked: Option<bool>,
+    pub config: Option<PathBuf>,
+    /// Override one setting, `section.key=value` (repeatable; after `--config`), e.g.
+    /// `--set front_end.dynamic.world.enabled=false`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub sets: Vec<String>,
     /// Turn loop closing off (on by default: bag-of-words detection, SE3 verification,
     /// essential-graph correction).
     #[arg(long)]
@@ -153,44 +82,19 @@ pub struct RunOptions {
     pub progress: bool,
     /// The paper's culling only (algorithm 3; none of our culling rules).
     pub paper_cull: bool,
-    /// Let keypoints kept inside a dynamic box create map points (off by default).
-    pub box_points_make_map_points: bool,
-    /// Carry dynamic boxes across missed detections (`DynamicSettings::memory`; on by default).
-    pub box_memory: bool,
     /// YOLOX ONNX file; `None` searches the default places.
     pub model: Option<PathBuf>,
     /// Settings changed from their defaults on the command line.
     pub overrides: Overrides,
 }
 
-/// Map-hygiene settings given on the command line; `None` keeps the default.
+/// What the command line changes besides the dataset and the front-end's mode.
 #[derive(Clone, Debug, Default)]
 pub struct Overrides {
-    pub outlier_guard_px: Option<f32>,
-    pub outlier_guard_min: Option<usize>,
-    pub point_max_rejections: Option<u32>,
-    pub points_from_pose_outliers: Option<bool>,
-    pub keypoint_motion: Option<bool>,
-    pub seated_local: Option<bool>,
-    pub seated_track_only: Option<bool>,
-    pub seated_motion: Option<bool>,
-    pub seated_motion_px: Option<f32>,
-    pub seated_first_frame: Option<bool>,
-    pub seated_kept_points: Option<bool>,
-    /// Judge motion against the static world (`dynamic::world_motion`).
-    pub world_motion: Option<bool>,
-    /// Objects tracked over time with hysteresis (`dynamic::objects`).
-    pub objects: Option<bool>,
-    /// ORB keeps no corner in the boxes of objects that moved in the last frame.
-    pub orb_exclusion: Option<bool>,
-    /// Movable objects' kept keypoints create no map points until proven still.
-    pub movable_hygiene: Option<bool>,
-    /// Seated people's parts start still in the object tracker.
-    pub seated_start_still: Option<bool>,
-    /// Ring around movable boxes covered by the hygiene rule, share of the box's size.
-    pub hygiene_margin: Option<f32>,
-    /// Keypoints that may not create points count toward a keyframe (`SlamSettings`).
-    pub kf_count_blocked: Option<bool>,
+    /// A stillpoint settings file (`--config`).
+    pub config: Option<PathBuf>,
+    /// `section.key=value` overrides (`--set`), applied after the file.
+    pub sets: Vec<String>,
     /// Loop closing off (`--no-loop-closing`).
     pub no_loop_closing: bool,
     /// A DBoW2 text vocabulary instead of the one trained online.
@@ -268,25 +172,50 @@ fn keyframe_path(out: &Path) -> PathBuf {
     out.with_file_name(format!("{stem}_keyframes.txt"))
 }
 
+/// The run's settings tree and where each value came from: the dataset's settings and the
+/// crates' defaults, `--paper-cull`'s preset, the `[detect]` table of a TOML `--settings` file,
+/// `--config`, then `--set`.
+pub fn settings_layers(
+    ds: &stillpoint_datasets::Settings,
+    settings_file: Option<&Path>,
+    paper_cull_preset: bool,
+    overrides: &Overrides,
+) -> anyhow::Result<Layered> {
+    let mut base = SettingsTree::from_dataset(ds);
+    if paper_cull_preset {
+        paper_cull(&mut base.front_end);
+    }
+    let mut files: Vec<(&Path, bool)> = Vec::new();
+    if let Some(p) = settings_file.filter(|p| p.extension().is_some_and(|e| e == "toml")) {
+        files.push((p, true));
+    }
+    if let Some(p) = overrides.config.as_deref() {
+        files.push((p, false));
+    }
+    Ok(base.layered_with(files, &overrides.sets)?)
+}
+
+/// Algorithm 3 over the paper's box verdicts: none of our rules between them and the keypoints
+/// (`--set` may still turn one back on).
+fn paper_cull(s: &mut FrontEndSettings) {
+    s.dynamic.depth.enabled = false;
+    s.dynamic.cull.unknown_objects = false;
+    s.dynamic.keypoint_motion.enabled = false;
+    s.seated_motion.enabled = false;
+    s.dynamic.world.enabled = false;
+    s.dynamic.objects.enabled = false;
+}
+
 /// Run SLAM over a sequence. Frames that cannot be read are logged and skipped.
 pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     let seq: Box<dyn Sequence> =
         stillpoint_datasets::open(&o.dataset, o.kind, o.settings.as_deref())
             .with_context(|| format!("opening {}", o.dataset.display()))?;
     let ds = seq.settings().clone();
-    let mut pipeline_settings = PipelineSettings::from_dataset(&ds);
-    let settings = &mut pipeline_settings.slam;
-    settings.local_mapping_thread = !o.sequential;
-    if let Some(n) = o.overrides.point_max_rejections {
-        settings.point_max_rejections = n;
-    }
-    if let Some(b) = o.overrides.points_from_pose_outliers {
-        settings.no_points_from_pose_outliers = !b;
-    }
-    settings.loop_closing.enabled = !o.overrides.no_loop_closing;
-    if let Some(k) = o.overrides.kf_count_blocked {
-        settings.kf_count_blocked_close = k;
-    }
+    let tree = settings_layers(&ds, o.settings.as_deref(), o.paper_cull, &o.overrides)?.tree;
+    let mut pipeline_settings = tree.pipeline();
+    pipeline_settings.slam.local_mapping_thread = !o.sequential;
+    pipeline_settings.slam.loop_closing.enabled &= !o.overrides.no_loop_closing;
     let vocabulary = match &o.overrides.vocabulary {
         Some(p) => {
             let f = std::fs::File::open(p).with_context(|| format!("opening {}", p.display()))?;
@@ -301,79 +230,18 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         None => None,
         Some(name) => {
             let boxes = seq.boxes();
+            let mut detect = tree.detect.clone();
+            if o.model.is_some() {
+                detect.model = o.model.clone();
+            }
             let detector = stillpoint_detect::open_detector(
                 name,
-                &DetectSettings {
-                    model: o.model.clone(),
-                    ..DetectSettings::default()
-                },
+                &detect,
                 boxes.as_deref(),
                 GtDetectorParams::default(),
             )
             .with_context(|| format!("opening the {name} detector"))?;
-            let mut settings = FrontEndSettings::default();
-            if o.paper_cull {
-                // Algorithm 3 over the box verdicts: none of our rules between them and the
-                // keypoints (explicit flags below may still turn one back on).
-                settings.dynamic.depth.enabled = false;
-                settings.dynamic.cull.unknown_objects = false;
-                settings.dynamic.keypoint_motion.enabled = false;
-                settings.seated_motion.enabled = false;
-            }
-            settings.dynamic.memory.enabled &= o.box_memory;
-            settings.no_new_points_in_dynamic_boxes = !o.box_points_make_map_points;
-            if let Some(r) = o.overrides.outlier_guard_px {
-                settings.outlier_guard_radius_px = r;
-            }
-            if let Some(m) = o.overrides.outlier_guard_min {
-                settings.outlier_guard_min = m;
-            }
-            if let Some(k) = o.overrides.keypoint_motion {
-                settings.dynamic.keypoint_motion.enabled = k;
-            }
-            if let Some(k) = o.overrides.seated_local {
-                settings.dynamic.depth.seated_parts_local = k;
-            }
-            if let Some(k) = o.overrides.seated_track_only {
-                settings.seated_track_only = k;
-            }
-            settings.seated_motion.camera = Some(ds.camera);
-            settings.dynamic.world.camera = Some(ds.camera);
-            if o.paper_cull {
-                settings.dynamic.world.enabled = false;
-                settings.dynamic.objects.enabled = false;
-            }
-            if let Some(k) = o.overrides.world_motion {
-                settings.dynamic.world.enabled = k;
-            }
-            if let Some(k) = o.overrides.objects {
-                settings.dynamic.objects.enabled = k;
-            }
-            if let Some(k) = o.overrides.orb_exclusion {
-                settings.orb_exclusion = k;
-            }
-            if let Some(k) = o.overrides.movable_hygiene {
-                settings.movable_hygiene = k;
-            }
-            if let Some(m) = o.overrides.hygiene_margin {
-                settings.movable_hygiene_margin = m;
-            }
-            if let Some(k) = o.overrides.seated_start_still {
-                settings.dynamic.objects.seated_parts_start_still = k;
-            }
-            if let Some(k) = o.overrides.seated_motion {
-                settings.seated_motion.enabled = k;
-            }
-            if let Some(px) = o.overrides.seated_motion_px {
-                settings.seated_motion.dynamic_above_px = px;
-            }
-            if let Some(k) = o.overrides.seated_first_frame {
-                settings.seated_kept_on_first_frame = k;
-            }
-            if let Some(k) = o.overrides.seated_kept_points {
-                settings.seated_kept_make_points = k;
-            }
-            Some(DynamicFrontEnd::new(detector, settings))
+            Some(DynamicFrontEnd::new(detector, tree.front_end.clone()))
         }
     };
     let detector_name = o.detector.clone().unwrap_or_else(|| "off".into());
@@ -834,27 +702,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         model: args.model.clone(),
         progress: true,
         paper_cull: args.paper_cull,
-        box_points_make_map_points: args.box_points_make_map_points,
-        box_memory: !args.no_box_memory,
         overrides: Overrides {
-            outlier_guard_px: args.outlier_guard_px,
-            outlier_guard_min: args.outlier_guard_min,
-            point_max_rejections: args.point_max_rejections,
-            points_from_pose_outliers: args.points_from_pose_outliers,
-            keypoint_motion: args.keypoint_motion,
-            seated_local: args.seated_local,
-            seated_track_only: args.seated_track_only,
-            seated_motion: args.seated_motion,
-            seated_motion_px: args.seated_motion_px,
-            seated_first_frame: args.seated_first_frame,
-            seated_kept_points: args.seated_kept_points,
-            world_motion: args.world_motion,
-            objects: args.objects,
-            orb_exclusion: args.orb_exclusion,
-            movable_hygiene: args.movable_hygiene,
-            seated_start_still: args.seated_start_still,
-            hygiene_margin: args.hygiene_margin,
-            kf_count_blocked: args.kf_count_blocked,
+            config: args.config.clone(),
+            sets: args.sets.clone(),
             no_loop_closing: args.no_loop_closing,
             vocabulary: args.vocabulary.clone(),
         },

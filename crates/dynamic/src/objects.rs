@@ -55,7 +55,8 @@ pub enum Evidence {
 }
 
 /// Parameters of the object tracker (all ours).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct ObjectParams {
     /// On by default; off gives each frame's box verdicts unchanged.
     pub enabled: bool,

@@ -33,13 +33,15 @@ use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3, refine_pose_reprojecti
 use stillpoint_image::DepthMetres;
 
 /// Parameters of the seated-part 3D motion test (all ours).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct SeatedMotionParams {
     /// Run the test (needs depth on both frames and [`Self::camera`]). On: synth sitting_xyz
     /// with gt boxes ATE 0.64 / 0.45 / 0.53 -> 0.35 / 0.26 / 0.20 cm (seeds 0 / 1 / 2; no
     /// front-end 0.38 / 0.24 / 0.22), walkers unchanged (numbers in `stillpoint_frontend`).
     pub enabled: bool,
     /// The camera that took the frames (intrinsics for lifting and projecting).
+    #[serde(skip)]
     pub camera: Option<PinholeCamera>,
     /// A keypoint whose reprojection residual exceeds this moved (pixels). 0.5 px: on synth
     /// sitting_xyz still torsos measure a median 0.1-0.3 px; 1.0 px kept ~10 more moving

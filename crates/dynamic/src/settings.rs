@@ -4,7 +4,8 @@ use stillpoint_features::{CornerParams, LkParams};
 use stillpoint_geometry::fundamental::FundamentalRansac;
 
 /// All settings of this crate: the geometry module, the box judgement and the culling.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct DynamicSettings {
     pub geometry: GeometryParams,
     pub judge: JudgeParams,
@@ -44,7 +45,8 @@ impl DynamicSettings {
 }
 
 /// The motion consistency check (paper section 2, module 2; DS-SLAM's `ProcessMovingObject`).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct GeometryParams {
     /// Harris corners on the previous frame: 1000, quality 0.01, min distance 8, block 3, k 0.04,
     /// sub-pixel window 10x10, 20 iterations, eps 0.03 (paper; `features` defaults).
@@ -115,7 +117,8 @@ impl Default for GeometryParams {
 }
 
 /// The moving-box judgement (paper algorithm 1: NHBC for persons, ATA for everything else).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct JudgeParams {
     /// COCO class judged by NHBC (0, person).
     pub person_class: u16,
@@ -166,7 +169,8 @@ impl Default for JudgeParams {
 }
 
 /// Culling (paper algorithm 3) and the optional culling near unexplained outliers.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct CullParams {
     /// Whether a [`crate::Verdict::Static`] box protects the keypoints inside it (paper
     /// algorithm 3: yes). Off only to measure what the protection costs in recall.
@@ -207,7 +211,8 @@ impl Default for CullParams {
 
 /// Depth-aware culling for RGB-D frames (ours, not in the paper; see [`crate::depth`] for the
 /// rules and the measurements behind the defaults).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct DepthParams {
     /// Use the depth when the frame has one (default true). False gives the paper's
     /// algorithm 3 unchanged on RGB-D frames too.
@@ -287,7 +292,8 @@ impl Default for DepthParams {
 
 /// Box memory: carry a box judged dynamic into the next frames when the detector misses it
 /// (ours, not in the paper; see [`crate::memory`]).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct BoxMemoryParams {
     /// On by default; off = the paper (a missed detection lets the mover's keypoints through).
     pub enabled: bool,
@@ -317,7 +323,8 @@ impl Default for BoxMemoryParams {
 /// Per-keypoint motion evidence inside dynamic boxes (ours, not in the paper; see
 /// [`crate::keypoint_motion`](mod@crate::keypoint_motion) for the rules). Measured with `stillpoint bench dynamic` on synth
 /// 20-frame sequences, gt boxes (the `ours_kp` row against `ours_depth`).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct KeypointMotionParams {
     /// Apply the evidence after the box culling in [`crate::cull_frame_with_motion`] (ours, on:
     /// synth walking_static, keypoints whose FAST circle is clear of the silhouette, precision

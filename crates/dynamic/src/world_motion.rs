@@ -27,12 +27,14 @@ use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3, refine_pose_reprojecti
 use stillpoint_image::{DepthMetres, Gray8};
 
 /// Parameters of the static-world motion test (all ours).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct WorldMotionParams {
     /// On by default; needs depth and [`WorldMotionParams::camera`], else the paper's check
     /// decides alone.
     pub enabled: bool,
     /// The camera (set by the caller from the sequence's settings).
+    #[serde(skip)]
     pub camera: Option<PinholeCamera>,
     /// A track whose reprojection residual exceeds this moved in the world, pixels (ours: 1.5;
     /// LK and depth noise keep still points below ~0.5 px at 30 Hz, a walker moves several px a

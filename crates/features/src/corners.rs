@@ -8,7 +8,8 @@ use stillpoint_image::Gray8;
 /// Corner detection settings. `Default` = the paper's geometry module (DS-SLAM's
 /// `goodFeaturesToTrack(.., 1000, 0.01, 8, Mat(), 3, true, 0.04)` and
 /// `cornerSubPix(.., Size(10, 10), Size(-1, -1), TermCriteria(EPS + COUNT, 20, 0.03))`).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct CornerParams {
     /// Most corners returned, strongest first (paper: 1000).
     pub max_corners: usize,

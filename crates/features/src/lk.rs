@@ -8,7 +8,8 @@ use stillpoint_image::Gray8;
 
 /// LK settings. `Default` = the paper's geometry module (DS-SLAM's
 /// `calcOpticalFlowPyrLK(.., Size(22, 22), 5, TermCriteria(COUNT + EPS, 20, 0.01))`).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct LkParams {
     /// Window side in pixels (paper: 22).
     pub window: usize,

@@ -38,7 +38,8 @@ pub struct KeyPoint {
 
 /// ORB extractor settings. `Default` = ORB-SLAM3's TUM settings (`ORBextractor.*` in
 /// `TUM1.yaml`, the values the paper used); KITTI stereo uses `n_features: 2000`.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct OrbParams {
     /// Target number of features per image (`ORBextractor.nFeatures`: 1000 TUM, 2000 KITTI).
     pub n_features: usize,

@@ -67,7 +67,8 @@ use stillpoint_slam::module::frontend::{FilterInput, FilterOutcome, KeypointFilt
 pub const PERSON_CLASS: u16 = 0;
 
 /// Every parameter of the front-end: the paper's (in [`DynamicSettings`]) and ours.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct FrontEndSettings {
     /// Motion consistency, box judgement, culling and box memory (paper section 2 with our
     /// depth-aware culling and box memory; see `stillpoint_dynamic`).

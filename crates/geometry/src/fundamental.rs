@@ -24,7 +24,8 @@ use crate::{Mat3, Vec2};
 use nalgebra::{SMatrix, SymmetricEigen};
 
 /// RANSAC settings for [`fundamental_ransac`].
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct FundamentalRansac {
     /// Inlier threshold in pixels on the symmetric epipolar distance (the larger of the distances
     /// of p2 to `F p1` and of p1 to `Fᵀ p2`, as OpenCV's `findFundamentalMat` scores it).

@@ -24,6 +24,10 @@
 
 #![deny(missing_docs)]
 
+pub mod settings;
+
+pub use settings::{Layered, SettingsError, SettingsTree, Source};
+
 use std::time::Instant;
 
 use stillpoint_datasets::{Frame, Sensor};

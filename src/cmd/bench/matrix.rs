@@ -135,8 +135,6 @@ fn run_one(args: &Args, dir: &Path, mode: &str, out: PathBuf) -> anyhow::Result<
         frames: None,
         progress: false,
         paper_cull: false,
-        box_points_make_map_points: false,
-        box_memory: true,
         model: args.model.clone(),
         overrides: Default::default(),
     })?;

@@ -37,8 +37,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 frames: args.frames,
                 progress: true,
                 paper_cull: false,
-                box_points_make_map_points: false,
-                box_memory: true,
                 model: args.model.clone(),
                 overrides: Default::default(),
             })?;

@@ -10,7 +10,8 @@ use stillpoint_image::Gray8;
 use crate::{Descriptor, Feature, hamming};
 
 /// Stereo matching parameters (ORB-SLAM's values by default).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct StereoParams {
     /// Largest Hamming distance of a descriptor match ((TH_HIGH + TH_LOW) / 2 = 75).
     pub max_hamming: u32,

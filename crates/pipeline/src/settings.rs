@@ -1,0 +1,531 @@
+//! One settings tree for a whole run: every parameter of the pipeline, by section, read from a
+//! stillpoint TOML file over the defaults and overridden with `section.key=value` on the command
+//! line. Each value remembers where it came from, so `stillpoint settings` can show it.
+//!
+//! The camera, frame rate, depth factor and ORB sizes start from the dataset's own settings
+//! (an ORB-SLAM YAML or a synthetic sequence's `settings.toml`); everything else from the
+//! crates' defaults.
+//!
+//! ```
+//! use stillpoint_pipeline::settings::SettingsTree;
+//! use stillpoint_pipeline::PipelineSettings;
+//! use stillpoint_datasets::{Sensor, Settings};
+//! let camera = stillpoint_geometry::PinholeCamera::new(535.4, 539.2, 320.1, 247.6, 640, 480);
+//! let ds = Settings::with_camera(Sensor::Rgbd, camera);
+//! let tree = SettingsTree::from_dataset(&ds)
+//!     .layered(&[], &["front_end.dynamic.judge.ata_ratio=0.5".into()])
+//!     .unwrap();
+//! assert_eq!(tree.tree.front_end.dynamic.judge.ata_ratio, 0.5);
+//! assert!(tree.describe().contains("front_end.dynamic.judge.ata_ratio = 0.5  # --set"));
+//! ```
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use stillpoint_detect::DetectSettings;
+use stillpoint_features::OrbParams;
+use stillpoint_frontend::FrontEndSettings;
+use stillpoint_slam::SlamSettings;
+use stillpoint_slam::matching::stereo::StereoParams;
+
+use crate::PipelineSettings;
+
+/// Every parameter of a run.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SettingsTree {
+    /// Tracking, local mapping and loop closing (`slam.loop_closing`); the camera comes from
+    /// the dataset.
+    pub slam: SlamSettings,
+    /// ORB extraction.
+    pub orb: OrbParams,
+    /// Stereo matching along the rows (stereo pairs only).
+    pub stereo: StereoParams,
+    /// The dynamic front-end; the paper's rules and ours are under `front_end.dynamic`.
+    pub front_end: FrontEndSettings,
+    /// The YOLOX detector.
+    pub detect: DetectSettings,
+}
+
+/// Where a value of the tree came from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Source {
+    /// A default (the crates' own, or the dataset's settings).
+    Default,
+    /// A settings file, at this line.
+    File {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line of the key.
+        line: usize,
+    },
+    /// `--set key=value`.
+    CommandLine,
+}
+
+impl std::fmt::Display for Source {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Source::Default => write!(f, "default"),
+            Source::File { path, line } => write!(f, "{}:{line}", path.display()),
+            Source::CommandLine => write!(f, "--set"),
+        }
+    }
+}
+
+/// What can be wrong with a settings file or an override; each names the file and line, or the
+/// override, and the key.
+#[derive(Debug, thiserror::Error)]
+pub enum SettingsError {
+    /// The file cannot be read.
+    #[error("{path}: {error}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+    /// The file is not TOML.
+    #[error("{path}: not TOML: {msg}")]
+    Syntax {
+        /// The file.
+        path: PathBuf,
+        /// The parser's message.
+        msg: String,
+    },
+    /// A key that no setting has.
+    #[error("{origin}: unknown key `{key}`")]
+    UnknownKey {
+        /// `FILE:LINE` or `--set ...`.
+        origin: String,
+        /// The dotted key.
+        key: String,
+    },
+    /// A value of the wrong kind.
+    #[error("{origin}: `{key}`: {msg}")]
+    BadValue {
+        /// `FILE:LINE` or `--set ...`.
+        origin: String,
+        /// The dotted key.
+        key: String,
+        /// What was expected.
+        msg: String,
+    },
+    /// An override that is not `section.key=value`.
+    #[error("--set {arg}: expected section.key=value")]
+    BadOverride {
+        /// The argument as given.
+        arg: String,
+    },
+}
+
+/// A tree and where each of its values came from.
+#[derive(Clone, Debug)]
+pub struct Layered {
+    /// The effective settings.
+    pub tree: SettingsTree,
+    /// Dotted key -> source, for the keys a file or an override set (the rest are defaults).
+    pub sources: BTreeMap<String, Source>,
+}
+
+impl SettingsTree {
+    /// The defaults for a dataset: its camera, frame rate, depth and ORB settings, the crates'
+    /// defaults for the rest.
+    pub fn from_dataset(ds: &stillpoint_datasets::Settings) -> Self {
+        let p = PipelineSettings::from_dataset(ds);
+        Self {
+            slam: p.slam,
+            orb: p.orb,
+            stereo: p.stereo,
+            front_end: FrontEndSettings::default(),
+            detect: DetectSettings::default(),
+        }
+    }
+
+    /// The settings the pipeline itself takes.
+    pub fn pipeline(&self) -> PipelineSettings {
+        PipelineSettings {
+            slam: self.slam.clone(),
+            orb: self.orb.clone(),
+            stereo: self.stereo.clone(),
+        }
+    }
+
+    /// These settings with the tables of `files` (in order), then the `key=value` overrides,
+    /// laid over them. Tables of a file that belong to the dataset's settings (`camera`,
+    /// `camera.distortion`, top-level dataset keys) are not part of the tree and are skipped only
+    /// when `dataset_file` is set for that file; any other unknown key is an error.
+    pub fn layered(self, files: &[&Path], overrides: &[String]) -> Result<Layered, SettingsError> {
+        self.layered_with(files.iter().map(|f| (*f, false)), overrides)
+    }
+
+    /// [`SettingsTree::layered`] where each file says whether it is also the dataset's settings
+    /// file (a synthetic sequence's `settings.toml` with `[camera]`, `[orb]`, `[detect]`): then
+    /// only its `detect` table is read into the tree (its `orb` and camera reached the tree
+    /// through the dataset already).
+    pub fn layered_with<'a>(
+        self,
+        files: impl IntoIterator<Item = (&'a Path, bool)>,
+        overrides: &[String],
+    ) -> Result<Layered, SettingsError> {
+        let mut base = match toml::Value::try_from(&self) {
+            Ok(toml::Value::Table(t)) => t,
+            _ => unreachable!("a struct serialises to a table"),
+        };
+        let mut sources = BTreeMap::new();
+        let mut origins: BTreeMap<String, String> = BTreeMap::new();
+        for (path, dataset_file) in files {
+            let text = std::fs::read_to_string(path).map_err(|error| SettingsError::Io {
+                path: path.to_path_buf(),
+                error,
+            })?;
+            let mut user: toml::Table =
+                text.parse()
+                    .map_err(|e: toml::de::Error| SettingsError::Syntax {
+                        path: path.to_path_buf(),
+                        msg: e.message().to_string(),
+                    })?;
+            if dataset_file {
+                user.retain(|k, _| k == "detect");
+            }
+            let mut set = Vec::new();
+            merge(&mut base, &user, "", &mut set);
+            for key in set {
+                let line = line_of(&text, &key);
+                origins.insert(key.clone(), format!("{}:{line}", path.display()));
+                sources.insert(
+                    key,
+                    Source::File {
+                        path: path.to_path_buf(),
+                        line,
+                    },
+                );
+            }
+        }
+        for arg in overrides {
+            let (key, value) = arg
+                .split_once('=')
+                .map(|(k, v)| (k.trim(), v.trim()))
+                .filter(|(k, v)| !k.is_empty() && !v.is_empty())
+                .ok_or_else(|| SettingsError::BadOverride { arg: arg.clone() })?;
+            let value = parse_value(value);
+            let mut table = toml::Table::new();
+            insert_dotted(&mut table, key, value);
+            let mut set = Vec::new();
+            merge(&mut base, &table, "", &mut set);
+            origins.insert(key.to_string(), format!("--set {arg}"));
+            sources.insert(key.to_string(), Source::CommandLine);
+        }
+        let origin_of = |key: &str| {
+            origins
+                .iter()
+                .filter(|(k, _)| key == k.as_str() || key.starts_with(&format!("{k}.")))
+                .map(|(_, o)| o.clone())
+                .next_back()
+                .unwrap_or_else(|| "settings".into())
+        };
+        // Unknown keys: those serde ignores while building the tree.
+        let mut unknown = Vec::new();
+        let value = toml::Value::Table(base);
+        let tree: Result<SettingsTree, _> =
+            serde_ignored::deserialize(value, |path| unknown.push(path.to_string()));
+        if let Some(key) = unknown.into_iter().next() {
+            return Err(SettingsError::UnknownKey {
+                origin: origin_of(&key),
+                key,
+            });
+        }
+        let tree = tree.map_err(|e| {
+            // toml names the key on a line of its own ("in `orb.n_features`").
+            let full = e.to_string();
+            let msg = full.lines().next().unwrap_or_default().to_string();
+            let key = full
+                .rsplit_once("in `")
+                .and_then(|(_, k)| k.split_once('`'))
+                .map(|(k, _)| k.to_string())
+                .or_else(|| {
+                    sources
+                        .keys()
+                        .find(|k| full.contains(k.rsplit('.').next().unwrap_or(k)))
+                        .cloned()
+                })
+                .unwrap_or_default();
+            // A table that denies unknown fields names the field in the message.
+            let field = msg
+                .split_once("unknown field `")
+                .and_then(|(_, f)| f.split_once('`'))
+                .map(|(f, _)| f.to_string());
+            if let Some(field) = field {
+                let key = if key.is_empty() {
+                    field
+                } else {
+                    format!("{key}.{field}")
+                };
+                SettingsError::UnknownKey {
+                    origin: origin_of(&key),
+                    key,
+                }
+            } else {
+                SettingsError::BadValue {
+                    origin: origin_of(&key),
+                    key,
+                    msg,
+                }
+            }
+        })?;
+        Ok(Layered { tree, sources })
+    }
+}
+
+impl Layered {
+    /// Every setting as (dotted key, value as TOML, where it came from), sections in order.
+    pub fn entries(&self) -> Vec<(String, String, String)> {
+        let mut lines = Vec::new();
+        if let Ok(toml::Value::Table(t)) = toml::Value::try_from(&self.tree) {
+            flatten(&t, "", &mut lines);
+        }
+        lines
+            .into_iter()
+            .map(|(key, value)| {
+                let source = self
+                    .sources
+                    .iter()
+                    .filter(|(k, _)| key == **k || key.starts_with(&format!("{k}.")))
+                    .map(|(_, s)| s.to_string())
+                    .next_back()
+                    .unwrap_or_else(|| Source::Default.to_string());
+                (key, value, source)
+            })
+            .collect()
+    }
+
+    /// The effective tree, a `key = value  # source` line per setting (TOML, the sources as
+    /// comments).
+    pub fn describe(&self) -> String {
+        let mut out = String::new();
+        for (key, value, source) in self.entries() {
+            let _ = writeln!(out, "{key} = {value}  # {source}");
+        }
+        out
+    }
+}
+
+/// Lay `user` over `base`, recording the dotted keys it sets. Keys `base` lacks are added (serde
+/// decides whether they exist: optional settings are absent from a serialised tree). An integer
+/// where `base` holds a float becomes a float.
+fn merge(base: &mut toml::Table, user: &toml::Table, prefix: &str, set: &mut Vec<String>) {
+    for (k, v) in user {
+        let key = if prefix.is_empty() {
+            k.clone()
+        } else {
+            format!("{prefix}.{k}")
+        };
+        match (base.get_mut(k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(u)) => merge(b, u, &key, set),
+            (Some(toml::Value::Float(_)), toml::Value::Integer(i)) => {
+                base.insert(k.clone(), toml::Value::Float(*i as f64));
+                set.push(key);
+            }
+            _ => {
+                base.insert(k.clone(), v.clone());
+                set.push(key);
+            }
+        }
+    }
+}
+
+/// A command-line value: TOML when it parses as one (`0.5`, `true`, `[1, 2]`, `"x"`), else a
+/// string (`--set detect.model=yolox.onnx`).
+fn parse_value(text: &str) -> toml::Value {
+    format!("v = {text}")
+        .parse::<toml::Table>()
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(text.to_string()))
+}
+
+fn insert_dotted(table: &mut toml::Table, key: &str, value: toml::Value) {
+    match key.split_once('.') {
+        None => {
+            table.insert(key.to_string(), value);
+        }
+        Some((head, rest)) => {
+            let entry = table
+                .entry(head.to_string())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            if let toml::Value::Table(t) = entry {
+                insert_dotted(t, rest, value);
+            }
+        }
+    }
+}
+
+fn flatten(t: &toml::Table, prefix: &str, out: &mut Vec<(String, String)>) {
+    for (k, v) in t {
+        let key = if prefix.is_empty() {
+            k.clone()
+        } else {
+            format!("{prefix}.{k}")
+        };
+        match v {
+            toml::Value::Table(t) => flatten(t, &key, out),
+            v => out.push((key, show(v))),
+        }
+    }
+}
+
+/// A value as TOML, f32 settings as written (0.4, not 0.4000000059604645).
+fn show(v: &toml::Value) -> String {
+    match v {
+        toml::Value::Float(f) if (*f as f32) as f64 == *f => {
+            let s = format!("{}", *f as f32);
+            if s.contains(['.', 'e', 'i', 'N']) {
+                s
+            } else {
+                format!("{s}.0")
+            }
+        }
+        toml::Value::Array(a) => {
+            let items: Vec<String> = a.iter().map(show).collect();
+            format!("[{}]", items.join(", "))
+        }
+        v => v.to_string(),
+    }
+}
+
+/// The 1-based line where a dotted key is set in a TOML text: the key's line under its table
+/// header (`[a.b]` then `c = ...`), or a dotted `b.c = ...` line; 1 when not found.
+fn line_of(text: &str, key: &str) -> usize {
+    let parts: Vec<&str> = key.split('.').collect();
+    let mut section: Vec<String> = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let l = line.trim();
+        if let Some(h) = l.strip_prefix('[').and_then(|h| h.strip_suffix(']')) {
+            section = h
+                .trim_matches(['[', ']'])
+                .split('.')
+                .map(|s| s.trim().to_string())
+                .collect();
+            continue;
+        }
+        let Some((lhs, _)) = l.split_once('=') else {
+            continue;
+        };
+        let full: Vec<String> = section
+            .iter()
+            .cloned()
+            .chain(
+                lhs.split('.')
+                    .map(|s| s.trim().trim_matches('"').to_string()),
+            )
+            .collect();
+        if full.len() <= parts.len() && full.iter().zip(&parts).all(|(a, b)| a == b) {
+            return n + 1;
+        }
+    }
+    1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tree() -> SettingsTree {
+        let camera = stillpoint_geometry::PinholeCamera::new(535.4, 539.2, 320.1, 247.6, 640, 480);
+        let ds =
+            stillpoint_datasets::Settings::with_camera(stillpoint_datasets::Sensor::Rgbd, camera);
+        SettingsTree::from_dataset(&ds)
+    }
+
+    #[test]
+    fn a_file_then_overrides_set_values_and_remember_where() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("stillpoint.toml");
+        std::fs::write(
+            &path,
+            "# mine\n[front_end.dynamic.world]\nenabled = false\n\n[detect]\nconf_threshold = 0.5\n",
+        )
+        .unwrap();
+        let l = tree()
+            .layered(
+                &[&path],
+                &[
+                    "detect.conf_threshold=0.3".into(),
+                    "orb.n_features=1500".into(),
+                ],
+            )
+            .unwrap();
+        assert!(!l.tree.front_end.dynamic.world.enabled);
+        assert_eq!(l.tree.detect.conf_threshold, 0.3);
+        assert_eq!(l.tree.orb.n_features, 1500);
+        let d = l.describe();
+        let world = format!(
+            "front_end.dynamic.world.enabled = false  # {}:3",
+            path.display()
+        );
+        assert!(d.contains(&world), "{d}");
+        assert!(d.contains("detect.conf_threshold = 0.3  # --set"), "{d}");
+        assert!(
+            d.contains("front_end.dynamic.judge.ata_ratio = 0.4  # default"),
+            "{d}"
+        );
+    }
+
+    #[test]
+    fn an_unknown_key_names_the_file_and_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.toml");
+        std::fs::write(
+            &path,
+            "[front_end]\nmovable_hygiene = true\nmovable_hygeine = false\n",
+        )
+        .unwrap();
+        let e = tree().layered(&[&path], &[]).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            format!(
+                "{}:3: unknown key `front_end.movable_hygeine`",
+                path.display()
+            )
+        );
+        let e = tree()
+            .layered(&[], &["slam.no_such=1".into()])
+            .unwrap_err()
+            .to_string();
+        assert_eq!(e, "--set slam.no_such=1: unknown key `slam.no_such`");
+        // The detector's table denies unknown fields itself: the same error.
+        std::fs::write(&path, "[detect]\nthreads = 2\nconf_treshold = 0.2\n").unwrap();
+        let e = tree().layered(&[&path], &[]).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            format!("{}:3: unknown key `detect.conf_treshold`", path.display())
+        );
+    }
+
+    #[test]
+    fn a_value_of_the_wrong_kind_is_an_error_naming_the_key() {
+        let e = tree()
+            .layered(&[], &["orb.n_features=many".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("--set orb.n_features=many: `orb.n_features`"),
+            "{e}"
+        );
+        assert!(matches!(
+            tree().layered(&[], &["orb.n_features".into()]),
+            Err(SettingsError::BadOverride { .. })
+        ));
+    }
+
+    #[test]
+    fn the_defaults_round_trip() {
+        let l = tree().layered(&[], &[]).unwrap();
+        assert_eq!(
+            format!("{:?}", l.tree.front_end),
+            format!("{:?}", FrontEndSettings::default())
+        );
+        assert!(l.sources.is_empty());
+    }
+}
