@@ -17,7 +17,7 @@ use stillpoint_detect::{
 };
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
-use stillpoint_slam::module::frontend::{FilterInput, KeypointFilter};
+use stillpoint_frontend::{FilterInput, KeypointFilter};
 
 fn shared() -> PathBuf {
     std::env::var_os("STILLPOINT_SHARED")

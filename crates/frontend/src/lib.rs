@@ -39,7 +39,7 @@
 //! ```
 //! use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
 //! use stillpoint_image::Gray8;
-//! use stillpoint_slam::module::frontend::{FilterInput, KeypointFilter};
+//! use stillpoint_frontend::{FilterInput, KeypointFilter};
 //!
 //! let mut front = DynamicFrontEnd::new(
 //!     Box::new(stillpoint_detect::NoDetector),
@@ -51,6 +51,10 @@
 //! assert_eq!(out.dynamic, vec![false, false]);
 //! ```
 
+mod filter;
+
+pub use filter::{FilterInput, FilterOutcome, KeepAll, KeypointFilter};
+
 use std::time::Instant;
 
 use stillpoint_detect::{DetectInput, Detection, Detector};
@@ -61,7 +65,6 @@ use stillpoint_dynamic::{
 use stillpoint_features::LkPyramid;
 use stillpoint_geometry::{PinholeCamera, Se3};
 use stillpoint_image::{DepthMetres, Gray8};
-use stillpoint_slam::module::frontend::{FilterInput, FilterOutcome, KeypointFilter};
 
 /// COCO's person class: a-priori dynamic when there is no motion evidence yet.
 pub const PERSON_CLASS: u16 = 0;

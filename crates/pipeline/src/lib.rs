@@ -33,12 +33,14 @@ use std::time::Instant;
 use stillpoint_datasets::{Frame, Sensor};
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::DynamicFrontEnd;
+use stillpoint_frontend::{FilterInput, KeypointFilter};
 use stillpoint_geometry::Se3;
 use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths};
-use stillpoint_slam::module::frontend::{FilterInput, KeypointFilter, remove_dynamic};
 use stillpoint_slam::module::loop_closing::LoopStats;
 use stillpoint_slam::place::Vocabulary;
-use stillpoint_slam::{Feature, KeypointDepth, SlamError, SlamSettings, System, TrackingState};
+use stillpoint_slam::{
+    Descriptor, Feature, KeypointDepth, SlamError, SlamSettings, System, TrackingState,
+};
 use stillpoint_trajectory::{Trajectory, TrajectoryError};
 
 /// Why the pipeline stopped.
@@ -399,6 +401,54 @@ impl Pipeline {
     }
 }
 
+/// Remove the keypoints flagged dynamic; returns how many were removed. A mask of the wrong
+/// length is ignored (nothing removed) rather than trusted.
+fn remove_dynamic(
+    features: &mut Vec<Feature>,
+    descriptors: &mut Vec<Descriptor>,
+    dynamic: &[bool],
+) -> usize {
+    if dynamic.len() != features.len() || descriptors.len() != features.len() {
+        return 0;
+    }
+    let before = features.len();
+    let mut k = 0;
+    features.retain(|_| {
+        k += 1;
+        !dynamic[k - 1]
+    });
+    let mut k = 0;
+    descriptors.retain(|_| {
+        k += 1;
+        !dynamic[k - 1]
+    });
+    before - features.len()
+}
+
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn removes_flagged_keypoints_and_ignores_bad_masks() {
+        let f = |x| Feature {
+            x,
+            y: 0.0,
+            octave: 0,
+            angle: 0.0,
+        };
+        let mut feats = vec![f(1.0), f(2.0), f(3.0)];
+        let mut descs = vec![[1u8; 32], [2u8; 32], [3u8; 32]];
+        assert_eq!(remove_dynamic(&mut feats, &mut descs, &[false, true]), 0);
+        assert_eq!(
+            remove_dynamic(&mut feats, &mut descs, &[false, true, false]),
+            1
+        );
+        assert_eq!(feats, vec![f(1.0), f(3.0)]);
+        assert_eq!(descs, vec![[1u8; 32], [3u8; 32]]);
+    }
 }

@@ -34,8 +34,8 @@ use stillpoint_dynamic::{
 };
 use stillpoint_features::{LkPyramid, OrbExtractor, OrbParams};
 use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
+use stillpoint_frontend::{FilterInput, KeypointFilter};
 use stillpoint_image::{DepthMetres, Gray8, read_depth_metres, read_gray, read_rgb, rgb_to_gray};
-use stillpoint_slam::module::frontend::{FilterInput, KeypointFilter};
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -1,11 +1,9 @@
-//! The one place where the dynamic front-end plugs in: after ORB extraction, before anything
-//! else (paper figure 2). The slam crate does not know how keypoints are judged; the
-//! `stillpoint-frontend` crate implements [`KeypointFilter`] with `dynamic::motion_consistency` +
-//! the detector + `judge_boxes` + `cull_frame`.
+//! The one place where a keypoint filter plugs into the pipeline: after ORB extraction, before
+//! tracking (paper figure 2). [`KeypointFilter`] is what the pipeline calls;
+//! [`crate::DynamicFrontEnd`] implements it with the detector, `dynamic::motion_consistency`,
+//! `judge_boxes` and `cull_frame`; [`KeepAll`] is the baseline.
 
 use stillpoint_image::{DepthMetres, Gray8, Rgb8};
-
-use crate::{Descriptor, Feature};
 
 /// What a filter decided for one frame, with the time its stages took.
 #[derive(Clone, Debug, Default)]
@@ -56,53 +54,5 @@ impl KeypointFilter for KeepAll {
     }
     fn name(&self) -> &str {
         "none"
-    }
-}
-
-/// Remove the keypoints flagged dynamic; returns how many were removed. A mask of the wrong
-/// length is ignored (nothing removed) rather than trusted.
-pub fn remove_dynamic(
-    features: &mut Vec<Feature>,
-    descriptors: &mut Vec<Descriptor>,
-    dynamic: &[bool],
-) -> usize {
-    if dynamic.len() != features.len() || descriptors.len() != features.len() {
-        return 0;
-    }
-    let before = features.len();
-    let mut k = 0;
-    features.retain(|_| {
-        k += 1;
-        !dynamic[k - 1]
-    });
-    let mut k = 0;
-    descriptors.retain(|_| {
-        k += 1;
-        !dynamic[k - 1]
-    });
-    before - features.len()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn removes_flagged_keypoints_and_ignores_bad_masks() {
-        let f = |x| Feature {
-            x,
-            y: 0.0,
-            octave: 0,
-            angle: 0.0,
-        };
-        let mut feats = vec![f(1.0), f(2.0), f(3.0)];
-        let mut descs = vec![[1u8; 32], [2u8; 32], [3u8; 32]];
-        assert_eq!(remove_dynamic(&mut feats, &mut descs, &[false, true]), 0);
-        assert_eq!(
-            remove_dynamic(&mut feats, &mut descs, &[false, true, false]),
-            1
-        );
-        assert_eq!(feats, vec![f(1.0), f(3.0)]);
-        assert_eq!(descs, vec![[1u8; 32], [3u8; 32]]);
     }
 }
