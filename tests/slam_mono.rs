@@ -5,7 +5,6 @@
 //! without depth.txt, and black frames (no panic, clear errors, valid trajectory files).
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_geometry::{Vec3, umeyama};
@@ -84,9 +83,8 @@ fn monocular_static_sequence_initialises_tracks_and_matches_the_truth_up_to_scal
     assert!(rmse < 0.012, "ATE {rmse} m");
 }
 
-fn stillpoint() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_stillpoint"))
-}
+mod common;
+use common::stillpoint;
 
 /// `stillpoint synth --preset static --frames N` into `dir`, then depth.txt removed: a TUM folder
 /// that reads as monocular.
@@ -108,20 +106,7 @@ fn synth_mono(dir: &Path, frames: usize) {
 
 /// `stillpoint run --detector none --sequential --json` on `seq`: (success, stdout, stderr).
 fn run(seq: &Path, traj: &Path) -> (bool, String, String) {
-    let out = stillpoint()
-        .args([
-            "run",
-            "--detector",
-            "none",
-            "--sequential",
-            "--json",
-            "--dataset",
-        ])
-        .arg(seq)
-        .arg("--out")
-        .arg(traj)
-        .output()
-        .unwrap();
+    let out = common::run_without_detector(seq, traj);
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stdout).into_owned(),

@@ -2,11 +2,9 @@
 //! frames and frames without depth must not abort, must recover, and must leave a valid TUM file.
 
 use std::path::Path;
-use std::process::Command;
 
-fn stillpoint() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_stillpoint"))
-}
+mod common;
+use common::stillpoint;
 
 /// `stillpoint synth --preset static --frames N --seed S --out DIR`; must succeed.
 fn synth_static(dir: &Path, frames: usize, seed: u64) {
@@ -154,20 +152,7 @@ fn frames_from_another_place_are_lost_then_relocalised() {
 
 /// `stillpoint run --detector none --sequential --json` on `seq`; must succeed; its JSON summary.
 fn run_without_detector(seq: &std::path::Path, traj: &std::path::Path) -> serde_json::Value {
-    let out = stillpoint()
-        .args([
-            "run",
-            "--detector",
-            "none",
-            "--sequential",
-            "--json",
-            "--dataset",
-        ])
-        .arg(seq)
-        .arg("--out")
-        .arg(traj)
-        .output()
-        .unwrap();
+    let out = common::run_without_detector(seq, traj);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     serde_json::from_slice(&out.stdout).unwrap()

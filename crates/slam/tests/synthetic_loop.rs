@@ -5,16 +5,13 @@
 
 use rand::{Rng, SeedableRng};
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3, umeyama};
-use stillpoint_image::DepthMetres;
-use stillpoint_slam::{Descriptor, Feature, SlamSettings, System};
+use stillpoint_slam::{SlamSettings, System};
 
 /// Frames per lap.
 const LAP: usize = 300;
 
-struct Scene {
-    points: Vec<Vec3>,
-    descriptors: Vec<Descriptor>,
-}
+mod common;
+use common::{Scene, observe};
 
 /// Points on the four walls of a 5 x 5 m room (y is down, the camera height is 0).
 fn scene(seed: u64, n: usize) -> Scene {
@@ -51,44 +48,6 @@ fn truth(i: usize) -> Se3 {
         nalgebra::Translation3::from(z),
         nalgebra::UnitQuaternion::from_rotation_matrix(&r),
     )
-}
-
-fn observe(
-    sc: &Scene,
-    pose_wc: &Se3,
-    cam: &PinholeCamera,
-    rng: &mut impl Rng,
-) -> (Vec<Feature>, Vec<Descriptor>, DepthMetres) {
-    let mut depth = DepthMetres::new(cam.width as usize, cam.height as usize, 0.0);
-    let (mut f, mut d) = (Vec::new(), Vec::new());
-    let pose_cw = pose_wc.inverse();
-    for (p, desc) in sc.points.iter().zip(&sc.descriptors) {
-        let pc = (pose_cw * nalgebra::Point3::from(*p)).coords;
-        let Some(px) = cam.project(&pc) else { continue };
-        if !cam.in_image(&px, 2.0) {
-            continue;
-        }
-        let x = px.x + rng.random_range(-0.3..0.3);
-        let y = px.y + rng.random_range(-0.3..0.3);
-        let (xi, yi) = (x.round() as usize, y.round() as usize);
-        if xi >= depth.width || yi >= depth.height {
-            continue;
-        }
-        depth.set(xi, yi, pc.z as f32);
-        let mut desc = *desc;
-        for _ in 0..3 {
-            let b = rng.random_range(0..256);
-            desc[b / 8] ^= 1 << (b % 8);
-        }
-        f.push(Feature {
-            x: x as f32,
-            y: y as f32,
-            octave: 0,
-            angle: 0.0,
-        });
-        d.push(desc);
-    }
-    (f, d, depth)
 }
 
 struct Outcome {

@@ -4,12 +4,10 @@
 use rand::{Rng, SeedableRng};
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
 use stillpoint_image::DepthMetres;
-use stillpoint_slam::{Descriptor, Feature, SlamSettings, System, TrackingState};
+use stillpoint_slam::{SlamSettings, System, TrackingState};
 
-struct Scene {
-    points: Vec<Vec3>,
-    descriptors: Vec<Descriptor>,
-}
+mod common;
+use common::{Scene, observe};
 
 fn scene(seed: u64, n: usize) -> Scene {
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
@@ -55,49 +53,6 @@ fn truth(i: usize) -> Se3 {
     )
 }
 
-fn observe(
-    sc: &Scene,
-    pose_wc: &Se3,
-    cam: &PinholeCamera,
-    rng: &mut impl Rng,
-    blank: bool,
-) -> (Vec<Feature>, Vec<Descriptor>, DepthMetres) {
-    let mut depth = DepthMetres::new(cam.width as usize, cam.height as usize, 0.0);
-    let (mut f, mut d) = (Vec::new(), Vec::new());
-    if blank {
-        return (f, d, depth);
-    }
-    let pose_cw = pose_wc.inverse();
-    for (p, desc) in sc.points.iter().zip(&sc.descriptors) {
-        let pc = (pose_cw * nalgebra::Point3::from(*p)).coords;
-        let Some(px) = cam.project(&pc) else { continue };
-        if !cam.in_image(&px, 2.0) {
-            continue;
-        }
-        let nz = 0.3;
-        let x = px.x + rng.random_range(-nz..nz);
-        let y = px.y + rng.random_range(-nz..nz);
-        let (xi, yi) = (x.round() as usize, y.round() as usize);
-        if xi >= depth.width || yi >= depth.height {
-            continue;
-        }
-        depth.set(xi, yi, pc.z as f32);
-        let mut desc = *desc;
-        for _ in 0..3 {
-            let b = rng.random_range(0..256);
-            desc[b / 8] ^= 1 << (b % 8);
-        }
-        f.push(Feature {
-            x: x as f32,
-            y: y as f32,
-            octave: 0,
-            angle: 0.0,
-        });
-        d.push(desc);
-    }
-    (f, d, depth)
-}
-
 fn run(frames: usize, blank: impl Fn(usize) -> bool) -> (f64, usize, bool) {
     let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
     let mut s = SlamSettings::rgbd(cam, 40.0, 30.0);
@@ -109,7 +64,12 @@ fn run(frames: usize, blank: impl Fn(usize) -> bool) -> (f64, usize, bool) {
     let (mut sse, mut n, mut any_new_map) = (0.0, 0, false);
     for i in 0..frames {
         let gt = truth(i);
-        let (f, d, depth) = observe(&sc, &gt, &cam, &mut rng, blank(i));
+        let (f, d, depth) = if blank(i) {
+            let depth = DepthMetres::new(cam.width as usize, cam.height as usize, 0.0);
+            (Vec::new(), Vec::new(), depth)
+        } else {
+            observe(&sc, &gt, &cam, &mut rng)
+        };
         let r = sys
             .track_rgbd(i, i as f64 / 30.0, &f, &d, Some(&depth))
             .unwrap();

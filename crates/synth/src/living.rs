@@ -405,7 +405,7 @@ fn picture_mesh(w: f64, h: f64, canvas: u16, frame: u16) -> Mesh {
 /// with corners, and fewer than ~500 would keep the RGB-D initialisation from starting; a
 /// coffee table and an armchair (each +50-100) were taken out for that reason.
 fn furnish_living(s: &mut Scene, rng: &mut Pcg64Mcg) {
-    let [[x0, x1], [y0, y1], [z0, z1]] = LIVING_ROOM;
+    let [[x0, x1], [y0, y1], _] = LIVING_ROOM;
     let v = P3::new;
     let wall_colours = [
         [0.86, 0.83, 0.76],
@@ -413,31 +413,10 @@ fn furnish_living(s: &mut Scene, rng: &mut Pcg64Mcg) {
         [0.84, 0.8, 0.74],
         [0.82, 0.82, 0.78],
     ];
-    let mut room = Mesh::default();
     let floor = s.paint(Style::Carpet([0.55, 0.5, 0.44]), 1024, 1024, rng);
     let ceiling = s.paint(Style::Paint([0.93, 0.93, 0.91]), 256, 256, rng);
-    room.quad(
-        [v(x0, y0, z0), v(x1, y0, z0), v(x1, y1, z0), v(x0, y1, z0)],
-        floor,
-        [0.0, 0.0],
-        [1.0, 1.0],
-    );
-    room.quad(
-        [v(x0, y0, z1), v(x1, y0, z1), v(x1, y1, z1), v(x0, y1, z1)],
-        ceiling,
-        [0.0, 0.0],
-        [1.0, 1.0],
-    );
-    let walls = [
-        [v(x0, y1, z0), v(x1, y1, z0), v(x1, y1, z1), v(x0, y1, z1)], // back
-        [v(x0, y0, z0), v(x0, y1, z0), v(x0, y1, z1), v(x0, y0, z1)], // left
-        [v(x1, y1, z0), v(x1, y0, z0), v(x1, y0, z1), v(x1, y1, z1)], // right
-        [v(x1, y0, z0), v(x0, y0, z0), v(x0, y0, z1), v(x1, y0, z1)], // front
-    ];
-    for (k, w) in walls.into_iter().enumerate() {
-        let tex = s.paint(Style::Paint(wall_colours[k]), 1024, 512, rng);
-        room.quad(w, tex, [0.0, 0.0], [1.0, 1.0]);
-    }
+    let walls = wall_colours.map(|c| s.paint(Style::Paint(c), 1024, 512, rng));
+    let mut room = crate::presets::box_room(LIVING_ROOM, floor, ceiling, walls);
     // skirting boards, a shade lighter than the walls
     let skirt = s.paint(Style::Paint([0.92, 0.91, 0.88]), 256, 32, rng);
     let (sk, sd) = (0.08, 0.015);

@@ -311,41 +311,41 @@ pub(crate) fn pose_xy(x: f64, y: f64, z: f64, yaw: f64) -> Se3 {
 /// Room bounds: x, y, z ranges (metres).
 pub const ROOM: [[f64; 2]; 3] = [[-3.0, 3.0], [-2.6, 3.6], [0.0, 2.7]];
 
+/// The inside of a box-shaped room (`[[x0, x1], [y0, y1], [z0, z1]]`): floor, ceiling and the
+/// back, left, right and front walls, each one texture stretched over it.
+pub(crate) fn box_room(bounds: [[f64; 2]; 3], floor: u16, ceiling: u16, walls: [u16; 4]) -> Mesh {
+    let [[x0, x1], [y0, y1], [z0, z1]] = bounds;
+    let v = P3::new;
+    let mut room = Mesh::default();
+    let quads = [
+        [v(x0, y0, z0), v(x1, y0, z0), v(x1, y1, z0), v(x0, y1, z0)], // floor
+        [v(x0, y0, z1), v(x1, y0, z1), v(x1, y1, z1), v(x0, y1, z1)], // ceiling
+        [v(x0, y1, z0), v(x1, y1, z0), v(x1, y1, z1), v(x0, y1, z1)], // back
+        [v(x0, y0, z0), v(x0, y1, z0), v(x0, y1, z1), v(x0, y0, z1)], // left
+        [v(x1, y1, z0), v(x1, y0, z0), v(x1, y0, z1), v(x1, y1, z1)], // right
+        [v(x1, y0, z0), v(x0, y0, z0), v(x0, y0, z1), v(x1, y0, z1)], // front
+    ];
+    let textures = [floor, ceiling, walls[0], walls[1], walls[2], walls[3]];
+    for (q, tex) in quads.into_iter().zip(textures) {
+        room.quad(q, tex, [0.0, 0.0], [1.0, 1.0]);
+    }
+    room
+}
+
 /// Build the furnished room (everything static), shared by every preset.
 fn furnish(s: &mut Scene, rng: &mut Pcg64Mcg, photos: &Photos) {
-    let [[x0, x1], [y0, y1], [z0, z1]] = ROOM;
+    let [[x0, x1], [_, y1], _] = ROOM;
     let wall_colours = [
         [0.82, 0.8, 0.74],
         [0.74, 0.78, 0.8],
         [0.8, 0.76, 0.7],
         [0.78, 0.8, 0.76],
     ];
-    let mut room = Mesh::default();
     let floor = s.paint(Style::Floor([0.45, 0.42, 0.4]), 1024, 1024, rng);
     let ceiling = s.paint(Style::Plain([0.9, 0.9, 0.88]), 256, 256, rng);
+    let walls = wall_colours.map(|c| s.paint(Style::Wall(c), 1024, 512, rng));
+    let room = box_room(ROOM, floor, ceiling, walls);
     let v = P3::new;
-    room.quad(
-        [v(x0, y0, z0), v(x1, y0, z0), v(x1, y1, z0), v(x0, y1, z0)],
-        floor,
-        [0.0, 0.0],
-        [1.0, 1.0],
-    );
-    room.quad(
-        [v(x0, y0, z1), v(x1, y0, z1), v(x1, y1, z1), v(x0, y1, z1)],
-        ceiling,
-        [0.0, 0.0],
-        [1.0, 1.0],
-    );
-    let walls = [
-        [v(x0, y1, z0), v(x1, y1, z0), v(x1, y1, z1), v(x0, y1, z1)], // back
-        [v(x0, y0, z0), v(x0, y1, z0), v(x0, y1, z1), v(x0, y0, z1)], // left
-        [v(x1, y1, z0), v(x1, y0, z0), v(x1, y0, z1), v(x1, y1, z1)], // right
-        [v(x1, y0, z0), v(x0, y0, z0), v(x0, y0, z1), v(x1, y0, z1)], // front
-    ];
-    for (k, w) in walls.into_iter().enumerate() {
-        let tex = s.paint(Style::Wall(wall_colours[k]), 1024, 512, rng);
-        room.quad(w, tex, [0.0, 0.0], [1.0, 1.0]);
-    }
     s.add_static("room", None, room, Se3::identity());
 
     // photo posters on the back and side walls, a few centimetres off the wall
