@@ -100,6 +100,8 @@ pub struct OrbExtractor {
     /// Rectangles `[x1, y1, x2, y2]` (level-0 pixels) where no corner is kept, so the budget
     /// goes to the rest of the image.
     exclude: Vec<[f32; 4]>,
+    /// Level-0 mask (non-zero = keep no corner there), beside the rectangles.
+    exclude_mask: Option<Gray8>,
 }
 
 /// Which corner score picks the keypoint kept in each quadtree node.
@@ -172,6 +174,7 @@ impl OrbExtractor {
             timings: OrbTimings::default(),
             score: OrbScore::default(),
             exclude: Vec::new(),
+            exclude_mask: None,
         }
     }
 
@@ -191,6 +194,12 @@ impl OrbExtractor {
     /// ```
     pub fn set_exclusion(&mut self, rects: Vec<[f32; 4]>) {
         self.exclude = rects;
+    }
+
+    /// Keep no corner where `mask` (level-0 pixels) is non-zero in the next extractions: a
+    /// mover's own pixels rather than its whole box (`None` = no mask).
+    pub fn set_exclusion_mask(&mut self, mask: Option<Gray8>) {
+        self.exclude_mask = mask;
     }
 
     /// Choose the score that picks the keypoint of each quadtree node (and is reported as
@@ -253,6 +262,14 @@ impl OrbExtractor {
             }
             corners.clear();
             detect_in_cells(level_img, &self.params, &mut corners);
+            if let Some(mask) = &self.exclude_mask {
+                let scale = self.scale_factors[level];
+                corners.retain(|c| {
+                    let (x, y) = (c.x as f32 * scale, c.y as f32 * scale);
+                    mask.get_checked(x as isize, y as isize)
+                        .is_none_or(|m| m == 0)
+                });
+            }
             if !self.exclude.is_empty() {
                 let scale = self.scale_factors[level];
                 let exclude = &self.exclude;

@@ -188,7 +188,7 @@ impl Default for FrontEndSettings {
             seated_motion: SeatedMotionParams::default(),
             seated_kept_on_first_frame: true,
             seated_kept_make_points: false,
-            orb_exclusion: false,
+            orb_exclusion: true,
             movable_hygiene: true,
             movable_hygiene_margin: 0.5,
             orb_exclusion_margin: 0.05,
@@ -264,6 +264,22 @@ impl DynamicFrontEnd {
                 [b.x1 - dx, b.y1 - dy, b.x2 + dx, b.y2 + dy]
             })
             .collect()
+    }
+
+    /// [`DynamicFrontEnd::orb_exclusion`] narrowed to the movers' own pixels when the next
+    /// frame's depth is known: inside each box, only pixels within the object's depth band (the
+    /// median depth of the box's centre, +- `dynamic.depth` band), so the background seen
+    /// around a close person keeps its keypoints. `None` when exclusion is off or nothing
+    /// moved; without depth, the whole boxes.
+    pub fn orb_exclusion_mask(
+        &self,
+        depth: Option<&DepthMetres>,
+        width: usize,
+        height: usize,
+    ) -> Option<Gray8> {
+        let rects = self.orb_exclusion();
+        (!rects.is_empty())
+            .then(|| mover_mask(&rects, depth, &self.settings.dynamic.depth, width, height))
     }
 
     /// How the last frame's camera motion was judged against the static world (`None`: not
@@ -626,6 +642,61 @@ impl DynamicFrontEnd {
 /// Run the detector on the frame's colour image, or on its gray image replicated into three
 /// channels when the camera is gray (KITTI `image_0/1`, EuRoC); a failure is logged and counts as
 /// no detection (the geometry check still runs).
+/// The pixels of movers (255) inside their boxes (`[x1, y1, x2, y2]`): with depth, those within
+/// the object's depth band (the median over the box's centre, +- `band_relative` of it, at least
+/// `band_min_m`); without depth, or with too few depth samples, the whole box.
+fn mover_mask(
+    rects: &[[f32; 4]],
+    depth: Option<&DepthMetres>,
+    d: &stillpoint_dynamic::DepthParams,
+    width: usize,
+    height: usize,
+) -> Gray8 {
+    let mut mask = Gray8::new(width, height, 0);
+    for r in rects {
+        let clamp = |v: f32, hi: usize| (v.max(0.0) as usize).min(hi);
+        let (x1, y1) = (clamp(r[0], width), clamp(r[1], height));
+        let (x2, y2) = (clamp(r[2], width), clamp(r[3], height));
+        let band = depth.and_then(|depth| {
+            let (mx, my) = (
+                ((x2 - x1) as f32 * (1.0 - d.central_width) / 2.0) as usize,
+                ((y2 - y1) as f32 * (1.0 - d.central_height) / 2.0) as usize,
+            );
+            let step = d.sample_step_px.max(1);
+            let mut samples: Vec<f32> = ((y1 + my)..(y2 - my).min(depth.height))
+                .step_by(step)
+                .flat_map(|y| {
+                    ((x1 + mx)..(x2 - mx).min(depth.width))
+                        .step_by(step)
+                        .map(move |x| depth.get(x, y))
+                })
+                .filter(|z| z.is_finite() && *z > d.min_valid_m)
+                .collect();
+            if samples.len() < d.min_samples {
+                return None;
+            }
+            let mid = samples.len() / 2;
+            let z = *samples.select_nth_unstable_by(mid, f32::total_cmp).1;
+            let half = d.band_min_m.max(d.band_relative * z);
+            Some((z - half, z + half))
+        });
+        for y in y1..y2 {
+            for x in x1..x2 {
+                let on_mover = match (band, depth) {
+                    (Some((lo, hi)), Some(depth)) => depth
+                        .get_checked(x as isize, y as isize)
+                        .is_some_and(|z| z >= lo && z <= hi),
+                    _ => true,
+                };
+                if on_mover {
+                    mask.set(x, y, 255);
+                }
+            }
+        }
+    }
+    mask
+}
+
 fn detect(detector: &mut dyn Detector, frame: &FilterInput) -> Vec<Detection> {
     let replicated;
     let rgb = match frame.rgb {
@@ -1148,6 +1219,27 @@ mod tests {
             }
         }
         (let_in, on_person)
+    }
+
+    #[test]
+    fn the_orb_mask_covers_a_mover_but_not_the_background_in_its_box() {
+        // A person 1.5 m away fills the middle of a 100 x 100 box; the wall 4 m behind shows
+        // around them inside the box.
+        let mut depth = DepthMetres::new(200, 200, 4.0);
+        for y in 50..150 {
+            for x in 75..125 {
+                depth.set(x, y, 1.5);
+            }
+        }
+        let params = stillpoint_dynamic::DepthParams::default();
+        let rect = [50.0, 50.0, 150.0, 150.0];
+        let mask = mover_mask(&[rect], Some(&depth), &params, 200, 200);
+        assert_eq!(mask.get(100, 100), 255, "the person");
+        assert_eq!(mask.get(60, 100), 0, "the wall beside them, inside the box");
+        assert_eq!(mask.get(10, 10), 0, "outside the box");
+        // Without depth the whole box.
+        let whole = mover_mask(&[rect], None, &params, 200, 200);
+        assert_eq!((whole.get(60, 100), whole.get(10, 10)), (255, 0));
     }
 
     #[test]

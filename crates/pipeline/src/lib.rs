@@ -239,7 +239,9 @@ impl Pipeline {
         let mut timings = FrameTimings::default();
         let t0 = Instant::now();
         if let Some(f) = self.front_end.as_ref() {
-            self.orb.set_exclusion(f.orb_exclusion());
+            let (w, h) = (frame.gray.width, frame.gray.height);
+            let mask = f.orb_exclusion_mask(frame.depth.as_ref(), w, h);
+            self.orb.set_exclusion_mask(mask);
         }
         let left_orb = match self.orb_init.as_mut() {
             Some(o) if self.system.initialising() => o,
