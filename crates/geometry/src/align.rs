@@ -5,7 +5,9 @@ use crate::{Mat3, Se3, Vec3};
 /// A similarity transform `x -> s R x + t`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sim3 {
+    /// `s`.
     pub scale: f64,
+    /// `R` and `t`.
     pub rigid: Se3,
 }
 

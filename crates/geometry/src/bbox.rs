@@ -7,22 +7,30 @@ use serde::{Deserialize, Serialize};
 /// paper's authors test it).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct BBox {
+    /// Left edge.
     pub x1: f32,
+    /// Top edge.
     pub y1: f32,
+    /// Right edge.
     pub x2: f32,
+    /// Bottom edge.
     pub y2: f32,
 }
 
 impl BBox {
+    /// The box from its left, top, right and bottom edges.
     pub fn new(x1: f32, y1: f32, x2: f32, y2: f32) -> Self {
         Self { x1, y1, x2, y2 }
     }
+    /// Width, 0 for an inverted box.
     pub fn width(&self) -> f32 {
         (self.x2 - self.x1).max(0.0)
     }
+    /// Height, 0 for an inverted box.
     pub fn height(&self) -> f32 {
         (self.y2 - self.y1).max(0.0)
     }
+    /// Area in square pixels.
     pub fn area(&self) -> f32 {
         self.width() * self.height()
     }

@@ -6,10 +6,15 @@ use serde::{Deserialize, Serialize};
 /// Radial-tangential distortion coefficients k1 k2 p1 p2 k3, OpenCV's order.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct RadTan {
+    /// Radial, r^2.
     pub k1: f64,
+    /// Radial, r^4.
     pub k2: f64,
+    /// Tangential, first.
     pub p1: f64,
+    /// Tangential, second.
     pub p2: f64,
+    /// Radial, r^6.
     pub k3: f64,
 }
 
@@ -52,12 +57,19 @@ impl RadTan {
 /// A pinhole camera: focal lengths and principal point in pixels, image size, distortion.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PinholeCamera {
+    /// Focal length along x, pixels.
     pub fx: f64,
+    /// Focal length along y, pixels.
     pub fy: f64,
+    /// Principal point, x.
     pub cx: f64,
+    /// Principal point, y.
     pub cy: f64,
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
+    /// Lens distortion (zero for rectified or synthetic images).
     #[serde(default)]
     pub distortion: RadTan,
 }

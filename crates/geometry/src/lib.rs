@@ -4,6 +4,8 @@
 //! Conventions (as TUM and ORB-SLAM use them): poses are `Se3` camera-to-world (`T_wc`) unless a
 //! name says otherwise; pixel (u, v) has u to the right and v down; camera z looks forward.
 
+#![deny(missing_docs)]
+
 pub mod align;
 pub mod bbox;
 pub mod camera;

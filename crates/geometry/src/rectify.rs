@@ -100,7 +100,9 @@ impl RectifyingView {
 /// A stereo pair to rectify (ORB-SLAM's `LEFT.*` and `RIGHT.*`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StereoRectification {
+    /// The left camera.
     pub left: RectifyingView,
+    /// The right camera.
     pub right: RectifyingView,
 }
 

@@ -11,27 +11,45 @@
 //! assert_eq!(img.data.len(), 12);
 //! ```
 
+#![deny(missing_docs)]
+
 use std::path::{Path, PathBuf};
 
 /// Errors from building or reading images.
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
+    /// The file cannot be read or decoded.
     #[error("{path}: cannot read image: {source}")]
     Read {
+        /// The file.
         path: PathBuf,
+        /// Why.
         source: Box<dyn std::error::Error + Send + Sync>,
     },
+    /// The file cannot be encoded or written.
     #[error("{path}: cannot write image: {source}")]
     Write {
+        /// The file.
         path: PathBuf,
+        /// Why.
         source: Box<dyn std::error::Error + Send + Sync>,
     },
+    /// A depth image that is not 16-bit, one channel.
     #[error("{path}: expected a 16-bit single-channel depth PNG, found {found}")]
-    NotDepth16 { path: PathBuf, found: String },
+    NotDepth16 {
+        /// The file.
+        path: PathBuf,
+        /// What it holds instead.
+        found: String,
+    },
+    /// Pixels and size disagree.
     #[error("image buffer of {len} pixels does not match size {width}x{height}")]
     SizeMismatch {
+        /// The size asked for.
         width: usize,
+        /// The size asked for.
         height: usize,
+        /// The pixels given.
         len: usize,
     },
 }
@@ -39,8 +57,11 @@ pub enum ImageError {
 /// A row-major image of `T` pixels.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ImageBuf<T> {
+    /// Columns.
     pub width: usize,
+    /// Rows.
     pub height: usize,
+    /// `width * height` pixels, row after row.
     pub data: Vec<T>,
 }
 

@@ -10,7 +10,12 @@ use crate::{Trajectory, TrajectoryError};
 pub enum Matching {
     /// Nearest timestamp within `max_diff` seconds (evo's default 0.01), after adding `offset`
     /// seconds to the estimate's stamps (evo's `--t_offset`, default 0).
-    Nearest { max_diff: f64, offset: f64 },
+    Nearest {
+        /// Largest stamp difference paired, seconds.
+        max_diff: f64,
+        /// Added to the estimate's stamps, seconds.
+        offset: f64,
+    },
     /// Pose i with pose i (KITTI files, which carry no stamps); lengths must be equal.
     ByIndex,
 }

@@ -6,25 +6,38 @@ pub enum TrajectoryError {
     /// The file could not be opened, read or written.
     #[error("{path}: {source}")]
     Io {
+        /// The file.
         path: String,
+        /// Why.
         source: std::io::Error,
     },
     /// A line of a trajectory file is malformed (wrong column count, not a number, NaN, ...).
     #[error("{path}:{line}: {msg}")]
     Parse {
+        /// The file.
         path: String,
+        /// 1-based line.
         line: usize,
+        /// What is wrong with it.
         msg: String,
     },
     /// The file holds no pose at all.
     #[error("{path}: no poses in file")]
-    Empty { path: String },
+    Empty {
+        /// The file.
+        path: String,
+    },
     /// Inputs that cannot be evaluated together (no matching stamps, too few poses, ...).
     #[error("{0}")]
     Invalid(String),
     /// The plot could not be drawn or written.
     #[error("{path}: plot failed: {msg}")]
-    Plot { path: String, msg: String },
+    Plot {
+        /// The image file.
+        path: String,
+        /// Why.
+        msg: String,
+    },
 }
 
 pub(crate) fn io_err(

@@ -28,7 +28,9 @@ impl Default for KittiOptions {
 /// Errors of one segment length.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct KittiLengthError {
+    /// Segment length, metres (100, 200, ... 800).
     pub length_m: f64,
+    /// Segments of this length evaluated.
     pub segments: usize,
     /// Mean translational error, percent of the segment length.
     pub translation_pct: f64,
@@ -47,6 +49,7 @@ pub struct KittiResult {
     pub rotation_deg_per_m: f64,
     /// Statistics of the per-segment translational errors, percent.
     pub translation_pct_stats: ErrorStats,
+    /// The same per segment length.
     pub per_length: Vec<KittiLengthError>,
 }
 

@@ -14,6 +14,8 @@
 //! assert!(result.stats.rmse < 1e-9);
 //! ```
 
+#![deny(missing_docs)]
+
 pub mod associate;
 pub mod error;
 pub mod io;

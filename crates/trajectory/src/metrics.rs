@@ -14,13 +14,19 @@ use stillpoint_geometry::{Se3, Sim3, Vec3, umeyama};
 /// count, rmse, mean, median, std, min, max, sse of a list of errors (evo's statistics).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct ErrorStats {
+    /// Errors counted.
     pub count: usize,
+    /// Root mean square.
     pub rmse: f64,
+    /// Mean.
     pub mean: f64,
+    /// Median.
     pub median: f64,
     /// Population standard deviation (numpy's `std`, ddof 0).
     pub std: f64,
+    /// Smallest.
     pub min: f64,
+    /// Largest.
     pub max: f64,
     /// Sum of squared errors.
     pub sse: f64,
@@ -85,7 +91,9 @@ impl std::str::FromStr for Alignment {
 /// Options of [`ate`]. Defaults: evo_ape's (`max_diff` 0.01 s, no offset, no alignment).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct AteOptions {
+    /// Alignment of the estimate before comparing.
     pub align: Alignment,
+    /// How poses are paired.
     pub matching: Matching,
 }
 
@@ -200,10 +208,13 @@ impl std::str::FromStr for DeltaUnit {
 /// Options of [`rpe`]. Defaults: evo_rpe's (delta 1 frame, consecutive pairs, no alignment).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RpeOptions {
+    /// Alignment of the estimate before comparing.
     pub align: Alignment,
+    /// How poses are paired.
     pub matching: Matching,
     /// Pair distance, in `delta_unit`.
     pub delta: f64,
+    /// What `delta` counts (frames, metres, ...).
     pub delta_unit: DeltaUnit,
 }
 
@@ -221,11 +232,15 @@ impl Default for RpeOptions {
 /// RPE translation (metres) and rotation (degrees) parts over the same pairs.
 #[derive(Clone, Debug)]
 pub struct RpeResult {
+    /// Translational error of the relative poses, metres.
     pub translation: ErrorStats,
+    /// Rotational error of the relative poses, degrees.
     pub rotation_deg: ErrorStats,
     /// `(i, j)` indices into the associated trajectories.
     pub pairs: Vec<(usize, usize)>,
+    /// Per pair, metres.
     pub translation_errors: Vec<f64>,
+    /// Per pair, degrees.
     pub rotation_errors_deg: Vec<f64>,
 }
 
