@@ -13,38 +13,63 @@ the stillpoint binary";
 pub enum DetectError {
     /// No model file anywhere on the search path.
     #[error("no YOLOX model found (looked in: {searched}); {hint}", hint = WEIGHTS_HINT)]
-    ModelNotFound { searched: String },
+    ModelNotFound {
+        /// The places looked in.
+        searched: String,
+    },
     /// A model path that was named explicitly does not exist or cannot be read.
     #[error("{path}: cannot read model: {error}")]
     ModelIo {
+        /// The file.
         path: PathBuf,
         /// Not a `#[source]`: it is already in the message, and error chains would repeat it.
         error: std::io::Error,
     },
     /// The file is not a loadable ONNX model.
     #[error("{path}: not a loadable ONNX model: {msg}")]
-    NotOnnx { path: PathBuf, msg: String },
+    NotOnnx {
+        /// The file.
+        path: PathBuf,
+        /// The loader's message.
+        msg: String,
+    },
     /// The model loads but is not shaped like a YOLOX detector.
     #[error("{path}: not a YOLOX model: {msg}")]
-    ModelShape { path: PathBuf, msg: String },
+    ModelShape {
+        /// The file.
+        path: PathBuf,
+        /// What does not fit.
+        msg: String,
+    },
     /// The inference backend failed at run time.
     #[error("{backend}: inference failed: {msg}")]
-    Inference { backend: &'static str, msg: String },
+    Inference {
+        /// The backend's name.
+        backend: &'static str,
+        /// Its message.
+        msg: String,
+    },
     /// ONNX Runtime's shared library is not available.
     #[error(
         "ONNX Runtime library not found ({msg}); run scripts/setup-onnxruntime.sh and set \
          ORT_DYLIB_PATH to the libonnxruntime.so it prints (or `ort_dylib_path` in the [detect] \
          settings), or use --backend tract"
     )]
-    OrtLibrary { msg: String },
+    OrtLibrary {
+        /// The loader's message.
+        msg: String,
+    },
     /// The backend was asked for but not compiled in.
     #[error("backend `{0}` is not compiled into this build (rebuild with `--features ort`)")]
     BackendUnavailable(String),
     /// An unknown backend or detector name.
     #[error("unknown {what} `{name}` (expected one of: {expected})")]
     UnknownName {
+        /// What was named (backend, detector).
         what: &'static str,
+        /// The name given.
         name: String,
+        /// The names known.
         expected: &'static str,
     },
     /// Bad parameters or bad input data (empty image, NaN threshold, ...).

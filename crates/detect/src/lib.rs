@@ -14,6 +14,8 @@
 //! assert!(boxes.is_empty());
 //! ```
 
+#![deny(missing_docs)]
+
 pub mod backend;
 pub mod detector;
 pub mod draw;

@@ -26,7 +26,9 @@ pub const STRIDES: [usize; 3] = [8, 16, 32];
 /// maps the original image into it (network pixel = original pixel x ratio).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Letterboxed {
+    /// The network input, `[1, 3, height, width]`.
     pub tensor: Vec<f32>,
+    /// Network pixels per original pixel.
     pub ratio: f32,
 }
 

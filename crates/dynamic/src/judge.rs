@@ -54,8 +54,11 @@ pub struct BoxState {
     pub class_id: u16,
     /// Index of the detection in the input slice.
     pub detection: usize,
+    /// Whole box, or the upper / lower part of a seated person (NHBC).
     pub part: BoxPart,
+    /// Which rule judged it (person outliers, ATA ratio, ...).
     pub rule: Rule,
+    /// Moving, static or unknown.
     pub verdict: Verdict,
     /// Successfully tracked points strictly inside `bbox` (current-frame position).
     pub tracked: usize,

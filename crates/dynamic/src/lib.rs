@@ -138,6 +138,8 @@
 //! sitting_static precision to 0.43 but dropped recall to 0.40, and culling only around the
 //! outliers ([`DepthParams::seated_parts_local`]) 0.36-0.50 at recall 0.39-0.45, so both are off.
 
+#![deny(missing_docs)]
+
 pub mod cull;
 pub mod depth;
 pub mod judge;

@@ -57,9 +57,13 @@ pub enum MotionModel {
 /// Time spent per stage, milliseconds.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct GeometryTimings {
+    /// Harris corners on the previous frame.
     pub corners_ms: f64,
+    /// Pyramidal Lucas-Kanade.
     pub lk_ms: f64,
+    /// Border and patch checks.
     pub checks_ms: f64,
+    /// Fitting the motion model and the epipolar test.
     pub model_ms: f64,
 }
 
@@ -75,6 +79,7 @@ impl GeometryTimings {
 pub struct MotionCheck {
     /// Pairs that survived tracking, border and patch checks, each judged.
     pub points: Vec<TrackedPoint>,
+    /// The model the points were judged against (F, H, flow, none).
     pub model: MotionModel,
     /// Corners found on the previous frame.
     pub corners: usize,
@@ -89,6 +94,7 @@ pub struct MotionCheck {
     /// The model matrix (F or H; `None` for flow or none).
     #[serde(skip)]
     pub matrix: Option<Mat3>,
+    /// Time per stage.
     pub timings: GeometryTimings,
 }
 

@@ -105,7 +105,9 @@ impl Default for ObjectParams {
 pub struct TrackedObject {
     /// Unique within a tracker.
     pub id: u32,
+    /// COCO class.
     pub class_id: u16,
+    /// Whole box, or a seated person's part.
     pub part: BoxPart,
     /// Its box when last seen.
     pub bbox: stillpoint_geometry::BBox,

@@ -7,8 +7,11 @@ use stillpoint_geometry::fundamental::FundamentalRansac;
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct DynamicSettings {
+    /// The motion check: corners, LK, the fundamental matrix (paper section 3.2).
     pub geometry: GeometryParams,
+    /// Moving boxes (paper algorithms 1-2: NHBC, ATA).
     pub judge: JudgeParams,
+    /// Culling (paper algorithm 3, with our rules beside it).
     pub cull: CullParams,
     /// Depth-aware culling for RGB-D frames (ours; see [`crate::depth`]).
     pub depth: DepthParams,

@@ -54,6 +54,8 @@
 //! assert_eq!(hamming(&f.descriptors[0], &f.descriptors[0]), 0);
 //! ```
 
+#![deny(missing_docs)]
+
 mod corners;
 mod fast;
 mod imgops;
@@ -80,10 +82,14 @@ pub type Descriptor = [u8; 32];
 /// output; these are for the helpers that validate input).
 #[derive(Debug, thiserror::Error)]
 pub enum FeaturesError {
+    /// An input a helper cannot use.
     #[error("{file}:{line}: {what}")]
     BadInput {
+        /// Source file of the check.
         file: &'static str,
+        /// Its line.
         line: u32,
+        /// What was wrong.
         what: String,
     },
 }

@@ -26,8 +26,11 @@ pub fn hamming(a: &Descriptor, b: &Descriptor) -> u32 {
 /// A descriptor match: `query` indexes the first set, `train` the second.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Match {
+    /// Index in the first set.
     pub query: usize,
+    /// Index in the second set.
     pub train: usize,
+    /// Hamming distance of the two descriptors.
     pub distance: u32,
 }
 
@@ -235,10 +238,15 @@ impl KeypointGrid {
 /// (for the rotation check) the angle of the keypoint it came from.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Projected {
+    /// Predicted column, level-0 pixels.
     pub x: f32,
+    /// Predicted row, level-0 pixels.
     pub y: f32,
+    /// Predicted pyramid level.
     pub octave: u8,
+    /// The descriptor to match.
     pub descriptor: Descriptor,
+    /// Angle of the keypoint it came from, degrees (`None`: no rotation check).
     pub angle: Option<f32>,
 }
 

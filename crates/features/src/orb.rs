@@ -68,15 +68,20 @@ impl Default for OrbParams {
 /// Keypoints and their descriptors (same length, same order; grouped by octave).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct OrbFeatures {
+    /// The keypoints, level-0 pixels.
     pub keypoints: Vec<KeyPoint>,
+    /// One descriptor per keypoint.
     pub descriptors: Vec<Descriptor>,
 }
 
 /// Wall time of each stage of the last [`OrbExtractor::extract`] call, in milliseconds.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct OrbTimings {
+    /// Building the scale pyramid.
     pub pyramid_ms: f64,
+    /// FAST corners and their Harris scores.
     pub fast_ms: f64,
+    /// Spreading corners over the image (quadtree).
     pub distribute_ms: f64,
     /// Orientation, blur and descriptors.
     pub describe_ms: f64,

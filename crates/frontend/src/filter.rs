@@ -23,9 +23,13 @@ pub struct FilterOutcome {
 
 /// The images of one frame, as the filter needs them.
 pub struct FilterInput<'a> {
+    /// Position of the frame in its sequence.
     pub index: usize,
+    /// Frame time, seconds.
     pub timestamp: f64,
+    /// The gray image (the motion check's).
     pub gray: &'a Gray8,
+    /// The colour image, when there is one (the detector's; gray x3 otherwise).
     pub rgb: Option<&'a Rgb8>,
     /// Depth in metres (RGB-D), for depth-aware culling.
     pub depth: Option<&'a DepthMetres>,
@@ -35,6 +39,7 @@ pub struct FilterInput<'a> {
 pub trait KeypointFilter: Send {
     /// Judge the keypoints (level-0 pixels) of a frame.
     fn judge(&mut self, frame: &FilterInput, keypoints: &[[f32; 2]]) -> FilterOutcome;
+    /// Short name for logs.
     fn name(&self) -> &str;
     /// The pose tracking gave frame `index` (camera-to-world; `None` when it was not tracked),
     /// called after each frame: a filter that judges motion against the static world predicts

@@ -51,6 +51,8 @@
 //! assert_eq!(out.dynamic, vec![false, false]);
 //! ```
 
+#![deny(missing_docs)]
+
 mod filter;
 
 pub use filter::{FilterInput, FilterOutcome, KeepAll, KeypointFilter};
@@ -221,6 +223,7 @@ pub struct DynamicFrontEnd {
 }
 
 impl DynamicFrontEnd {
+    /// A front-end over `detector` (any [`Detector`]: YOLOX, ground truth, none).
     pub fn new(detector: Box<dyn Detector>, settings: FrontEndSettings) -> Self {
         Self {
             detector,
@@ -502,6 +505,7 @@ impl DynamicFrontEnd {
             .collect()
     }
 
+    /// The settings in use.
     pub fn settings(&self) -> &FrontEndSettings {
         &self.settings
     }
