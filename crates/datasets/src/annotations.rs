@@ -36,8 +36,11 @@ fn one() -> f32 {
 /// All boxes of one frame.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FrameBoxes {
+    /// Frame index.
     pub frame: usize,
+    /// Frame time, seconds.
     pub timestamp: f64,
+    /// The objects' boxes.
     pub boxes: Vec<GtBox>,
 }
 

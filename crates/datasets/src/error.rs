@@ -5,30 +5,51 @@ use std::path::Path;
 /// What can go wrong opening a sequence or reading a frame.
 #[derive(Debug, thiserror::Error)]
 pub enum DatasetError {
+    /// A file cannot be read.
     #[error("{path}: {source}")]
     Io {
+        /// The file.
         path: String,
+        /// Why.
         source: std::io::Error,
     },
     /// A malformed line in a text file (list, association, calibration, times).
     #[error("{path}:{line}: {msg}")]
     Parse {
+        /// The file.
         path: String,
+        /// 1-based line.
         line: usize,
+        /// What is wrong with it.
         msg: String,
     },
     /// A settings file without a required key, or with a value of the wrong kind.
     #[error("{path}: {msg}")]
-    Settings { path: String, msg: String },
+    Settings {
+        /// The file.
+        path: String,
+        /// The key and what is wrong.
+        msg: String,
+    },
     /// An image that cannot be decoded, or does not fit the sequence.
     #[error("{0}")]
     Image(#[from] stillpoint_image::ImageError),
     /// The directory is not a sequence of any known layout, or lacks a needed file.
     #[error("{path}: {msg}")]
-    Layout { path: String, msg: String },
+    Layout {
+        /// The directory or file.
+        path: String,
+        /// What is missing.
+        msg: String,
+    },
     /// A frame index past the end.
     #[error("frame {index} is out of range: the sequence has {len} frames")]
-    OutOfRange { index: usize, len: usize },
+    OutOfRange {
+        /// The index asked for.
+        index: usize,
+        /// Frames in the sequence.
+        len: usize,
+    },
 }
 
 pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {

@@ -4,6 +4,8 @@
 //!
 //! Frames are read lazily: [`open`] reads file lists only, [`Sequence::frame`] loads one frame.
 
+#![deny(missing_docs)]
+
 pub mod annotations;
 pub mod depth_check;
 pub mod error;

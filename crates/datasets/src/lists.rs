@@ -84,9 +84,13 @@ pub fn read_stamped_list(path: &Path, base: &Path) -> Result<Vec<(f64, PathBuf)>
 /// One associated RGB-D frame.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RgbdEntry {
+    /// Colour image time, seconds.
     pub rgb_stamp: f64,
+    /// Colour image file.
     pub rgb: PathBuf,
+    /// Depth image time, seconds.
     pub depth_stamp: f64,
+    /// Depth image file.
     pub depth: PathBuf,
 }
 

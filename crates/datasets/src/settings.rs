@@ -7,18 +7,26 @@ use stillpoint_geometry::{PinholeCamera, StereoRectification};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Sensor {
+    /// Colour (or gray) and registered depth.
     Rgbd,
+    /// A rectified stereo pair.
     Stereo,
+    /// One camera.
     Mono,
 }
 
 /// ORB extractor settings (`ORBextractor.*` in ORB-SLAM files).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct OrbSettings {
+    /// Features per frame (`ORBextractor.nFeatures`).
     pub n_features: usize,
+    /// Scale between pyramid levels (`ORBextractor.scaleFactor`).
     pub scale_factor: f32,
+    /// Pyramid levels (`ORBextractor.nLevels`).
     pub n_levels: usize,
+    /// FAST threshold (`ORBextractor.iniThFAST`).
     pub ini_th_fast: u8,
+    /// FAST threshold where a cell finds nothing (`ORBextractor.minThFAST`).
     pub min_th_fast: u8,
 }
 
@@ -38,6 +46,7 @@ impl Default for OrbSettings {
 /// Everything needed to interpret a sequence's images.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Settings {
+    /// What the sequence provides.
     pub sensor: Sensor,
     /// Left / only camera (distortion included).
     pub camera: PinholeCamera,
@@ -58,6 +67,7 @@ pub struct Settings {
     /// True when the images are RGB (`Camera.RGB: 1`), false for BGR.
     #[serde(default = "default_rgb")]
     pub rgb: bool,
+    /// The ORB extractor's settings.
     #[serde(default)]
     pub orb: OrbSettings,
     /// For a stereo camera whose images are not rectified (EuRoC): the raw cameras and the
