@@ -177,29 +177,7 @@ pub fn camera_motion(
             })
             .sum()
     };
-    // Deterministic sampling (xorshift): the same frames give the same decision.
-    let mut state = 0x9e37_79b9_7f4a_7c15_u64 ^ n as u64;
-    let mut next = |m: usize| {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state % m as u64) as usize
-    };
-    // The camera standing still is a hypothesis too (a static camera has no 3-point fit).
-    let mut best = (cost_of(&Se3::identity()), Se3::identity());
-    for _ in 0..p.iterations {
-        let (a, b, c) = (next(n), next(n), next(n));
-        if a == b || b == c || a == c {
-            continue;
-        }
-        let Some(fit) = umeyama(&[src[a], src[b], src[c]], &[dst[a], dst[b], dst[c]], false) else {
-            continue;
-        };
-        let cost = cost_of(&fit.rigid);
-        if cost < best.0 {
-            best = (cost, fit.rigid);
-        }
-    }
+    let best = best_rigid_hypothesis(&src, &dst, p.iterations, cost_of);
     // Polish by the reprojection error (a 3D-3D fit follows the depth errors, which on a
     // slanted surface are centimetres against the camera's few millimetres), first robustly
     // over every track, then on the inliers of that.
@@ -294,6 +272,43 @@ pub fn apply_seated_motion(
         })
         .collect();
     (out, kept)
+}
+
+/// The rigid motion of lowest `cost_of` among the still camera (a static camera has no 3-point
+/// fit) and `iterations` 3-point Umeyama fits `src[i] -> dst[i]`, sampled deterministically
+/// (xorshift seeded by the point count: the same frames give the same decision).
+pub(crate) fn best_rigid_hypothesis(
+    src: &[Vec3],
+    dst: &[Vec3],
+    iterations: usize,
+    cost_of: impl Fn(&Se3) -> f64,
+) -> (f64, Se3) {
+    let n = src.len().min(dst.len());
+    let mut best = (cost_of(&Se3::identity()), Se3::identity());
+    if n < 3 {
+        return best;
+    }
+    let mut state = 0x9e37_79b9_7f4a_7c15_u64 ^ n as u64;
+    let mut next = |m: usize| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state % m as u64) as usize
+    };
+    for _ in 0..iterations {
+        let (a, b, c) = (next(n), next(n), next(n));
+        if a == b || b == c || a == c {
+            continue;
+        }
+        let Some(fit) = umeyama(&[src[a], src[b], src[c]], &[dst[a], dst[b], dst[c]], false) else {
+            continue;
+        };
+        let cost = cost_of(&fit.rigid);
+        if cost < best.0 {
+            best = (cost, fit.rigid);
+        }
+    }
+    best
 }
 
 #[cfg(test)]

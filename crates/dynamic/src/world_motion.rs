@@ -23,7 +23,7 @@
 
 use crate::motion_consistency::{MotionCheck, MotionModel, TrackedPoint};
 use crate::seated_motion::{lift, reprojection, smooth_depth_at};
-use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3, refine_pose_reprojection, umeyama};
+use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3, refine_pose_reprojection};
 use stillpoint_image::{DepthMetres, Gray8};
 
 /// Parameters of the static-world motion test (all ours).
@@ -251,27 +251,7 @@ fn ransac_rigid(
     // pixels lifted at the same depth (exact for small motions along the image plane, a fair
     // start otherwise); the best by MSAC cost seeds the refinement.
     let dst: Vec<Vec3> = (0..n).map(|i| lift(cam, cur[i], src[i].z)).collect();
-    let mut state = 0x9e37_79b9_7f4a_7c15_u64 ^ n as u64;
-    let mut next = |m: usize| {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state % m as u64) as usize
-    };
-    let mut best = (cost_of(&Se3::identity()), Se3::identity());
-    for _ in 0..p.ransac_iterations {
-        let (a, b, c) = (next(n), next(n), next(n));
-        if a == b || b == c || a == c {
-            continue;
-        }
-        let Some(fit) = umeyama(&[src[a], src[b], src[c]], &[dst[a], dst[b], dst[c]], false) else {
-            continue;
-        };
-        let cost = cost_of(&fit.rigid);
-        if cost < best.0 {
-            best = (cost, fit.rigid);
-        }
-    }
+    let best = crate::seated_motion::best_rigid_hypothesis(src, &dst, p.ransac_iterations, cost_of);
     Some(best.1)
 }
 

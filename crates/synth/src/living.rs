@@ -7,7 +7,7 @@
 
 use crate::mesh::{Mesh, P3};
 use crate::presets::{CameraPath, Photos, Preset, Wave, pose_xy};
-use crate::scene::{Motion, Outfit, Part, Route, Scene, billboard_mesh, coco, person_parts};
+use crate::scene::{Motion, Outfit, Route, Scene, coco, person_parts};
 use crate::texture::Style;
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
@@ -219,22 +219,7 @@ const CUTOUT_HEIGHT: f64 = 1.7;
 /// camera), else an articulated person in a loud shirt and textured trousers.
 fn add_person(s: &mut Scene, rng: &mut Pcg64Mcg, photos: &Photos, route: Route) {
     if let Some(p) = photos.people.first() {
-        let (w, h) = p.size();
-        let id = s.add_texture(p.clone());
-        let mesh = billboard_mesh(CUTOUT_HEIGHT * w as f64 / h as f64, CUTOUT_HEIGHT, id);
-        s.add(
-            "walker",
-            Some(coco::PERSON),
-            vec![Part {
-                name: "cutout",
-                mesh,
-            }],
-            Motion::Billboard {
-                route: Some(route),
-                fixed: [0.0, 0.0],
-                bob: true,
-            },
-        );
+        crate::presets::add_cutout_walker(s, p, "walker", CUTOUT_HEIGHT, route);
         return;
     }
     let o = textured_outfit(s, rng);

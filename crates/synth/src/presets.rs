@@ -585,6 +585,33 @@ fn random_outfit(s: &mut Scene, rng: &mut Pcg64Mcg) -> Outfit {
 /// Height of a billboard person standing (m); cut-outs are scaled to it keeping their aspect.
 pub const BILLBOARD_HEIGHT: f64 = 1.45;
 
+/// A photographed person cut-out `height` metres tall (aspect kept), a billboard turned to the
+/// camera, walking `route`.
+pub(crate) fn add_cutout_walker(
+    s: &mut Scene,
+    cutout: &Texture,
+    name: &str,
+    height: f64,
+    route: Route,
+) {
+    let (w, h) = cutout.size();
+    let id = s.add_texture(cutout.clone());
+    let mesh = billboard_mesh(height * w as f64 / h as f64, height, id);
+    s.add(
+        name,
+        Some(coco::PERSON),
+        vec![Part {
+            name: "cutout",
+            mesh,
+        }],
+        Motion::Billboard {
+            route: Some(route),
+            fixed: [0.0, 0.0],
+            bob: true,
+        },
+    );
+}
+
 fn add_walker(
     s: &mut Scene,
     rng: &mut Pcg64Mcg,
@@ -597,22 +624,7 @@ fn add_walker(
         .people
         .get(s.objects.len() % photos.people.len().max(1))
     {
-        let (w, h) = p.size();
-        let id = s.add_texture(p.clone());
-        let mesh = billboard_mesh(BILLBOARD_HEIGHT * w as f64 / h as f64, BILLBOARD_HEIGHT, id);
-        s.add(
-            name,
-            Some(coco::PERSON),
-            vec![Part {
-                name: "cutout",
-                mesh,
-            }],
-            Motion::Billboard {
-                route: Some(route),
-                fixed: [0.0, 0.0],
-                bob: true,
-            },
-        );
+        add_cutout_walker(s, p, name, BILLBOARD_HEIGHT, route);
         return;
     }
     let o = random_outfit(s, rng);
