@@ -647,8 +647,8 @@ impl DynamicFrontEnd {
 /// channels when the camera is gray (KITTI `image_0/1`, EuRoC); a failure is logged and counts as
 /// no detection (the geometry check still runs).
 /// The pixels of movers (255) inside their boxes (`[x1, y1, x2, y2]`): with depth, those within
-/// the object's depth band (the median over the box's centre, +- `band_relative` of it, at least
-/// `band_min_m`); without depth, or with too few depth samples, the whole box.
+/// the object's depth band (`dynamic::depth::object_depth`, as the culling finds it); without
+/// depth, or with too few depth samples, the whole box.
 fn mover_mask(
     rects: &[[f32; 4]],
     depth: Option<&DepthMetres>,
@@ -661,35 +661,14 @@ fn mover_mask(
         let clamp = |v: f32, hi: usize| (v.max(0.0) as usize).min(hi);
         let (x1, y1) = (clamp(r[0], width), clamp(r[1], height));
         let (x2, y2) = (clamp(r[2], width), clamp(r[3], height));
-        let band = depth.and_then(|depth| {
-            let (mx, my) = (
-                ((x2 - x1) as f32 * (1.0 - d.central_width) / 2.0) as usize,
-                ((y2 - y1) as f32 * (1.0 - d.central_height) / 2.0) as usize,
-            );
-            let step = d.sample_step_px.max(1);
-            let mut samples: Vec<f32> = ((y1 + my)..(y2 - my).min(depth.height))
-                .step_by(step)
-                .flat_map(|y| {
-                    ((x1 + mx)..(x2 - mx).min(depth.width))
-                        .step_by(step)
-                        .map(move |x| depth.get(x, y))
-                })
-                .filter(|z| z.is_finite() && *z > d.min_valid_m)
-                .collect();
-            if samples.len() < d.min_samples {
-                return None;
-            }
-            let mid = samples.len() / 2;
-            let z = *samples.select_nth_unstable_by(mid, f32::total_cmp).1;
-            let half = d.band_min_m.max(d.band_relative * z);
-            Some((z - half, z + half))
-        });
+        let bbox = stillpoint_geometry::BBox::new(r[0], r[1], r[2], r[3]);
+        let object = depth.and_then(|z| stillpoint_dynamic::depth::object_depth(&bbox, &[], z, d));
         for y in y1..y2 {
             for x in x1..x2 {
-                let on_mover = match (band, depth) {
-                    (Some((lo, hi)), Some(depth)) => depth
+                let on_mover = match (object, depth) {
+                    (Some(o), Some(z)) => z
                         .get_checked(x as isize, y as isize)
-                        .is_some_and(|z| z >= lo && z <= hi),
+                        .is_some_and(|v| o.holds(v)),
                     _ => true,
                 };
                 if on_mover {
