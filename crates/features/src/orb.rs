@@ -267,19 +267,18 @@ impl OrbExtractor {
             }
             corners.clear();
             detect_in_cells(level_img, &self.params, &mut corners);
+            let to_image = LevelToImage::new(img, level_img);
             if let Some(mask) = &self.exclude_mask {
-                let scale = self.scale_factors[level];
                 corners.retain(|c| {
-                    let (x, y) = (c.x as f32 * scale, c.y as f32 * scale);
+                    let (x, y) = to_image.map(c.x as f32, c.y as f32);
                     mask.get_checked(x as isize, y as isize)
                         .is_none_or(|m| m == 0)
                 });
             }
             if !self.exclude.is_empty() {
-                let scale = self.scale_factors[level];
                 let exclude = &self.exclude;
                 corners.retain(|c| {
-                    let (x, y) = (c.x as f32 * scale, c.y as f32 * scale);
+                    let (x, y) = to_image.map(c.x as f32, c.y as f32);
                     !exclude
                         .iter()
                         .any(|r| x >= r[0] && x <= r[2] && y >= r[1] && y <= r[3])
@@ -320,9 +319,10 @@ impl OrbExtractor {
                 let angle = ic_angle(level_img, x, y, &self.umax);
                 out.descriptors
                     .push(steered_brief(&self.blurred, x, y, angle));
+                let (x0, y0) = to_image.map(x as f32, y as f32);
                 out.keypoints.push(KeyPoint {
-                    x: x as f32 * scale,
-                    y: y as f32 * scale,
+                    x: x0,
+                    y: y0,
                     octave: level as u8,
                     angle,
                     response: scores[i],
@@ -363,6 +363,33 @@ impl OrbExtractor {
             resize_linear_into(prev, w, h, &mut rest[0]);
             self.pyramid_len = level;
         }
+    }
+}
+
+/// Level pixel -> level-0 pixel. Each level is resized from the one above with pixel centres
+/// aligned (`resize_linear_into`), so the map is `(x + 0.5) * ratio - 0.5` with the levels' true
+/// size ratio. ORB-SLAM's `x * scale` is off by `(scale - 1) / 2` (1.3 px on level 7) and its
+/// nominal scale by up to 0.3 % (the sizes are rounded): a keypoint found on one level and
+/// matched on another then carries a pixel of error that no pose can explain.
+#[derive(Clone, Copy, Debug)]
+struct LevelToImage {
+    ratio_x: f32,
+    ratio_y: f32,
+}
+
+impl LevelToImage {
+    fn new(image: &Gray8, level: &Gray8) -> Self {
+        Self {
+            ratio_x: image.width as f32 / level.width.max(1) as f32,
+            ratio_y: image.height as f32 / level.height.max(1) as f32,
+        }
+    }
+
+    fn map(&self, x: f32, y: f32) -> (f32, f32) {
+        (
+            (x + 0.5) * self.ratio_x - 0.5,
+            (y + 0.5) * self.ratio_y - 0.5,
+        )
     }
 }
 
@@ -718,6 +745,44 @@ mod tests {
             *o = (128.0 + v).clamp(0.0, 255.0) as u8;
         }
         img
+    }
+
+    /// A wide blob's centroid on every level, mapped back, lands where the blob is: the levels
+    /// are resized with pixel centres aligned, so `x * scale` (ORB-SLAM's map) would be off by
+    /// `(scale - 1) / 2`, 1.3 px on level 7.
+    #[test]
+    fn level_pixels_map_back_to_the_image_without_bias() {
+        let (w, h) = (640usize, 480usize);
+        let (bx, by, sigma) = (301.3f32, 207.8f32, 12.0f32);
+        let mut img = Gray8::new(w, h, 0);
+        for y in 0..h {
+            for x in 0..w {
+                let d2 = (x as f32 - bx).powi(2) + (y as f32 - by).powi(2);
+                img.data[y * w + x] = (220.0 * (-d2 / (2.0 * sigma * sigma)).exp()).round() as u8;
+            }
+        }
+        let mut orb = OrbExtractor::new(OrbParams::default());
+        orb.build_pyramid(&img);
+        assert_eq!(orb.pyramid_len, 7);
+        for level in &orb.pyramid[..orb.pyramid_len] {
+            let (mut sx, mut sy, mut sw) = (0f64, 0f64, 0f64);
+            for y in 0..level.height {
+                for x in 0..level.width {
+                    let v = level.data[y * level.width + x] as f64;
+                    sx += v * x as f64;
+                    sy += v * y as f64;
+                    sw += v;
+                }
+            }
+            let (cx, cy) = ((sx / sw) as f32, (sy / sw) as f32);
+            let (x, y) = LevelToImage::new(&img, level).map(cx, cy);
+            assert!(
+                (x - bx).abs() < 0.2 && (y - by).abs() < 0.2,
+                "level {}x{}: ({x}, {y}) for ({bx}, {by})",
+                level.width,
+                level.height
+            );
+        }
     }
 
     #[test]

@@ -143,11 +143,18 @@ fn refine_by_sad(
     let (il, ir) = (left.levels.get(level)?, right.levels.get(level)?);
     let w = p.sad_half_window as isize;
     let l = p.sad_search as isize;
-    let (ul, vl) = (
-        (kl.x / scale).round() as isize,
-        (kl.y / scale).round() as isize,
-    );
-    let ur0 = (u_right / scale).round() as isize;
+    // Level <-> level-0 pixels as the ORB extractor maps them: pixel centres aligned, with the
+    // levels' true size ratio (`scale` is the nominal one, off by up to 0.3 %).
+    let (ratio_x, ratio_y) = match left.levels.first() {
+        Some(full) if il.width > 0 && il.height > 0 => (
+            full.width as f32 / il.width as f32,
+            full.height as f32 / il.height as f32,
+        ),
+        _ => (scale, scale),
+    };
+    let to_level = |u: f32, ratio: f32| ((u + 0.5) / ratio - 0.5).round() as isize;
+    let (ul, vl) = (to_level(kl.x, ratio_x), to_level(kl.y, ratio_y));
+    let ur0 = to_level(u_right, ratio_x);
     // The patches must stay inside both images over the whole search.
     if vl - w < 0
         || vl + w >= il.height as isize
@@ -192,7 +199,7 @@ fn refine_by_sad(
     if !(-1.0..=1.0).contains(&delta) {
         return None;
     }
-    let u = scale * ((ur0 + best as isize - l) as f32 + delta);
+    let u = ((ur0 + best as isize - l) as f32 + delta + 0.5) * ratio_x - 0.5;
     Some((u, best_sad))
 }
 
