@@ -145,3 +145,54 @@ fn pose_optimiser_converges_from_a_rotated_start() {
         );
     }
 }
+
+/// A room seen only beyond the close depth (40 baselines: 3 m here) while the camera pans.
+/// ORB-SLAM3 counts an observation with depth twice; counted once, the first keyframe's points
+/// (one observation each) made the reference count 0, and no keyframe came until tracking had
+/// nearly failed (the weak-tracking rule: fewer than 50 inliers).
+#[test]
+fn far_room_gets_keyframes_while_tracking_is_strong() {
+    let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
+    let mut s = SlamSettings::rgbd(cam, 40.0, 30.0);
+    s.local_mapping_thread = false;
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let mut points = Vec::new();
+    let mut descriptors = Vec::new();
+    for _ in 0..5000 {
+        // 4-5 m away, from 40 degrees left to 100 degrees right of the first view.
+        let (yaw, r) = (
+            rng.random_range(-0.7f64..1.75),
+            rng.random_range(4.0f64..5.0),
+        );
+        let y = r * rng.random_range(-0.45f64..0.45);
+        points.push(Vec3::new(r * yaw.sin(), y, r * yaw.cos()));
+        let mut d = [0u8; 32];
+        rng.fill(&mut d[..]);
+        descriptors.push(d);
+    }
+    let sc = Scene {
+        points,
+        descriptors,
+    };
+    let mut sys = System::new(s);
+    let (mut keyframes, mut min_inliers) = (0, usize::MAX);
+    for i in 0..120 {
+        // A pan of 1 rad in 4 s, about the vertical axis.
+        let gt = Se3::new(
+            nalgebra::Vector3::zeros(),
+            nalgebra::Vector3::new(0.0, i as f64 / 120.0, 0.0),
+        );
+        let (f, d, depth) = observe(&sc, &gt, &cam, &mut rng);
+        let r = sys
+            .track_rgbd(i, i as f64 / 30.0, &f, &d, Some(&depth))
+            .unwrap();
+        assert_eq!(r.state, TrackingState::Ok, "frame {i}");
+        keyframes += r.new_keyframe as usize;
+        if i > 0 {
+            min_inliers = min_inliers.min(r.inliers);
+        }
+    }
+    sys.shutdown().unwrap();
+    assert!(keyframes >= 3, "{keyframes} keyframes");
+    assert!(min_inliers >= 150, "tracking fell to {min_inliers} inliers");
+}

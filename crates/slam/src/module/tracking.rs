@@ -590,7 +590,9 @@ impl Tracker {
                     .filter(|m| {
                         map.points
                             .get(m)
-                            .is_some_and(|p| p.observations.len() >= min_obs)
+                            // ORB-SLAM3 counts an observation with depth twice: after a depth
+                            // initialisation the first keyframe's points already count 2.
+                            .is_some_and(|p| p.weighted_observations(&map.keyframes) >= min_obs)
                     })
                     .count()
             });
