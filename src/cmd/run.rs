@@ -335,14 +335,14 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     }
     bar.finish_and_clear();
     let fin = pipeline.finish().context("local mapping")?;
-    // After a loop correction the frames tracked before it follow their keyframes; without
-    // one, the file written as we went stays as is.
-    if fin.rebuilt
-        && let Some(p) = &o.out
-    {
+    // The file written as we went (tracking's poses: what a crash leaves) is replaced by the
+    // frames following their keyframes as bundle adjustment and loop closing left them.
+    if let Some(p) = &o.out {
         stillpoint_trajectory::write_tum(p, &fin.trajectory)
             .with_context(|| format!("rewriting {}", p.display()))?;
-        tracing::info!("loop closed: trajectory rebuilt through the keyframes");
+        if fin.loop_closed {
+            tracing::info!("loop closed: trajectory rebuilt through the keyframes");
+        }
     }
     if let Some(p) = &o.out {
         let kp = keyframe_path(p);

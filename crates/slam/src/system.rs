@@ -303,10 +303,7 @@ impl System {
         };
         self.anchors
             .iter()
-            .filter_map(|(t, r, t_cr)| {
-                let k = m.keyframes.get(r)?;
-                Some((*t, (t_cr * k.pose_cw).inverse()))
-            })
+            .filter_map(|(t, r, t_cr)| Some((*t, (t_cr * m.keyframe_pose_cw(*r)?).inverse())))
             .collect()
     }
 

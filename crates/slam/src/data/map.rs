@@ -36,6 +36,9 @@ pub struct KeyFrame {
     pub parent: Option<KfId>,
     pub children: BTreeSet<KfId>,
     pub bad: bool,
+    /// Set when culled: this keyframe's pose relative to its parent then (ORB-SLAM's `mTcp`),
+    /// so that frames anchored to it follow the parent as bundle adjustment moves it.
+    pub pose_to_parent: Option<Se3>,
 }
 
 impl KeyFrame {
@@ -58,6 +61,7 @@ impl KeyFrame {
             connections: BTreeMap::new(),
             parent: None,
             children: BTreeSet::new(),
+            pose_to_parent: None,
             bad: false,
         })
     }
@@ -435,8 +439,12 @@ impl Map {
                 ck.connections.remove(&kf);
             }
         }
+        let pose_to_parent = parent
+            .and_then(|p| self.keyframes.get(&p))
+            .map(|pk| self.keyframes[&kf].pose_cw * pk.pose_cw.inverse());
         if let Some(k) = self.keyframes.get_mut(&kf) {
             k.bad = true;
+            k.pose_to_parent = pose_to_parent;
             k.connections.clear();
             k.children.clear();
             k.map_points.iter_mut().for_each(|m| *m = None);
@@ -469,6 +477,24 @@ impl Map {
         for c in conns {
             self.update_connections(c, min_shared);
         }
+    }
+
+    /// World-to-camera pose of a keyframe as the map holds it now: a culled keyframe's is its
+    /// pose relative to its parent times the parent's (through culled ancestors too).
+    pub fn keyframe_pose_cw(&self, kf: KfId) -> Option<Se3> {
+        let mut rel = Se3::identity();
+        let mut id = kf;
+        for _ in 0..=self.keyframes.len() {
+            let k = self.keyframes.get(&id)?;
+            match (k.bad, k.pose_to_parent, k.parent) {
+                (true, Some(t_cp), Some(p)) => {
+                    rel *= t_cp;
+                    id = p;
+                }
+                _ => return Some(rel * k.pose_cw),
+            }
+        }
+        None
     }
 
     /// Good keyframes of the current map.
@@ -546,5 +572,43 @@ mod tests {
         // Points seen by k0 and k2 survive, those only by k0 now (4 of them) are erased.
         assert_eq!(map.points.len(), 16);
         assert_eq!(map.keyframes[&k2].parent, Some(k0));
+    }
+
+    /// A culled keyframe moves with its parent afterwards (frames anchored to it follow).
+    #[test]
+    fn culled_keyframe_pose_follows_its_parent() {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let s = SlamSettings::rgbd(cam, 40.0, 30.0);
+        let feats: Vec<Feature> = (0..20)
+            .map(|i| Feature {
+                x: 10.0 + 20.0 * i as f32,
+                y: 100.0,
+                octave: 0,
+                angle: 0.0,
+            })
+            .collect();
+        let descs = vec![[7u8; 32]; 20];
+        let mut f = Frame::new(0, 0.0, &feats, &descs, None, &s).unwrap();
+        f.pose_cw = Some(Se3::identity());
+        let mut map = Map::new();
+        let k0 = map.add_keyframe(&f).unwrap();
+        let step = Se3::new(Vec3::new(0.1, 0.0, 0.0), Vec3::new(0.0, 0.05, 0.0));
+        f.pose_cw = Some(step);
+        let k1 = map.add_keyframe(&f).unwrap();
+        for i in 0..20 {
+            let mp = map.add_point(Vec3::new(i as f64, 0.0, 3.0), k0, i).unwrap();
+            map.add_observation(mp, k1, i);
+        }
+        map.update_connections(k1, 15);
+        assert_eq!(map.keyframes[&k1].parent, Some(k0));
+        map.set_bad_keyframe(k1, 15);
+        // Bundle adjustment moves the parent after the cull.
+        let moved = Se3::new(Vec3::new(0.0, 0.2, 0.0), Vec3::new(0.02, 0.0, 0.0));
+        map.keyframes.get_mut(&k0).unwrap().pose_cw = moved;
+        let pose = map.keyframe_pose_cw(k1).unwrap();
+        let expected = step * moved;
+        assert!((pose.translation.vector - expected.translation.vector).norm() < 1e-12);
+        assert!(pose.rotation.angle_to(&expected.rotation) < 1e-12);
+        assert_eq!(map.keyframe_pose_cw(k0), Some(moved));
     }
 }
