@@ -175,6 +175,12 @@ pub struct FrontEndSettings {
     pub movable_hygiene_margin: f32,
     /// Growth of those boxes on each side, as a share of their size (ours: 0.05).
     pub orb_exclusion_margin: f32,
+    /// Ours (map hygiene, RGB-D): when objects are judged moving, map points made in the last
+    /// this many frames that lie on their surface (in the box, at the depth the sensor reads)
+    /// are erased ([`DynamicFrontEnd::mover_surface_mask`]): a person entering the view is
+    /// often missed by the detector for several frames while keyframes make points on them
+    /// (0 = off).
+    pub erase_recent_mover_points_frames: usize,
 }
 
 impl Default for FrontEndSettings {
@@ -194,6 +200,7 @@ impl Default for FrontEndSettings {
             movable_hygiene: true,
             movable_hygiene_margin: 0.5,
             orb_exclusion_margin: 0.05,
+            erase_recent_mover_points_frames: 60,
         }
     }
 }
@@ -255,6 +262,12 @@ impl DynamicFrontEnd {
         if !self.settings.orb_exclusion {
             return Vec::new();
         }
+        self.moving_boxes()
+    }
+
+    /// The boxes of the objects judged moving in the last judged frame, grown by
+    /// [`FrontEndSettings::orb_exclusion_margin`] of their size on each side.
+    fn moving_boxes(&self) -> Vec<[f32; 4]> {
         let last = self.objects.objects().iter().map(|o| o.last_seen).max();
         let m = self.settings.orb_exclusion_margin;
         self.objects
@@ -283,6 +296,26 @@ impl DynamicFrontEnd {
         let rects = self.orb_exclusion();
         (!rects.is_empty())
             .then(|| mover_mask(&rects, depth, &self.settings.dynamic.depth, width, height))
+    }
+
+    /// After [`KeypointFilter::judge`]: the pixels of the objects judged moving in that frame
+    /// (their boxes within each object's depth band), for erasing the map points made on them
+    /// ([`FrontEndSettings::erase_recent_mover_points_frames`]). `None` when that is off or
+    /// nothing moved.
+    pub fn mover_surface_mask(&self, depth: &DepthMetres) -> Option<Gray8> {
+        if self.settings.erase_recent_mover_points_frames == 0 {
+            return None;
+        }
+        let rects = self.moving_boxes();
+        (!rects.is_empty()).then(|| {
+            mover_mask(
+                &rects,
+                Some(depth),
+                &self.settings.dynamic.depth,
+                depth.width,
+                depth.height,
+            )
+        })
     }
 
     /// How the last frame's camera motion was judged against the static world (`None`: not

@@ -3,6 +3,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3};
+use stillpoint_image::{DepthMetres, Gray8};
 
 use super::frame::{Descriptor, Frame, KeypointGrid};
 use crate::hamming;
@@ -133,6 +134,9 @@ pub struct MapPoint {
     pub found: u32,
     /// Frames in which the matched point failed the chi-square test of local-map tracking.
     pub rejected: u32,
+    /// Frames whose depth image showed a surface well behind the point along its ray: the
+    /// point is no longer there (it was on something that moved).
+    pub seen_through: u32,
     pub bad: bool,
 }
 
@@ -162,6 +166,19 @@ impl MapPoint {
     pub fn found_ratio(&self) -> f64 {
         self.found as f64 / self.visible.max(1) as f64
     }
+}
+
+/// What [`Map::erase_points_seen_through`] needs to know.
+#[derive(Clone, Copy, Debug)]
+pub struct FreeSpaceCheck {
+    /// Baseline x focal length (ORB-SLAM's virtual stereo for RGB-D): depth gaps are judged in
+    /// disparity pixels, the unit in which bundle adjustment weighs depth.
+    pub bf: f64,
+    /// A surface farther than the point by more than this many disparity pixels (and 10 cm)
+    /// sees through it; within it, the point is seen where it is.
+    pub gap_px: f64,
+    /// Frames seen through, with none seeing it in between, before a point is erased (0 = off).
+    pub erase_after: u32,
 }
 
 /// The map: keyframes and points by id (ordered maps, so iteration is deterministic).
@@ -225,6 +242,7 @@ impl Map {
                 visible: 1,
                 found: 1,
                 rejected: 0,
+                seen_through: 0,
                 bad: false,
             },
         );
@@ -479,6 +497,138 @@ impl Map {
         }
     }
 
+    /// Erase the points of the current map that lie on a moving object's surface in a frame:
+    /// seen from `pose_cw` they fall on a non-zero pixel of `mover_mask` at the depth the
+    /// sensor reads there (within 10 cm or 5 %; points behind the object stay), and their first
+    /// keyframe is from frame `since_frame` or later. Points made while a mover was not yet
+    /// detected (entering the view, missed by the detector) leave the map once it is. Returns
+    /// how many were erased.
+    pub fn erase_recent_points_on_movers(
+        &mut self,
+        pose_cw: &Se3,
+        cam: &PinholeCamera,
+        mover_mask: &Gray8,
+        depth: &DepthMetres,
+        since_frame: usize,
+    ) -> usize {
+        let on_mover: Vec<MpId> = self
+            .points
+            .values()
+            .filter(|p| p.map_epoch == self.epoch && !p.bad)
+            .filter(|p| {
+                self.keyframes
+                    .get(&p.first_kf)
+                    .is_some_and(|k| k.frame_index >= since_frame)
+            })
+            .filter(|p| {
+                let pc = pose_cw * nalgebra::Point3::from(p.position);
+                let Some(px) = cam.project(&pc.coords) else {
+                    return false;
+                };
+                let (x, y) = (px.x.round() as isize, px.y.round() as isize);
+                let masked = mover_mask.get_checked(x, y).is_some_and(|m| m > 0);
+                let seen = depth
+                    .get_checked(x, y)
+                    .filter(|d| d.is_finite() && *d > 0.0);
+                masked && seen.is_some_and(|d| (pc.z - d as f64).abs() <= (0.05 * pc.z).max(0.10))
+            })
+            .map(|p| p.id)
+            .collect();
+        for &mp in &on_mover {
+            self.erase_point(mp);
+        }
+        on_mover.len()
+    }
+
+    /// Free-space check of the current map against a depth image seen from `pose_cw`: a point
+    /// whose projection shows, everywhere in the 5 x 5 pixels around it, a surface farther
+    /// than the point by more than 10 cm and by more than `gap_px` of virtual disparity
+    /// (`bf / z`, the unit in which bundle adjustment weighs depth: with bf = 40 a point at
+    /// 3.3 m may settle 0.27 m off per pixel) is seen through: it stood on something that has
+    /// moved away. Points seen through in `erase_after` frames, with no frame in between that saw
+    /// them where they are, are erased; returns how many. (The window keeps points on
+    /// silhouettes, whose pixel may read the background.) When over 30 % of the points checked
+    /// are seen through, the pose is taken as wrong and nothing changes.
+    pub fn erase_points_seen_through(
+        &mut self,
+        pose_cw: &Se3,
+        cam: &PinholeCamera,
+        depth: &DepthMetres,
+        check: &FreeSpaceCheck,
+    ) -> usize {
+        let FreeSpaceCheck {
+            bf,
+            gap_px: max_gap,
+            erase_after,
+        } = *check;
+        if erase_after == 0 {
+            return 0;
+        }
+        let epoch = self.epoch;
+        // Per point: Some(true) seen through, Some(false) seen where it is, None no evidence
+        // (off the image, no reading, or something in front of it).
+        let verdicts: Vec<(MpId, Option<bool>)> = self
+            .points
+            .values()
+            .filter(|p| p.map_epoch == epoch && !p.bad)
+            .map(|p| {
+                let pc = pose_cw * nalgebra::Point3::from(p.position);
+                let Some(px) = cam.project(&pc.coords) else {
+                    return (p.id, None);
+                };
+                let (x, y) = (px.x.round() as isize, px.y.round() as isize);
+                let mut nearest = f32::INFINITY;
+                for dy in -2..=2 {
+                    for dx in -2..=2 {
+                        match depth.get_checked(x + dx, y + dy) {
+                            Some(d) if d.is_finite() && d > 0.0 => nearest = nearest.min(d),
+                            _ => nearest = f32::NEG_INFINITY,
+                        }
+                    }
+                }
+                if !nearest.is_finite() || pc.z <= 0.0 {
+                    return (p.id, None);
+                }
+                let behind = nearest as f64;
+                let gap_px = bf / pc.z - bf / behind;
+                if behind > pc.z + 0.10 && gap_px > max_gap {
+                    (p.id, Some(true))
+                } else if gap_px.abs() <= max_gap {
+                    (p.id, Some(false))
+                } else {
+                    (p.id, None)
+                }
+            })
+            .collect();
+        let seen = verdicts.iter().filter(|v| v.1 == Some(true)).count();
+        let checked = verdicts.iter().filter(|v| v.1.is_some()).count();
+        if seen > 10 && seen * 10 > checked * 3 {
+            // A third of the map seen through at once says the pose is off, not the world.
+            tracing::debug!(seen, checked, "free-space check skipped: pose suspect");
+            return 0;
+        }
+        let mut erase = Vec::new();
+        for (id, verdict) in verdicts {
+            let Some(p) = self.points.get_mut(&id) else {
+                continue;
+            };
+            match verdict {
+                Some(true) => {
+                    p.seen_through += 1;
+                    if p.seen_through >= erase_after {
+                        erase.push(id);
+                    }
+                }
+                Some(false) => p.seen_through = 0,
+                None => {}
+            }
+        }
+        for &mp in &erase {
+            self.erase_point(mp);
+        }
+        erase.len()
+    }
+
     /// World-to-camera pose of a keyframe as the map holds it now: a culled keyframe's is its
     /// pose relative to its parent times the parent's (through culled ancestors too).
     pub fn keyframe_pose_cw(&self, kf: KfId) -> Option<Se3> {
@@ -572,6 +722,134 @@ mod tests {
         // Points seen by k0 and k2 survive, those only by k0 now (4 of them) are erased.
         assert_eq!(map.points.len(), 16);
         assert_eq!(map.keyframes[&k2].parent, Some(k0));
+    }
+
+    /// A map with one keyframe at the origin (frame `index`) and points at `positions`.
+    fn map_with_points(index: usize, positions: &[Vec3]) -> (Map, Vec<MpId>, PinholeCamera) {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let s = SlamSettings::rgbd(cam, 40.0, 30.0);
+        let feats: Vec<Feature> = positions
+            .iter()
+            .map(|p| {
+                let px = cam.project(p).unwrap();
+                Feature {
+                    x: px.x as f32,
+                    y: px.y as f32,
+                    octave: 0,
+                    angle: 0.0,
+                }
+            })
+            .collect();
+        let descs = vec![[7u8; 32]; feats.len()];
+        let mut f = Frame::new(index, 0.0, &feats, &descs, None, &s).unwrap();
+        f.pose_cw = Some(Se3::identity());
+        let mut map = Map::new();
+        let kf = map.add_keyframe(&f).unwrap();
+        let ids = positions
+            .iter()
+            .enumerate()
+            .map(|(i, p)| map.add_point(*p, kf, i).unwrap())
+            .collect();
+        (map, ids, cam)
+    }
+
+    /// Depth image of a wall at `z` with a `(x, y, half, z)` square patch at another depth.
+    fn wall(z: f32, patch: (usize, usize, usize, f32)) -> DepthMetres {
+        let mut d = DepthMetres::new(640, 480, z);
+        let (x, y, half, pz) = patch;
+        for v in y - half..=y + half {
+            for u in x - half..=x + half {
+                d.set(u, v, pz);
+            }
+        }
+        d
+    }
+
+    const CHECK: FreeSpaceCheck = FreeSpaceCheck {
+        bf: 40.0,
+        gap_px: 1.0,
+        erase_after: 2,
+    };
+
+    #[test]
+    fn points_seen_through_twice_leave_the_map() {
+        // On a person at 2 m (projects to (320, 240)); on the wall at 3.5 m; on the person's
+        // silhouette (its 5 x 5 window still reads 2 m).
+        let (mut map, ids, cam) = map_with_points(
+            0,
+            &[
+                Vec3::new(0.0, 0.0, 2.0),
+                Vec3::new(0.7, 0.0, 3.5),
+                Vec3::new(0.08, 0.0, 2.0),
+            ],
+        );
+        // The person walked away: the sensor sees the wall through the first point; the third
+        // point's pixel (340, 240) is at the edge of what remains of them.
+        let mut depth = wall(3.5, (320, 240, 3, 3.5));
+        for v in 230..=250 {
+            for u in 336..=338 {
+                depth.set(u, v, 2.0);
+            }
+        }
+        let pose = Se3::identity();
+        assert_eq!(
+            map.erase_points_seen_through(&pose, &cam, &depth, &CHECK),
+            0
+        );
+        assert_eq!(map.points[&ids[0]].seen_through, 1);
+        assert_eq!(
+            map.erase_points_seen_through(&pose, &cam, &depth, &CHECK),
+            1
+        );
+        assert!(!map.points.contains_key(&ids[0]));
+        assert!(map.points.contains_key(&ids[1]) && map.points.contains_key(&ids[2]));
+        // Everything seen through at once: the pose is wrong, not the world.
+        let many: Vec<Vec3> = (0..20)
+            .map(|i| Vec3::new(0.05 * i as f64 - 0.5, 0.0, 2.0))
+            .collect();
+        let (mut map, _, cam) = map_with_points(0, &many);
+        let far_wall = DepthMetres::new(640, 480, 3.5);
+        for _ in 0..3 {
+            assert_eq!(
+                map.erase_points_seen_through(&pose, &cam, &far_wall, &CHECK),
+                0
+            );
+        }
+        assert_eq!(map.points.len(), 20);
+        // A hole in the depth image is no evidence.
+        let (mut map, ids, cam) = map_with_points(0, &[Vec3::new(0.0, 0.0, 2.0)]);
+        let holed = wall(3.5, (320, 240, 1, 0.0));
+        for _ in 0..3 {
+            map.erase_points_seen_through(&pose, &cam, &holed, &CHECK);
+        }
+        assert!(map.points.contains_key(&ids[0]));
+    }
+
+    #[test]
+    fn recent_points_on_a_mover_surface_leave_the_map() {
+        let positions = [Vec3::new(0.0, 0.0, 2.0), Vec3::new(0.0, 0.4, 3.5)];
+        // The person (2 m) stands over (320, 240); the mask holds their pixels (box and depth
+        // band, as the front-end makes it); the wall point below them is not on them.
+        let depth = wall(3.5, (320, 240, 40, 2.0));
+        let mut mask = Gray8::new(640, 480, 0);
+        for v in 200..=280 {
+            for u in 280..=360 {
+                mask.set(u, v, 255);
+            }
+        }
+        let pose = Se3::identity();
+        let (mut map, ids, cam) = map_with_points(50, &positions);
+        assert_eq!(
+            map.erase_recent_points_on_movers(&pose, &cam, &mask, &depth, 40),
+            1
+        );
+        assert!(!map.points.contains_key(&ids[0]) && map.points.contains_key(&ids[1]));
+        // Made before the window: kept.
+        let (mut map, _, cam) = map_with_points(10, &positions);
+        assert_eq!(
+            map.erase_recent_points_on_movers(&pose, &cam, &mask, &depth, 40),
+            0
+        );
     }
 
     /// A culled keyframe moves with its parent afterwards (frames anchored to it follow).

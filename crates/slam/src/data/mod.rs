@@ -4,4 +4,4 @@ pub mod frame;
 pub mod map;
 
 pub use frame::{Descriptor, Feature, Frame, KeypointGrid};
-pub use map::{KeyFrame, KfId, Map, MapPoint, MpId};
+pub use map::{FreeSpaceCheck, KeyFrame, KfId, Map, MapPoint, MpId};
