@@ -163,6 +163,17 @@ impl MapPoint {
             .sum()
     }
 
+    /// Whether a camera at `center` sees the point within its scale range (x0.8 .. x1.2 of
+    /// its distances) and viewing cone (60 degrees from its normal), as ORB-SLAM's
+    /// projection searches ask (`isInFrustum`, `SearchByProjection`, `Fuse`).
+    pub fn in_viewing_range(&self, center: &Vec3) -> bool {
+        let po = self.position - center;
+        let dist = po.norm();
+        dist >= 0.8 * self.min_distance
+            && dist <= 1.2 * self.max_distance
+            && po.dot(&self.normal) >= 0.5 * dist
+    }
+
     pub fn found_ratio(&self) -> f64 {
         self.found as f64 / self.visible.max(1) as f64
     }
@@ -337,38 +348,52 @@ impl Map {
         let Some(p) = self.points.get(&mp) else {
             return;
         };
+        let descs: Vec<Descriptor> = p
+            .observations
+            .iter()
+            .filter_map(|(kf, &idx)| self.keyframes.get(kf)?.descriptors.get(idx).copied())
+            .collect();
+        let descriptor = best_descriptor(&descs).unwrap_or(p.descriptor);
+        if let Some(p) = self.points.get_mut(&mp) {
+            p.descriptor = descriptor;
+        }
+        self.update_normal_and_depth(mp, scale_factors);
+    }
+
+    /// A point's mean viewing direction and scale-invariance distances after its keyframes or
+    /// its position moved (ORB-SLAM `UpdateNormalAndDepth`), without the representative
+    /// descriptor ([`Map::update_point`] adds it, at a cost quadratic in the observations).
+    pub fn update_normal_and_depth(&mut self, mp: MpId, scale_factors: &[f64]) {
+        let Some(p) = self.points.get(&mp) else {
+            return;
+        };
         let mut normal = Vec3::zeros();
-        let mut descs = Vec::with_capacity(p.observations.len());
-        for (&kf, &idx) in &p.observations {
-            if let Some(k) = self.keyframes.get(&kf) {
+        for kf in p.observations.keys() {
+            if let Some(k) = self.keyframes.get(kf) {
                 let d = p.position - k.camera_center();
                 if d.norm() > 1e-12 {
                     normal += d.normalize();
                 }
-                if let Some(desc) = k.descriptors.get(idx) {
-                    descs.push(*desc);
-                }
             }
         }
-        let refkf = self.keyframes.get(&p.reference_kf).and_then(|k| {
+        let reference = self.keyframes.get(&p.reference_kf).and_then(|k| {
             let idx = *p.observations.get(&k.id)?;
             Some((k.camera_center(), *k.octaves.get(idx)?))
         });
-        let descriptor = best_descriptor(&descs).unwrap_or(p.descriptor);
         let Some(p) = self.points.get_mut(&mp) else {
             return;
         };
         if normal.norm() > 1e-12 {
             p.normal = normal.normalize();
         }
-        p.descriptor = descriptor;
-        if let Some((center, octave)) = refkf
-            && !scale_factors.is_empty()
+        if let Some((center, octave)) = reference
+            && let (Some(level_scale), Some(top)) = (
+                scale_factors.get((octave as usize).min(scale_factors.len().saturating_sub(1))),
+                scale_factors.last(),
+            )
         {
-            let dist = (p.position - center).norm();
-            let level_scale = scale_factors[(octave as usize).min(scale_factors.len() - 1)];
-            p.max_distance = dist * level_scale;
-            p.min_distance = p.max_distance / scale_factors[scale_factors.len() - 1];
+            p.max_distance = (p.position - center).norm() * level_scale;
+            p.min_distance = p.max_distance / top;
         }
     }
 

@@ -178,15 +178,12 @@ pub fn project_in_frustum(
     if !cam.in_image(&uv, 0.0) {
         return None;
     }
+    if !p.in_viewing_range(center) {
+        return None;
+    }
     let po = p.position - center;
     let dist = po.norm();
-    if dist < 0.8 * p.min_distance || dist > 1.2 * p.max_distance {
-        return None;
-    }
     let view_cos = po.dot(&p.normal) / dist.max(1e-12);
-    if view_cos < 0.5 {
-        return None;
-    }
     let level = p.predict_scale(dist, s.scale_factor.ln(), s.n_levels);
     Some(ProjectedPoint {
         id: mp,

@@ -384,14 +384,10 @@ impl LocalMapper {
             if !s.camera.in_image(&uv, 0.0) {
                 continue;
             }
-            let po: Vec3 = p.position - center;
-            let dist = po.norm();
-            if dist < 0.8 * p.min_distance || dist > 1.2 * p.max_distance {
+            if !p.in_viewing_range(&center) {
                 continue;
             }
-            if po.dot(&p.normal) < 0.5 * dist {
-                continue;
-            }
+            let dist = (p.position - center).norm();
             let level = p.predict_scale(dist, s.scale_factor.ln(), s.n_levels);
             let r = 3.0 * self.scales[level as usize];
             let ur = uv.x - s.bf / pc.z;

@@ -1,0 +1,371 @@
+//! Loop closing (ORB-SLAM2/3 `LoopClosing` for RGB-D and stereo, where the scale is known and a
+//! loop is an SE3): per keyframe from local mapping, bag-of-words candidates, covisibility
+//! consistency, geometric verification, then the correction: the keyframe's covisible group is
+//! moved onto the loop, duplicated points are fused, and the essential graph is optimised.
+//!
+//! One file per stage: `detection` (candidates, consistency), `similarity` (matches, rigid
+//! RANSAC, guided refinement, the loop group's projection), `correction` (moving the group,
+//! fusing, the essential graph) and `global_ba`; this file holds the settings, the state and
+//! the thread.
+//!
+//! [`LoopCloser::process`] does one keyframe (inline under `--sequential`); [`LoopThread`] runs
+//! it in its own thread fed by local mapping through a channel. While it corrects the map it
+//! holds the lock local mapping holds per keyframe, so local mapping stops between keyframes
+//! (no busy-wait), and the map lock, so tracking waits for the correction as in ORB-SLAM.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::mpsc::Receiver;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use stillpoint_geometry::Se3;
+use tracing::info;
+
+use crate::SlamSettings;
+use crate::data::{KfId, Map, MpId};
+use crate::place::{DatabaseParams, KeyFrameDatabase, Vocabulary};
+
+mod correction;
+mod detection;
+mod global_ba;
+mod similarity;
+
+/// Loop-closing parameters, ORB-SLAM's values unless said otherwise.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct LoopSettings {
+    /// Run loop closing at all (`stillpoint run --no-loop-closing` turns it off).
+    pub enabled: bool,
+    /// Vocabulary and its online training.
+    pub database: DatabaseParams,
+    /// No loop is searched while the map holds fewer keyframes (ORB-SLAM: 10).
+    pub min_keyframes: usize,
+    /// ... nor within this many keyframes after the last loop (ORB-SLAM: 10).
+    pub keyframes_after_loop: usize,
+    /// A candidate's covisibility group must stay consistent for this many keyframes after
+    /// the one that first found it (ORB-SLAM2's `mnCovisibilityConsistencyTh` = 3: the group
+    /// is seen in four consecutive keyframes).
+    pub consistency: usize,
+    /// Descriptor matches between the keyframe and a candidate needed to try RANSAC (ORB-SLAM
+    /// `SearchByBoW` >= 20).
+    pub min_descriptor_matches: usize,
+    /// Nearest / second Hamming ratio of those matches (ORB-SLAM: 0.75).
+    pub match_ratio: f32,
+    /// RANSAC iterations and inliers needed (ORB-SLAM `Sim3Solver`: 300, 20).
+    pub ransac_iterations: usize,
+    pub ransac_min_inliers: usize,
+    /// Inliers needed after guided matching and refinement (ORB-SLAM `OptimizeSim3`: 20).
+    pub min_refined_inliers: usize,
+    /// Matches with the loop keyframe's covisible group, after projecting its points, needed
+    /// to accept the loop (ORB-SLAM: 40).
+    pub min_loop_matches: usize,
+    /// Search radii in pixels at octave 0: guided matching between the two keyframes
+    /// (`SearchBySim3`: 7.5), projection of the loop group's points (`SearchByProjection`:
+    /// 10), fusion into the corrected keyframes (`Fuse`: 4).
+    pub guided_radius: f64,
+    pub projection_radius: f64,
+    pub fuse_radius: f64,
+    /// The keyframes moved with the current one onto the loop: its best covisible ones, at most
+    /// this many (ours; ORB-SLAM takes them all, which on a map whose keyframes all see the same
+    /// points, front-end off on walking_static, is the whole map: 225 keyframes, 2.7 s of
+    /// fusion). The others follow through the essential graph.
+    pub correction_group_max: usize,
+    /// Covisibility edges of the essential graph need this many shared points (ORB-SLAM: 100).
+    pub essential_min_weight: usize,
+    /// ... and each keyframe adds at most its this many strongest (ours; ORB-SLAM takes them
+    /// all). A map whose keyframes all see the same points (front-end off on a walking
+    /// sequence: 227 keyframes) otherwise gives a dense graph of 22 885 edges.
+    pub essential_max_covisibles: usize,
+    /// Levenberg-Marquardt iterations of the essential graph (ORB-SLAM: 20).
+    pub pose_graph_iterations: usize,
+    /// Bundle adjustment of the whole map after a correction (ORB-SLAM runs one in a thread of
+    /// its own; here it runs in loop closing's thread with local mapping stopped).
+    pub global_ba: bool,
+    /// Robust Levenberg-Marquardt iterations of it (ORB-SLAM: 10).
+    pub global_ba_iterations: usize,
+    /// Global BA solves the reduced camera system densely: maps with more keyframes skip it.
+    pub global_ba_max_keyframes: usize,
+}
+
+impl Default for LoopSettings {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            database: DatabaseParams::default(),
+            min_keyframes: 10,
+            keyframes_after_loop: 10,
+            consistency: 3,
+            min_descriptor_matches: 20,
+            match_ratio: 0.75,
+            ransac_iterations: 300,
+            ransac_min_inliers: 20,
+            min_refined_inliers: 20,
+            min_loop_matches: 40,
+            guided_radius: 7.5,
+            projection_radius: 10.0,
+            fuse_radius: 4.0,
+            correction_group_max: 30,
+            essential_min_weight: 100,
+            essential_max_covisibles: 10,
+            pose_graph_iterations: 20,
+            global_ba: true,
+            global_ba_iterations: 10,
+            global_ba_max_keyframes: 200,
+        }
+    }
+}
+
+/// One closed loop.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct LoopEvent {
+    pub keyframe: KfId,
+    pub frame_index: usize,
+    pub timestamp: f64,
+    pub loop_keyframe: KfId,
+    pub loop_frame_index: usize,
+    pub loop_timestamp: f64,
+    /// RANSAC inliers, inliers after refinement, matches with the loop group.
+    pub ransac_inliers: usize,
+    pub refined_inliers: usize,
+    pub loop_matches: usize,
+    /// How far the keyframe moved (m, degrees): the drift the loop removed there.
+    pub correction_m: f64,
+    pub correction_deg: f64,
+    /// Keyframes in the essential graph and its edges.
+    pub graph_keyframes: usize,
+    pub graph_edges: usize,
+    pub correction_ms: f64,
+}
+
+/// What loop closing did over a run.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct LoopStats {
+    /// Per keyframe: bag of words, detection and verification (ms; vocabulary training and
+    /// corrections not included).
+    pub detection_ms: Vec<f64>,
+    /// Per vocabulary training (ms).
+    pub training_ms: Vec<f64>,
+    /// Per correction (ms).
+    pub correction_ms: Vec<f64>,
+    /// Per global bundle adjustment after a correction (ms).
+    pub global_ba_ms: Vec<f64>,
+    /// Candidates that passed the consistency test and were tried by verification, and how
+    /// many of them it rejected.
+    pub tried_candidates: usize,
+    pub rejected_candidates: usize,
+    pub vocabulary_words: usize,
+    pub loops: Vec<LoopEvent>,
+}
+
+/// The keyframe poses a correction moved (world-to-camera, before and after): tracking moves
+/// its last frame with its reference keyframe.
+#[derive(Clone, Debug, Default)]
+pub struct MapCorrection {
+    pub poses: BTreeMap<KfId, (Se3, Se3)>,
+}
+
+/// A verified loop, ready to be corrected.
+struct Verified {
+    loop_kf: KfId,
+    /// Camera of the loop keyframe to camera of the current one.
+    t_cl: Se3,
+    /// Keypoint of the current keyframe -> loop-side map point.
+    matches: BTreeMap<usize, MpId>,
+    /// Map points of the loop keyframe's covisible group.
+    loop_points: Vec<MpId>,
+    ransac_inliers: usize,
+    refined_inliers: usize,
+}
+
+/// Loop-closing state: the keyframe database, the consistent groups, the loop edges.
+pub struct LoopCloser {
+    s: SlamSettings,
+    db: KeyFrameDatabase,
+    /// Covisibility groups of the last keyframe's candidates and how many consecutive
+    /// keyframes each has been consistent for.
+    groups: Vec<(BTreeSet<KfId>, usize)>,
+    last_loop_kf: Option<KfId>,
+    loop_edges: BTreeSet<(KfId, KfId)>,
+    scales: Vec<f64>,
+    inv_sigma2: Vec<f64>,
+    stats: LoopStats,
+}
+
+impl LoopCloser {
+    pub fn new(s: SlamSettings) -> Self {
+        Self {
+            scales: s.scale_factors(),
+            inv_sigma2: s.inv_level_sigma2(),
+            s,
+            db: KeyFrameDatabase::new(),
+            groups: Vec::new(),
+            last_loop_kf: None,
+            loop_edges: BTreeSet::new(),
+            stats: LoopStats::default(),
+        }
+    }
+
+    /// With a vocabulary given by the user (a DBoW2 file): no online training.
+    pub fn with_vocabulary(s: SlamSettings, v: Vocabulary) -> Self {
+        let mut c = Self::new(s);
+        c.db = KeyFrameDatabase::with_vocabulary(v);
+        c
+    }
+
+    pub fn stats(&self) -> &LoopStats {
+        &self.stats
+    }
+
+    /// Loop edges (current keyframe, loop keyframe) closed so far.
+    pub fn loop_edges(&self) -> &BTreeSet<(KfId, KfId)> {
+        &self.loop_edges
+    }
+
+    /// Handle one keyframe that local mapping finished. `mapping_busy` is the lock local
+    /// mapping holds per keyframe (`None` inline). `publish` receives the correction while the
+    /// map is still locked, so tracking sees it before its next frame. Returns the correction
+    /// when a loop was closed.
+    pub fn process(
+        &mut self,
+        map: &Mutex<Map>,
+        kf: KfId,
+        mapping_busy: Option<&Mutex<()>>,
+        publish: Option<&Mutex<Vec<MapCorrection>>>,
+    ) -> Option<MapCorrection> {
+        let p = self.s.loop_closing.database.clone();
+        // Train the vocabulary outside the map lock (it takes a while); copy the descriptors.
+        let training: Option<Vec<(KfId, Vec<crate::Descriptor>)>> = {
+            let m = map.lock().ok()?;
+            let n = m.current_keyframes().count();
+            // Only keyframes local mapping has finished (ids up to this one): newer ones have
+            // no covisibility yet, so they would not be excluded as neighbours of `kf`.
+            self.db.needs_training(n, &p).then(|| {
+                m.current_keyframes()
+                    .filter(|k| k.id <= kf)
+                    .map(|k| (k.id, k.descriptors.clone()))
+                    .collect()
+            })
+        };
+        if let Some(docs) = training {
+            let t0 = Instant::now();
+            let refs: Vec<(KfId, &[crate::Descriptor])> =
+                docs.iter().map(|(k, d)| (*k, d.as_slice())).collect();
+            self.db.train(&refs, &p);
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            self.stats.training_ms.push(ms);
+            self.stats.vocabulary_words = self.db.vocabulary().map_or(0, |v| v.words());
+            info!(
+                keyframes = docs.len(),
+                words = self.stats.vocabulary_words,
+                ms,
+                "loop closing: vocabulary trained"
+            );
+        }
+        let t0 = Instant::now();
+        let verified = {
+            let m = map.lock().ok()?;
+            let Some(k) = m.keyframes.get(&kf).filter(|k| !k.bad) else {
+                self.groups.clear();
+                return None;
+            };
+            self.db.add(kf, &k.descriptors);
+            self.detect(&m, kf)
+                .and_then(|candidates| self.verify(&m, kf, &candidates))
+        };
+        self.stats
+            .detection_ms
+            .push(t0.elapsed().as_secs_f64() * 1e3);
+        let v = verified?;
+        // Stop local mapping (it finishes its keyframe first), then take the map.
+        let busy = mapping_busy.map(|b| b.lock().unwrap_or_else(|e| e.into_inner()));
+        let mut m = map.lock().ok()?;
+        let t1 = Instant::now();
+        let outcome = self.correct(&mut m, kf, &v);
+        let ms = t1.elapsed().as_secs_f64() * 1e3;
+        let (mut correction, mut event) = outcome?;
+        if let Some(p) = publish
+            && let Ok(mut q) = p.lock()
+        {
+            q.push(correction.clone());
+        }
+        drop(m);
+        if self.s.loop_closing.global_ba {
+            let t2 = Instant::now();
+            if let Some(c) = self.global_bundle_adjustment(map, publish) {
+                // One correction from before the loop to after the BA, for an inline caller.
+                for (k, (before, after)) in c.poses {
+                    correction.poses.entry(k).or_insert((before, after)).1 = after;
+                }
+                self.stats
+                    .global_ba_ms
+                    .push(t2.elapsed().as_secs_f64() * 1e3);
+            }
+        }
+        drop(busy);
+        event.correction_ms = ms;
+        info!(
+            keyframe = kf,
+            frame = event.frame_index,
+            loop_keyframe = v.loop_kf,
+            loop_frame = event.loop_frame_index,
+            matches = event.loop_matches,
+            moved_m = event.correction_m,
+            ms,
+            "loop closed"
+        );
+        self.stats.correction_ms.push(ms);
+        self.stats.loops.push(event);
+        Some(correction)
+    }
+}
+
+/// Loop closing in its own thread: keyframes arrive from local mapping's thread through a
+/// channel; the thread ends when that channel closes.
+pub struct LoopThread {
+    handle: Option<std::thread::JoinHandle<LoopCloser>>,
+    /// Corrections not yet applied to tracking (filled under the map lock).
+    pub corrections: Arc<Mutex<Vec<MapCorrection>>>,
+    closer: Option<LoopCloser>,
+}
+
+impl LoopThread {
+    pub fn spawn(
+        closer: LoopCloser,
+        map: Arc<Mutex<Map>>,
+        keyframes: Receiver<KfId>,
+        mapping_busy: Arc<Mutex<()>>,
+    ) -> std::io::Result<Self> {
+        let corrections = Arc::new(Mutex::new(Vec::new()));
+        let pending = corrections.clone();
+        let handle = std::thread::Builder::new()
+            .name("loop-closing".into())
+            .spawn(move || {
+                let mut closer = closer;
+                while let Ok(kf) = keyframes.recv() {
+                    closer.process(&map, kf, Some(&mapping_busy), Some(&pending));
+                }
+                closer
+            })?;
+        Ok(Self {
+            handle: Some(handle),
+            corrections,
+            closer: None,
+        })
+    }
+
+    /// Wait for the queued keyframes (local mapping must have stopped, closing the channel).
+    pub fn finish(&mut self) -> Result<(), crate::SlamError> {
+        if let Some(h) = self.handle.take() {
+            let c = h.join().map_err(|_| {
+                crate::SlamError::LocalMapping("the loop-closing thread panicked".into())
+            })?;
+            self.closer = Some(c);
+        }
+        Ok(())
+    }
+
+    /// The closer's statistics once [`LoopThread::finish`] returned.
+    pub fn stats(&self) -> Option<&LoopStats> {
+        self.closer.as_ref().map(|c| c.stats())
+    }
+}

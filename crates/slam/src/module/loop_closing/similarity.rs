@@ -1,0 +1,352 @@
+//! Stage 2, the similarity solve (SE3: RGB-D and stereo know the scale): descriptor matches,
+//! rigid RANSAC, guided matching and refinement, the loop group projected (ORB-SLAM's
+//! `ComputeSim3`).
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use stillpoint_geometry::{Se3, Vec3};
+use tracing::debug;
+
+use super::{LoopCloser, Verified};
+use crate::data::{KeyFrame, KfId, Map, MpId};
+use crate::hamming;
+use crate::matching::NearestTwo;
+use crate::solve::rigid::{RigidPair, RigidRansacParams, apply, ransac_rigid, refine_rigid};
+
+impl LoopCloser {
+    /// ORB-SLAM `ComputeSim3` with the scale fixed: the first candidate that passes descriptor
+    /// matching, RANSAC, guided matching with refinement and the loop-group projection.
+    pub(super) fn verify(&mut self, m: &Map, kf: KfId, candidates: &[KfId]) -> Option<Verified> {
+        let cur = m.keyframes.get(&kf)?;
+        for &c in candidates {
+            self.stats.tried_candidates += 1;
+            let Some(l) = m.keyframes.get(&c).filter(|x| !x.bad) else {
+                self.stats.rejected_candidates += 1;
+                continue;
+            };
+            match self.verify_one(m, cur, l) {
+                Some(v) => return Some(v),
+                None => self.stats.rejected_candidates += 1,
+            }
+        }
+        None
+    }
+
+    pub(super) fn verify_one(&self, m: &Map, cur: &KeyFrame, l: &KeyFrame) -> Option<Verified> {
+        let ls = &self.s.loop_closing;
+        let cam = &self.s.camera;
+        let matches = match_by_descriptor(m, cur, l, self.s.th_low, ls.match_ratio);
+        if matches.len() < ls.min_descriptor_matches {
+            debug!(
+                keyframe = cur.id,
+                candidate = l.id,
+                matches = matches.len(),
+                "loop rejected: too few descriptor matches"
+            );
+            return None;
+        }
+        let pairs: Vec<RigidPair> = matches
+            .iter()
+            .map(|&(i, j)| self.pair(m, cur, i, l, j))
+            .collect();
+        let params = RigidRansacParams {
+            iterations: ls.ransac_iterations,
+            min_inliers: ls.ransac_min_inliers,
+            ..RigidRansacParams::default()
+        };
+        let Some((t_cl, flags)) = ransac_rigid(&pairs, cam, &params) else {
+            debug!(
+                keyframe = cur.id,
+                candidate = l.id,
+                matches = matches.len(),
+                "loop rejected: RANSAC"
+            );
+            return None;
+        };
+        let ransac_inliers = flags.iter().filter(|&&f| f).count();
+        // Guided matching with the transform, then refinement on all pairs.
+        let mut matched: Vec<(usize, usize)> = matches
+            .iter()
+            .zip(&flags)
+            .filter(|(_, f)| **f)
+            .map(|(m, _)| *m)
+            .collect();
+        matched.extend(self.guided_matches(m, cur, l, &t_cl, &matched));
+        let pairs: Vec<RigidPair> = matched
+            .iter()
+            .map(|&(i, j)| self.pair(m, cur, i, l, j))
+            .collect();
+        let (t_cl, inliers) = refine_rigid(&t_cl, &pairs, cam, 10.0, 5);
+        let refined_inliers = inliers.iter().filter(|&&f| f).count();
+        if refined_inliers < ls.min_refined_inliers {
+            debug!(
+                keyframe = cur.id,
+                candidate = l.id,
+                refined_inliers,
+                "loop rejected: refinement"
+            );
+            return None;
+        }
+        let mut out: BTreeMap<usize, MpId> = BTreeMap::new();
+        for (&(i, j), ok) in matched.iter().zip(&inliers) {
+            if *ok && let Some(mp) = l.map_points[j] {
+                out.insert(i, mp);
+            }
+        }
+        // Project the loop group's points into the current keyframe with the corrected pose.
+        let mut group = vec![l.id];
+        group.extend(l.connections.keys().copied());
+        let mut loop_points: Vec<MpId> = Vec::new();
+        let mut seen = BTreeSet::new();
+        for g in &group {
+            if let Some(k) = m.keyframes.get(g).filter(|k| !k.bad) {
+                for mp in k.map_points.iter().flatten() {
+                    if m.points.get(mp).is_some_and(|p| !p.bad) && seen.insert(*mp) {
+                        loop_points.push(*mp);
+                    }
+                }
+            }
+        }
+        let pose = t_cl * l.pose_cw;
+        let already: BTreeSet<MpId> = out.values().copied().collect();
+        for (i, mp) in self.project_points(
+            m,
+            cur,
+            &pose,
+            &loop_points,
+            &already,
+            &out,
+            ls.projection_radius,
+        ) {
+            out.insert(i, mp);
+        }
+        let loop_matches = out.len();
+        if loop_matches < ls.min_loop_matches {
+            debug!(
+                keyframe = cur.id,
+                candidate = l.id,
+                loop_matches,
+                "loop rejected: too few matches with the loop group"
+            );
+            return None;
+        }
+        Some(Verified {
+            loop_kf: l.id,
+            t_cl,
+            matches: out,
+            loop_points,
+            ransac_inliers,
+            refined_inliers,
+        })
+    }
+
+    /// Map point of keypoint `i` of `a` and of `j` of `b`, each in its camera's frame.
+    pub(super) fn pair(
+        &self,
+        m: &Map,
+        a: &KeyFrame,
+        i: usize,
+        b: &KeyFrame,
+        j: usize,
+    ) -> RigidPair {
+        let world = |k: &KeyFrame, idx: usize| {
+            k.map_points[idx]
+                .and_then(|mp| m.points.get(&mp))
+                .map_or(Vec3::zeros(), |p| p.position)
+        };
+        RigidPair {
+            p1: apply(&a.pose_cw, &world(a, i)),
+            p2: apply(&b.pose_cw, &world(b, j)),
+            px1: a.points[i],
+            px2: b.points[j],
+            inv_sigma2_1: self.inv_sigma2[a.octaves[i] as usize],
+            inv_sigma2_2: self.inv_sigma2[b.octaves[j] as usize],
+        }
+    }
+
+    /// ORB-SLAM `SearchBySim3`: each keyframe's unmatched points projected into the other with
+    /// the transform, kept when both directions agree.
+    pub(super) fn guided_matches(
+        &self,
+        m: &Map,
+        cur: &KeyFrame,
+        l: &KeyFrame,
+        t_cl: &Se3,
+        matched: &[(usize, usize)],
+    ) -> Vec<(usize, usize)> {
+        let used_c: BTreeSet<usize> = matched.iter().map(|x| x.0).collect();
+        let used_l: BTreeSet<usize> = matched.iter().map(|x| x.1).collect();
+        let one_way = |from: &KeyFrame,
+                       to: &KeyFrame,
+                       t_to_from: &Se3,
+                       used_from: &BTreeSet<usize>,
+                       used_to: &BTreeSet<usize>| {
+            let mut out: BTreeMap<usize, usize> = BTreeMap::new();
+            for (i, mp) in from.map_points.iter().enumerate() {
+                if used_from.contains(&i) {
+                    continue;
+                }
+                let Some(p) = mp.and_then(|mp| m.points.get(&mp)).filter(|p| !p.bad) else {
+                    continue;
+                };
+                let pc = apply(t_to_from, &apply(&from.pose_cw, &p.position));
+                if let Some(j) = self.best_in_window(
+                    to,
+                    &pc,
+                    &p.descriptor,
+                    p.max_distance,
+                    self.s.loop_closing.guided_radius,
+                    self.s.th_high,
+                    |j| !used_to.contains(&j),
+                ) {
+                    out.insert(i, j);
+                }
+            }
+            out
+        };
+        let t_lc = t_cl.inverse();
+        let l_to_c = one_way(l, cur, t_cl, &used_l, &used_c);
+        let c_to_l = one_way(cur, l, &t_lc, &used_c, &used_l);
+        let mut out = Vec::new();
+        for (j, i) in l_to_c {
+            if c_to_l.get(&i) == Some(&j) && cur.map_points[i].is_some() {
+                out.push((i, j));
+            }
+        }
+        out
+    }
+
+    /// The keypoint of `k` nearest in descriptor to a point at `pc` (camera frame), searched in
+    /// a window of `radius` x scale around its projection at the predicted octave (and the ones
+    /// beside it), within `max_hamming`.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn best_in_window(
+        &self,
+        k: &KeyFrame,
+        pc: &Vec3,
+        descriptor: &crate::Descriptor,
+        max_distance: f64,
+        radius: f64,
+        max_hamming: u32,
+        allowed: impl Fn(usize) -> bool,
+    ) -> Option<usize> {
+        let cam = &self.s.camera;
+        let uv = cam.project_undistorted(pc)?;
+        if !cam.in_image(&uv, 0.0) {
+            return None;
+        }
+        let dist = pc.norm();
+        let level = {
+            let ratio = max_distance / dist.max(1e-9);
+            ((ratio.ln() / self.s.scale_factor.ln()).ceil() as i32)
+                .clamp(0, self.s.n_levels as i32 - 1)
+        };
+        let r = radius * self.scales[level as usize];
+        let mut best = (u32::MAX, usize::MAX);
+        for c in k.features_in_area(uv.x, uv.y, r, level - 1, level + 1) {
+            if !allowed(c) {
+                continue;
+            }
+            let d = hamming(descriptor, &k.descriptors[c]);
+            if d < best.0 {
+                best = (d, c);
+            }
+        }
+        (best.0 <= max_hamming).then_some(best.1)
+    }
+
+    /// ORB-SLAM `SearchByProjection(pKF, Scw, vpPoints, vpMatched, th)`: loop-group points not
+    /// matched yet, projected with `pose` (world-to-camera of `k`), matched to free keypoints
+    /// (TH_LOW) in the scale-invariance range and viewing cone.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn project_points(
+        &self,
+        m: &Map,
+        k: &KeyFrame,
+        pose: &Se3,
+        points: &[MpId],
+        already: &BTreeSet<MpId>,
+        taken: &BTreeMap<usize, MpId>,
+        radius: f64,
+    ) -> Vec<(usize, MpId)> {
+        let center = pose.inverse().translation.vector;
+        let mut used: BTreeSet<usize> = taken.keys().copied().collect();
+        let mut out = Vec::new();
+        for &mp in points {
+            if already.contains(&mp) {
+                continue;
+            }
+            let Some(p) = m.points.get(&mp).filter(|p| !p.bad) else {
+                continue;
+            };
+            if !p.in_viewing_range(&center) {
+                continue;
+            }
+            let pc = apply(pose, &p.position);
+            if let Some(i) = self.best_in_window(
+                k,
+                &pc,
+                &p.descriptor,
+                p.max_distance,
+                radius,
+                self.s.th_low,
+                |i| !used.contains(&i),
+            ) {
+                used.insert(i);
+                out.push((i, mp));
+            }
+        }
+        out
+    }
+}
+
+/// Keypoints of `a` and `b` that both observe good map points, matched by descriptor (TH_LOW,
+/// nearest / second ratio, one-to-one, rotation-consistent): ORB-SLAM's `SearchByBoW` between
+/// keyframes, by brute force (a keyframe holds a few hundred such keypoints).
+fn match_by_descriptor(
+    m: &Map,
+    a: &KeyFrame,
+    b: &KeyFrame,
+    th_low: u32,
+    ratio: f32,
+) -> Vec<(usize, usize)> {
+    let good = |k: &KeyFrame| -> Vec<usize> {
+        (0..k.map_points.len())
+            .filter(|&i| {
+                k.map_points[i]
+                    .and_then(|mp| m.points.get(&mp))
+                    .is_some_and(|p| !p.bad)
+            })
+            .collect()
+    };
+    let (ga, gb) = (good(a), good(b));
+    let mut best_for_b: BTreeMap<usize, (u32, usize)> = BTreeMap::new();
+    for &i in &ga {
+        let best = NearestTwo::of(
+            gb.iter()
+                .map(|&j| (j, hamming(&a.descriptors[i], &b.descriptors[j]))),
+        );
+        if best.accepted(th_low, ratio) {
+            let e = best_for_b
+                .entry(best.index)
+                .or_insert((u32::MAX, usize::MAX));
+            if best.distance < e.0 {
+                *e = (best.distance, i);
+            }
+        }
+    }
+    let matches: Vec<(usize, usize)> = best_for_b.iter().map(|(&j, &(_, i))| (i, j)).collect();
+    let rot: Vec<(usize, f32)> = matches
+        .iter()
+        .map(|&(i, j)| (i, b.angles[j] - a.angles[i]))
+        .collect();
+    let drop: BTreeSet<usize> = crate::matching::rotation_outliers(&rot)
+        .into_iter()
+        .collect();
+    matches
+        .into_iter()
+        .enumerate()
+        .filter(|(n, _)| !drop.contains(n))
+        .map(|(_, m)| m)
+        .collect()
+}
