@@ -6,8 +6,8 @@
 use crate::imgops::simd_fn;
 use stillpoint_image::Gray8;
 
-/// Circle of radius 3 in OpenCV's order, as (dx, dy).
-const CIRCLE: [(isize, isize); 16] = [
+/// FAST's 16-pixel Bresenham circle of radius 3 in OpenCV's order, as (dx, dy).
+pub const FAST_CIRCLE: [(isize, isize); 16] = [
     (0, 3),
     (1, 3),
     (2, 2),
@@ -239,7 +239,7 @@ fn corner_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<
     out.clear();
     out.resize(n.div_ceil(L), 0);
     let base = y * w + x0;
-    let offsets: [isize; 16] = std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
+    let offsets: [isize; 16] = std::array::from_fn(|k| FAST_CIRCLE[k].1 * w as isize + FAST_CIRCLE[k].0);
     let mut i = 0;
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
@@ -337,7 +337,7 @@ pub(crate) fn detect(img: &Gray8, rect: [usize; 4], t: u8, out: &mut Vec<Corner>
         return;
     }
     let t = t.max(1);
-    let offsets: [isize; 16] = std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
+    let offsets: [isize; 16] = std::array::from_fn(|k| FAST_CIRCLE[k].1 * w as isize + FAST_CIRCLE[k].0);
     let rw = x1 - x0;
     // three rolling score rows (previous, current, next) with a zero column on each side
     let mut rows = [vec![0u8; rw + 2], vec![0u8; rw + 2], vec![0u8; rw + 2]];
@@ -391,7 +391,8 @@ mod tests {
 
     fn brute_force(img: &Gray8, t: u8) -> Vec<(usize, usize, u8)> {
         let w = img.width;
-        let offsets: [isize; 16] = std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
+        let offsets: [isize; 16] =
+            std::array::from_fn(|k| FAST_CIRCLE[k].1 * w as isize + FAST_CIRCLE[k].0);
         let mut s = vec![0u8; w * img.height];
         for y in 3..img.height - 3 {
             for x in 3..w - 3 {
@@ -455,7 +456,7 @@ mod tests {
                 corner_row(&img, y, 3, w - 3, t, &mut fast);
                 // the segment test, pixel by pixel
                 let offsets: [isize; 16] =
-                    std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
+                    std::array::from_fn(|k| FAST_CIRCLE[k].1 * w as isize + FAST_CIRCLE[k].0);
                 let expect: Vec<usize> = (3..w - 3)
                     .filter(|&x| score_at(&img.data, y * w + x, &offsets, t) > 0)
                     .map(|x| x - 3)
@@ -472,7 +473,8 @@ mod tests {
     fn sliding_window_score_matches_its_definition() {
         let (w, h) = (40, 30);
         let img = crate::test_rng::Lcg(987).noise_image(w, h);
-        let offsets: [isize; 16] = std::array::from_fn(|k| CIRCLE[k].1 * w as isize + CIRCLE[k].0);
+        let offsets: [isize; 16] =
+            std::array::from_fn(|k| FAST_CIRCLE[k].1 * w as isize + FAST_CIRCLE[k].0);
         for y in 3..h - 3 {
             for x in 3..w - 3 {
                 let i = y * w + x;

@@ -67,6 +67,7 @@ mod pattern;
 mod test_rng;
 
 pub use corners::{CornerParams, corner_sub_pix, good_features_to_track};
+pub use fast::FAST_CIRCLE;
 pub use lk::{LkParams, LkPyramid, forward_backward_errors, track_lk, track_lk_pyramids};
 pub use matcher::{
     KeypointGrid, Match, MatchParams, Projected, ProjectionParams, RotationHistogram, hamming,

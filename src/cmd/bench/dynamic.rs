@@ -32,10 +32,10 @@ use stillpoint_dynamic::{
     cull_frame_with_motion, cull_with, in_dynamic_box, judge_boxes, keypoint_motion,
     motion_consistency_pyramids, near_outliers,
 };
-use stillpoint_features::{LkPyramid, OrbExtractor, OrbParams};
+use stillpoint_features::{FAST_CIRCLE, LkPyramid, OrbExtractor, OrbParams};
 use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
 use stillpoint_frontend::{FilterInput, KeypointFilter};
-use stillpoint_image::{DepthMetres, Gray8, read_depth_metres, read_gray, read_rgb, rgb_to_gray};
+use stillpoint_image::{Gray8, read_gray};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -144,26 +144,6 @@ pub struct Args {
     json: bool,
 }
 
-/// FAST's 16-pixel Bresenham circle of radius 3 (the "7-pixel circle").
-const FAST_CIRCLE: [[i32; 2]; 16] = [
-    [0, 3],
-    [1, 3],
-    [2, 2],
-    [3, 1],
-    [3, 0],
-    [3, -1],
-    [2, -2],
-    [1, -3],
-    [0, -3],
-    [-1, -3],
-    [-2, -2],
-    [-3, -1],
-    [-3, 0],
-    [-3, 1],
-    [-2, 2],
-    [-1, 3],
-];
-
 /// Confusion counts of one method.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 struct Counts {
@@ -267,48 +247,9 @@ struct Report {
     per_frame: Vec<FrameReport>,
 }
 
-/// The depth maps of a TUM-layout sequence (depth.txt): (timestamp, path), sorted by time;
-/// empty when the sequence has none.
-fn read_depth_list(dir: &Path) -> anyhow::Result<Vec<(f64, PathBuf)>> {
-    let list = dir.join("depth.txt");
-    if !list.exists() {
-        return Ok(Vec::new());
-    }
-    Ok(read_stamped_list(&list, dir)?)
-}
-
-/// The depth map nearest in time to `t` (within 0.02 s, the TUM tools' association), in metres.
-fn depth_for(list: &[(f64, PathBuf)], t: f64, factor: f32) -> anyhow::Result<Option<DepthMetres>> {
-    let Some((dt, path)) = list
-        .iter()
-        .map(|(s, p)| ((s - t).abs(), p))
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-    else {
-        return Ok(None);
-    };
-    if dt > 0.02 {
-        return Ok(None);
-    }
-    Ok(Some(read_depth_metres(path, factor).with_context(
-        || format!("{}: depth map", path.display()),
-    )?))
-}
-
-/// Depth units per metre from the sequence's settings.toml (`depth_factor`), TUM's 5000 without.
-fn depth_factor(dir: &Path) -> f32 {
-    std::fs::read_to_string(dir.join("settings.toml"))
-        .ok()
-        .and_then(|text| {
-            text.lines().find_map(|l| {
-                let (k, v) = l.split_once('=')?;
-                (k.trim() == "depth_factor").then(|| v.trim().parse::<f32>().ok())?
-            })
-        })
-        .unwrap_or(5000.0)
-}
-
-/// The frames of a TUM-layout sequence: (timestamp, rgb path, mask path).
-fn read_frames(dir: &Path) -> anyhow::Result<Vec<(f64, PathBuf, PathBuf)>> {
+/// The ground-truth mask of each frame of a synthetic sequence (`mask/` beside `rgb/`, same
+/// names): (timestamp, mask path). The frames themselves come from `stillpoint_datasets`.
+fn read_frames(dir: &Path) -> anyhow::Result<Vec<(f64, PathBuf)>> {
     let list = dir.join("rgb.txt");
     let frames = read_stamped_list(&list, dir)?
         .into_iter()
@@ -317,7 +258,7 @@ fn read_frames(dir: &Path) -> anyhow::Result<Vec<(f64, PathBuf, PathBuf)>> {
                 .file_name()
                 .with_context(|| format!("{}: no file name in {}", list.display(), rgb.display()))?
                 .to_owned();
-            Ok((t, rgb, dir.join("mask").join(name)))
+            Ok((t, dir.join("mask").join(name)))
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     if frames.len() < 2 {
@@ -391,12 +332,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(v) = args.depth_window {
         settings.depth.keypoint_window_px = v;
     }
-    let depth_list = if args.no_depth {
-        Vec::new()
-    } else {
-        read_depth_list(&args.dataset)?
-    };
-    let factor = depth_factor(&args.dataset);
+    // Frames, depth (with the sequence's depth factor) and their association as `run` reads them.
+    let sequence = stillpoint_datasets::open(&args.dataset, None, None)
+        .with_context(|| format!("{}", args.dataset.display()))?;
     let mut depth_frames = 0usize;
     if let Some(v) = args.unknown_radius {
         settings.cull.unknown_radius_px = v;
@@ -506,14 +444,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut stages = [0.0f64; 4];
     let mut models: Vec<(MotionModel, usize)> = Vec::new();
     let mut prev: Option<Gray8> = None;
-    for (index, (t, rgb_path, mask_path)) in frames.iter().take(n).enumerate() {
-        let rgb = read_rgb(rgb_path).with_context(|| format!("frame {index}"))?;
-        let gray = rgb_to_gray(&rgb);
+    for (index, (t, mask_path)) in frames.iter().take(n).enumerate() {
+        let frame = sequence
+            .frame(index)
+            .with_context(|| format!("frame {index}"))?;
+        let gray = frame.gray;
+        let rgb = frame
+            .rgb
+            .with_context(|| format!("frame {index}: no colour image"))?;
+        let depth = if args.no_depth { None } else { frame.depth };
         // Each frame's pyramid is built once and serves as the next frame's previous one.
         let prev_pyr =
             std::mem::replace(&mut last_pyr, LkPyramid::new(&gray, &settings.geometry.lk));
         let cur_pyr = &last_pyr;
-        let depth = depth_for(&depth_list, *t, factor).with_context(|| format!("frame {index}"))?;
         let input = FilterInput {
             index,
             timestamp: *t,
@@ -552,9 +495,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .iter()
             .map(|k| {
                 let scale = scales.get(k.octave as usize).copied().unwrap_or(1.0);
-                std::iter::once([0, 0])
+                std::iter::once((0, 0))
                     .chain(FAST_CIRCLE)
-                    .filter(|&[dx, dy]| {
+                    .filter(|&(dx, dy)| {
                         let x = (k.x + dx as f32 * scale).round() as isize;
                         let y = (k.y + dy as f32 * scale).round() as isize;
                         mask.get_checked(x, y).is_some_and(|m| m > 0)
