@@ -709,8 +709,8 @@ mod tests {
     use super::*;
     use crate::{Feature, SlamSettings};
 
-    #[test]
-    fn covisibility_spanning_tree_and_bad_keyframes() {
+    /// A frame at the origin with 20 keypoints along a row.
+    fn row_frame() -> Frame {
         let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
         let s = SlamSettings::rgbd(cam, 40.0, 30.0);
         let feats: Vec<Feature> = (0..20)
@@ -724,6 +724,12 @@ mod tests {
         let descs = vec![[7u8; 32]; 20];
         let mut f = Frame::new(0, 0.0, &feats, &descs, None, &s).unwrap();
         f.pose_cw = Some(Se3::identity());
+        f
+    }
+
+    #[test]
+    fn covisibility_spanning_tree_and_bad_keyframes() {
+        let f = row_frame();
         let mut map = Map::new();
         let k0 = map.add_keyframe(&f).unwrap();
         let k1 = map.add_keyframe(&f).unwrap();
@@ -880,19 +886,7 @@ mod tests {
     /// A culled keyframe moves with its parent afterwards (frames anchored to it follow).
     #[test]
     fn culled_keyframe_pose_follows_its_parent() {
-        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
-        let s = SlamSettings::rgbd(cam, 40.0, 30.0);
-        let feats: Vec<Feature> = (0..20)
-            .map(|i| Feature {
-                x: 10.0 + 20.0 * i as f32,
-                y: 100.0,
-                octave: 0,
-                angle: 0.0,
-            })
-            .collect();
-        let descs = vec![[7u8; 32]; 20];
-        let mut f = Frame::new(0, 0.0, &feats, &descs, None, &s).unwrap();
-        f.pose_cw = Some(Se3::identity());
+        let mut f = row_frame();
         let mut map = Map::new();
         let k0 = map.add_keyframe(&f).unwrap();
         let step = Se3::new(Vec3::new(0.1, 0.0, 0.0), Vec3::new(0.0, 0.05, 0.0));
