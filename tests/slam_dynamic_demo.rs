@@ -1,7 +1,8 @@
 //! Cross-crate: `stillpoint demo` on a short synthetic walking_xyz sequence. The dynamic
-//! front-end (gt boxes) must keep the trajectory within a few centimetres while the baseline
-//! without it is pulled by the walkers. Bounds from measurements (release, 90 frames, seed 0):
-//! off 10-40 cm, on 0.5-1.0 cm; the debug build gives the same numbers (same code paths).
+//! front-end (gt boxes) must keep the trajectory within a centimetre and beat the baseline
+//! without it. Bounds from measurements (90 frames, seed 0): off 10-40 cm until the map's
+//! free-space check (points the depth image sees through leave the map) made the baseline
+//! itself resist walkers: off 1.03 cm, on 0.47 cm (300 frames: 16.5 against 0.50 cm).
 
 use std::process::Command;
 
@@ -16,9 +17,8 @@ fn demo_front_end_on_beats_off_on_walking_xyz() {
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let off = summary["ate_rmse_off"].as_f64().unwrap();
     let on = summary["ate_rmse_on"].as_f64().unwrap();
-    assert!(on < 0.02, "front-end on: ATE {on} m\n{summary}");
-    assert!(off > 0.05, "front-end off: ATE {off} m\n{summary}");
-    assert!(on < 0.25 * off, "on {on} m vs off {off} m\n{summary}");
+    assert!(on < 0.01, "front-end on: ATE {on} m\n{summary}");
+    assert!(on < 0.7 * off, "on {on} m vs off {off} m\n{summary}");
     let tracked = summary["on"]["tracked"].as_u64().unwrap();
     assert!(tracked >= 85, "{summary}");
 }
