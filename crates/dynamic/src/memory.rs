@@ -148,7 +148,7 @@ fn refinds(det: &BBox, remembered: &BBox, p: &BoxMemoryParams) -> bool {
 
 /// Median (dx, dy) of the flows of the points that started strictly inside `bbox`; (0, 0) with
 /// none.
-fn median_flow(bbox: &BBox, pts: &[TrackedPoint]) -> (f32, f32) {
+pub fn median_flow(bbox: &BBox, pts: &[TrackedPoint]) -> (f32, f32) {
     let (mut dx, mut dy): (Vec<f32>, Vec<f32>) = pts
         .iter()
         .filter(|t| bbox.contains_strict(t.prev[0], t.prev[1]))

@@ -59,7 +59,9 @@ pub use filter::{FilterInput, FilterOutcome, KeepAll, KeypointFilter};
 
 use std::time::Instant;
 
-use stillpoint_detect::{DetectInput, Detection, Detector};
+use stillpoint_detect::{
+    DetectError, DetectInput, Detection, Detector, DetectorThread, NoDetector,
+};
 use stillpoint_dynamic::{
     BoxPart, BoxState, CulledFrame, DynamicSettings, Evidence, ObjectDecision, ObjectTracker,
     RememberedBox, SeatedMotionParams, TrackedPoint, Verdict, WorldSource,
@@ -181,6 +183,10 @@ pub struct FrontEndSettings {
     /// often missed by the detector for several frames while keyframes make points on them
     /// (0 = off).
     pub erase_recent_mover_points_frames: usize,
+    /// The detector on its own thread: frames take the newest boxes it has finished, carried to
+    /// them by the corners' flow, and never wait for it ([`DynamicFrontEnd::detect_in_background`];
+    /// `run --realtime` turns it on). Off: every frame waits for its own boxes (reproducible).
+    pub detector_in_background: bool,
 }
 
 impl Default for FrontEndSettings {
@@ -201,7 +207,112 @@ impl Default for FrontEndSettings {
             movable_hygiene_margin: 0.5,
             orb_exclusion_margin: 0.05,
             erase_recent_mover_points_frames: 60,
+            detector_in_background: false,
         }
+    }
+}
+
+/// The detector on its own thread ([`DynamicFrontEnd::detect_in_background`]): each frame hands
+/// it the frame when it is idle and takes the newest boxes it has finished, carried from their
+/// frame to the current one by the median flow of the corners tracked inside each box, frame by
+/// frame; tracking never waits for it (but on the first frame, so that the first map is judged).
+struct BackgroundDetector {
+    thread: DetectorThread,
+    /// A frame is with the detector.
+    busy: bool,
+    /// The newest finished boxes, already carried to frame `at`, and the frame they were
+    /// detected on.
+    latest: Option<CarriedDetections>,
+    /// Corner tracks into each recent frame (frame index, tracks), to carry boxes detected on
+    /// an earlier frame.
+    tracks: std::collections::VecDeque<(usize, Vec<stillpoint_dynamic::TrackedPoint>)>,
+}
+
+/// Boxes detected on frame `detected`, moved to frame `at`.
+struct CarriedDetections {
+    detected: usize,
+    at: usize,
+    boxes: Vec<Detection>,
+}
+
+/// Frames after which boxes carried from an older detection are dropped.
+const MAX_DETECTION_AGE: usize = 15;
+
+impl BackgroundDetector {
+    /// Boxes for frame `index` (whose corner tracks are `tracks`): collect what the thread has
+    /// finished, carry the newest to this frame, and hand the thread this frame when it is idle.
+    fn boxes_for(
+        &mut self,
+        frame: &FilterInput,
+        tracks: &[stillpoint_dynamic::TrackedPoint],
+    ) -> Vec<Detection> {
+        self.tracks.push_back((frame.index, tracks.to_vec()));
+        while self.tracks.len() > MAX_DETECTION_AGE + 1 {
+            self.tracks.pop_front();
+        }
+        while let Some((detected, result)) = self.thread.try_recv() {
+            self.busy = false;
+            let boxes = result.unwrap_or_else(|e| {
+                tracing::warn!("frame {detected}: detector failed: {e}");
+                Vec::new()
+            });
+            self.latest = Some(CarriedDetections {
+                detected,
+                at: detected,
+                boxes,
+            });
+        }
+        if let Some(l) = self.latest.as_mut() {
+            let from = l.at;
+            for (index, pts) in self.tracks.iter().filter(|(i, _)| *i > from) {
+                for d in &mut l.boxes {
+                    let (dx, dy) = stillpoint_dynamic::median_flow(&d.bbox, pts);
+                    let b = d.bbox;
+                    d.bbox =
+                        stillpoint_geometry::BBox::new(b.x1 + dx, b.y1 + dy, b.x2 + dx, b.y2 + dy);
+                }
+                l.at = *index;
+            }
+        }
+        if !self.busy {
+            self.send(frame);
+        }
+        match &self.latest {
+            Some(l) if frame.index.saturating_sub(l.detected) <= MAX_DETECTION_AGE => {
+                l.boxes.clone()
+            }
+            _ => Vec::new(),
+        }
+    }
+
+    fn send(&mut self, frame: &FilterInput) {
+        let rgb = match frame.rgb {
+            Some(rgb) => rgb.clone(),
+            None => stillpoint_image::gray_to_rgb(frame.gray),
+        };
+        match self.thread.send(frame.index, frame.timestamp, rgb) {
+            Ok(()) => self.busy = true,
+            Err(e) => tracing::warn!("frame {}: {e}", frame.index),
+        }
+    }
+
+    /// The first frame: wait for its boxes.
+    fn boxes_of_first(&mut self, frame: &FilterInput) -> Vec<Detection> {
+        self.send(frame);
+        let boxes = match self.thread.recv() {
+            Ok((_, Ok(b))) => b,
+            Ok((_, Err(e))) | Err(e) => {
+                tracing::warn!("frame {}: detector failed: {e}", frame.index);
+                Vec::new()
+            }
+        };
+        self.busy = false;
+        self.latest = Some(CarriedDetections {
+            detected: frame.index,
+            at: frame.index,
+            boxes: boxes.clone(),
+        });
+        boxes
     }
 }
 
@@ -209,6 +320,8 @@ impl Default for FrontEndSettings {
 /// memory carried from frame to frame. Implements [`KeypointFilter`].
 pub struct DynamicFrontEnd {
     detector: Box<dyn Detector>,
+    /// Set by [`DynamicFrontEnd::detect_in_background`]: the detector runs there instead.
+    background: Option<BackgroundDetector>,
     settings: FrontEndSettings,
     prev_gray: Option<Gray8>,
     /// The previous frame's LK pyramid: each frame's pyramid is built once and serves the
@@ -230,10 +343,27 @@ pub struct DynamicFrontEnd {
 }
 
 impl DynamicFrontEnd {
+    /// Run the detector on its own thread from now on: every frame gets the newest boxes it
+    /// has finished, carried to the frame by the corners' flow (see `BackgroundDetector`), so
+    /// tracking never waits for it. Results then depend on timing (not reproducible run to
+    /// run); `run --realtime` uses it.
+    pub fn detect_in_background(mut self) -> Result<Self, DetectError> {
+        let detector = std::mem::replace(&mut self.detector, Box::new(NoDetector));
+        let thread = DetectorThread::spawn(move || Ok(detector))?;
+        self.background = Some(BackgroundDetector {
+            thread,
+            busy: false,
+            latest: None,
+            tracks: std::collections::VecDeque::new(),
+        });
+        Ok(self)
+    }
+
     /// A front-end over `detector` (any [`Detector`]: YOLOX, ground truth, none).
     pub fn new(detector: Box<dyn Detector>, settings: FrontEndSettings) -> Self {
         Self {
             detector,
+            background: None,
             settings,
             prev_gray: None,
             prev_pyramid: None,
@@ -554,7 +684,10 @@ impl DynamicFrontEnd {
             return out;
         }
         let t0 = Instant::now();
-        let dets = detect(self.detector.as_mut(), frame);
+        let dets = match self.background.as_mut() {
+            Some(bg) => bg.boxes_of_first(frame),
+            None => detect(self.detector.as_mut(), frame),
+        };
         out.semantic_ms = t0.elapsed().as_secs_f64() * 1e3;
         let mut states = stillpoint_dynamic::judge_boxes(&dets, &[], &self.settings.dynamic.judge);
         if self.settings.people_move_on_first_frame {
@@ -758,12 +891,16 @@ impl KeypointFilter for DynamicFrontEnd {
         let mut out = out;
         let detector = &mut self.detector;
         let geometry = &self.settings.dynamic.geometry;
-        // The detector works on the frame while motion consistency runs (paper figure 2).
+        let background = self.background.is_some();
+        // The detector works on the frame while motion consistency runs (paper figure 2); in
+        // the background it works on its own frame and this one takes its newest boxes.
         let ((dets, semantic_ms), (check, pyramid, geometry_ms)) = std::thread::scope(|s| {
-            let det = s.spawn(|| {
-                let t0 = Instant::now();
-                let dets = detect(detector.as_mut(), frame);
-                (dets, t0.elapsed().as_secs_f64() * 1e3)
+            let det = (!background).then(|| {
+                s.spawn(|| {
+                    let t0 = Instant::now();
+                    let dets = detect(detector.as_mut(), frame);
+                    (dets, t0.elapsed().as_secs_f64() * 1e3)
+                })
             });
             let t0 = Instant::now();
             let pyramid = LkPyramid::new(frame.gray, &geometry.lk);
@@ -775,12 +912,22 @@ impl KeypointFilter for DynamicFrontEnd {
                 geometry,
             );
             let geo_ms = t0.elapsed().as_secs_f64() * 1e3;
-            let dets = det.join().unwrap_or_else(|_| {
-                tracing::warn!("frame {}: the detector thread panicked", frame.index);
-                (Vec::new(), 0.0)
+            let dets = det.map_or((Vec::new(), 0.0), |d| {
+                d.join().unwrap_or_else(|_| {
+                    tracing::warn!("frame {}: the detector thread panicked", frame.index);
+                    (Vec::new(), 0.0)
+                })
             });
             (dets, (check, pyramid, geo_ms))
         });
+        let (dets, semantic_ms) = match self.background.as_mut() {
+            Some(bg) => {
+                let t0 = Instant::now();
+                let dets = bg.boxes_for(frame, &check.points);
+                (dets, t0.elapsed().as_secs_f64() * 1e3)
+            }
+            None => (dets, semantic_ms),
+        };
         out.semantic_ms = semantic_ms;
         out.geometry_ms = geometry_ms;
         let mut check = check;
@@ -1202,7 +1349,11 @@ mod tests {
         let mut settings = settings;
         settings.dynamic.world.camera = Some(cam);
         settings.seated_motion.camera = Some(cam);
+        let background = settings.detector_in_background;
         let mut front = DynamicFrontEnd::new(Box::new(gt_detector(&frames)), settings);
+        if background {
+            front = front.detect_in_background().expect("detector thread");
+        }
         let mut orb = stillpoint_features::OrbExtractor::new(stillpoint_features::OrbParams {
             n_features: 500,
             ..Default::default()
@@ -1256,6 +1407,23 @@ mod tests {
         // Without depth the whole box.
         let whole = mover_mask(&[rect], None, &params, 200, 200);
         assert_eq!((whole.get(60, 100), whole.get(10, 10)), (255, 0));
+    }
+
+    /// The detector on its own thread: each frame takes the newest boxes, detected on an
+    /// earlier frame and carried by the corners' flow; the person still stays out of the map.
+    #[test]
+    fn boxes_from_a_background_detector_keep_the_mover_out() {
+        let settings = FrontEndSettings {
+            detector_in_background: true,
+            ..Default::default()
+        };
+        let (let_in, total) = mover_keypoints_let_into_the_map(settings);
+        assert!(total > 3000, "the person holds many keypoints ({total})");
+        let share = let_in as f64 / total as f64;
+        eprintln!(
+            "person keypoints let into the map with the detector in the background: {share:.3}"
+        );
+        assert!(share < 0.02, "{let_in} of {total}");
     }
 
     #[test]
