@@ -57,6 +57,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     stillpoint_synth::write_sequence(&cfg, WriteOptions::default(), &dir)
         .with_context(|| format!("writing the synthetic sequence into {}", dir.display()))?;
     let base = RunOptions {
+        realtime: false,
         dataset: dir.clone(),
         kind: None,
         settings: None,

@@ -3,9 +3,10 @@
 //! keyframe trajectory at the end, then a timing table like the paper's table 6.
 
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use anyhow::{Context, bail};
-use stillpoint_datasets::{DatasetKind, GroundTruthFormat, Sensor, Sequence};
+use stillpoint_datasets::{DatasetError, DatasetKind, Frame, GroundTruthFormat, Sensor, Sequence};
 use stillpoint_detect::GtDetectorParams;
 use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
 use stillpoint_image::Gray8;
@@ -64,6 +65,12 @@ pub struct Args {
     /// trains its own from the sequence's keyframes.
     #[arg(long)]
     pub vocabulary: Option<PathBuf>,
+    /// Replay the sequence at its timestamps, as a live camera delivers it: frames that arrive
+    /// while the system is busy are dropped (the newest waiting frame is taken); reports frames
+    /// processed and dropped and the latency from arrival to pose. Local mapping runs in its
+    /// own thread (not with `--sequential`).
+    #[arg(long, conflicts_with = "sequential")]
+    pub realtime: bool,
     /// Print a JSON summary on stdout instead of the tables.
     #[arg(long)]
     pub json: bool,
@@ -86,6 +93,8 @@ pub struct RunOptions {
     pub model: Option<PathBuf>,
     /// Settings changed from their defaults on the command line.
     pub overrides: Overrides,
+    /// Replay at the frames' timestamps and drop the frames that arrive while busy.
+    pub realtime: bool,
 }
 
 /// What the command line changes besides the dataset and the front-end's mode.
@@ -126,6 +135,68 @@ pub struct RunSummary {
     pub moving_map_points: Option<usize>,
     /// Loop closing's statistics (`None` when it is off).
     pub loops: Option<stillpoint_slam::module::loop_closing::LoopStats>,
+    /// With `--realtime`: what the replay at camera rate processed, dropped and how late.
+    pub realtime: Option<RealtimeReport>,
+}
+
+/// A replay at camera rate (`run --realtime`).
+#[derive(Clone, Debug, Default)]
+pub struct RealtimeReport {
+    pub frames_processed: usize,
+    pub frames_dropped: usize,
+    /// Per processed frame: from the frame's arrival (its timestamp on the replay clock) to its
+    /// pose, ms.
+    pub latency_ms: Vec<f64>,
+    /// Per processed frame: the pipeline's time on it, ms.
+    pub processing_ms: Vec<f64>,
+}
+
+/// A camera replaying a sequence at its timestamps: frames are read ahead on their own thread
+/// and handed over when due, through a channel. The consumer takes the newest frame waiting and
+/// counts the ones it skips as dropped, as a live camera's driver would overwrite them.
+struct ReplayCamera {
+    frames: std::sync::mpsc::Receiver<(usize, Result<Frame, DatasetError>, Instant)>,
+    dropped: usize,
+}
+
+impl ReplayCamera {
+    fn start(seq: Box<dyn Sequence>, n: usize) -> Self {
+        let (tx, rx) = std::sync::mpsc::sync_channel(4);
+        std::thread::Builder::new()
+            .name("replay camera".into())
+            .spawn(move || {
+                let start = Instant::now();
+                let t0 = seq.timestamp(0).unwrap_or(0.0);
+                for i in 0..n {
+                    let frame = seq.frame(i);
+                    let t = seq.timestamp(i).unwrap_or(t0 + i as f64 / 30.0);
+                    let due = start + std::time::Duration::from_secs_f64((t - t0).max(0.0));
+                    let now = Instant::now();
+                    // The camera's clock: a frame exists from its timestamp on.
+                    if due > now {
+                        std::thread::sleep(due - now);
+                    }
+                    if tx.send((i, frame, due.max(now))).is_err() {
+                        break;
+                    }
+                }
+            })
+            .ok();
+        Self {
+            frames: rx,
+            dropped: 0,
+        }
+    }
+
+    /// The newest frame that has arrived (waiting for the next one when none has).
+    fn next(&mut self) -> Option<(usize, Result<Frame, DatasetError>, Instant)> {
+        let mut newest = self.frames.recv().ok()?;
+        while let Ok(newer) = self.frames.try_recv() {
+            self.dropped += 1;
+            newest = newer;
+        }
+        Some(newest)
+    }
 }
 
 /// The generator's mask of frame `timestamp` (255 = moving), when the sequence has one.
@@ -241,7 +312,16 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
                 GtDetectorParams::default(),
             )
             .with_context(|| format!("opening the {name} detector"))?;
-            Some(DynamicFrontEnd::new(detector, tree.front_end.clone()))
+            let front = DynamicFrontEnd::new(detector, tree.front_end.clone());
+            if tree.front_end.detector_in_background || o.realtime {
+                Some(
+                    front
+                        .detect_in_background()
+                        .with_context(|| format!("starting the {name} detector's thread"))?,
+                )
+            } else {
+                Some(front)
+            }
         }
     };
     let detector_name = o.detector.clone().unwrap_or_else(|| "off".into());
@@ -265,6 +345,14 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     } else {
         indicatif::ProgressBar::hidden()
     };
+    let mut camera = if o.realtime {
+        let replay = stillpoint_datasets::open(&o.dataset, o.kind, o.settings.as_deref())
+            .with_context(|| format!("opening {}", o.dataset.display()))?;
+        Some(ReplayCamera::start(replay, n))
+    } else {
+        None
+    };
+    let mut realtime = RealtimeReport::default();
     let mut pipeline = Pipeline::new(pipeline_settings, front, vocabulary);
     let mut times: Vec<FrameTimings> = Vec::with_capacity(n);
     let mut written: Option<f64> = None;
@@ -273,15 +361,28 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     let has_masks = o.dataset.join("mask").is_dir();
     let mut moving_kept = Vec::new();
     let mut depth_scale_checked = false;
-    for i in 0..n {
-        bar.inc(1);
-        let frame = match seq.frame(i) {
+    let mut next_index = 0;
+    loop {
+        let (i, loaded, arrival) = match camera.as_mut() {
+            Some(c) => match c.next() {
+                Some(f) => f,
+                None => break,
+            },
+            None if next_index < n => {
+                next_index += 1;
+                (next_index - 1, seq.frame(next_index - 1), Instant::now())
+            }
+            None => break,
+        };
+        bar.set_position(i as u64 + 1);
+        let frame = match loaded {
             Ok(f) => f,
             Err(e) => {
                 tracing::warn!("frame {i}: skipped: {e}");
                 continue;
             }
         };
+        let started = Instant::now();
         if let (false, Some(depth)) = (depth_scale_checked, &frame.depth) {
             // The first frame with depth: a wrong factor scales the whole trajectory silently.
             depth_scale_checked = true;
@@ -293,6 +394,11 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         let r = pipeline
             .track(&frame)
             .with_context(|| format!("{}", o.dataset.display()))?;
+        if camera.is_some() {
+            realtime.frames_processed += 1;
+            realtime.processing_ms.push(ms_since(started));
+            realtime.latency_ms.push(ms_since(arrival));
+        }
         let n_culled = r.culled();
         culled.push(n_culled);
         if has_masks {
@@ -355,6 +461,9 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             .ok()
     });
     let moving_map_points = has_masks.then(|| count_moving_points(&fin.system, &o.dataset));
+    if let Some(c) = &camera {
+        realtime.frames_dropped = c.dropped;
+    }
     let pick = |f: fn(&FrameTimings) -> f64| times.iter().map(f).collect::<Vec<f64>>();
     let mut timings = vec![];
     if o.detector.is_some() {
@@ -389,7 +498,12 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         moving_kept_per_frame: has_masks.then_some(moving_kept),
         moving_map_points,
         loops,
+        realtime: camera.is_some().then_some(realtime),
     })
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
 }
 
 /// Good map points with a keyframe observation on the generator's moving mask.
@@ -618,6 +732,27 @@ pub fn summary_json(s: &RunSummary) -> serde_json::Value {
         "moving_map_points": s.moving_map_points,
         "ate_keyframes": ate_keyframes.map(|a| serde_json::json!({"rmse": a.stats.rmse, "pairs": a.stats.count})),
         "loop_closing": loops_json(s),
+        "realtime": s.realtime.as_ref().map(|r| realtime_json(r, acc.as_ref().map(|(a, _)| a.stats.rmse))),
+    })
+}
+
+/// The replay at camera rate in the JSON summary (`frames_processed`, `frames_dropped`,
+/// `latency_ms`, `ate_m` as the README states them).
+fn realtime_json(r: &RealtimeReport, ate_m: Option<f64>) -> serde_json::Value {
+    let q = |v: &[f64], p: f64| {
+        let mut s = v.to_vec();
+        s.sort_by(f64::total_cmp);
+        s.get(((s.len().max(1) - 1) as f64 * p).round() as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    let (mean_ms, _, _) = stats(&r.processing_ms);
+    serde_json::json!({
+        "frames_processed": r.frames_processed,
+        "frames_dropped": r.frames_dropped,
+        "latency_ms": {"median": q(&r.latency_ms, 0.5), "p95": q(&r.latency_ms, 0.95), "max": q(&r.latency_ms, 1.0)},
+        "processing_ms_mean": mean_ms,
+        "ate_m": ate_m,
     })
 }
 
@@ -663,6 +798,18 @@ pub fn print_summary(s: &RunSummary) {
         println!("{k:<30} {m:>9.2} {med:>9.2} {p90:>9.2}");
     }
     print_culled_row(s);
+    if let Some(r) = &s.realtime {
+        let j = realtime_json(r, None);
+        println!(
+            "real time: {} frames processed, {} dropped; latency median {:.1} ms, p95 {:.1}, max {:.1}; {:.1} ms a processed frame",
+            r.frames_processed,
+            r.frames_dropped,
+            j["latency_ms"]["median"].as_f64().unwrap_or(0.0),
+            j["latency_ms"]["p95"].as_f64().unwrap_or(0.0),
+            j["latency_ms"]["max"].as_f64().unwrap_or(0.0),
+            j["processing_ms_mean"].as_f64().unwrap_or(0.0),
+        );
+    }
     if let Some(l) = &s.loops {
         println!("loops closed: {}", l.loops.len());
         for e in &l.loops {
@@ -698,6 +845,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         out: Some(args.out.clone()),
         detector: (!args.no_dynamic).then(|| args.detector.clone()),
         sequential: args.sequential,
+        realtime: args.realtime,
         frames: args.frames,
         model: args.model.clone(),
         progress: true,

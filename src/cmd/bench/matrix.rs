@@ -126,6 +126,7 @@ fn generate(args: &Args, preset: Preset, seed: u64, dir: &Path) -> anyhow::Resul
 
 fn run_one(args: &Args, dir: &Path, mode: &str, out: PathBuf) -> anyhow::Result<Row> {
     let s = run_sequence(&RunOptions {
+        realtime: false,
         dataset: dir.to_path_buf(),
         kind: None,
         settings: None,

@@ -28,6 +28,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for d in &args.dataset {
         for on in [false, true] {
             let s = run_sequence(&RunOptions {
+                realtime: false,
                 dataset: d.clone(),
                 kind: None,
                 settings: None,
