@@ -213,32 +213,10 @@ impl LoopCloser {
         let Some(k) = m.keyframes.get(&g) else { return };
         let pose = k.pose_cw;
         let center = k.camera_center();
-        let mut actions: Vec<(usize, MpId)> = Vec::new();
         let mut used = BTreeSet::new();
-        for &mp in points {
-            let Some(p) = m.points.get(&mp).filter(|p| !p.bad) else {
-                continue;
-            };
-            if p.observations.contains_key(&g) {
-                continue;
-            }
-            if !p.in_viewing_range(&center) {
-                continue;
-            }
-            let pc = apply(&pose, &p.position);
-            if let Some(i) = self.best_in_window(
-                k,
-                &pc,
-                &p.descriptor,
-                p.max_distance,
-                radius,
-                self.s.th_low,
-                |i| !used.contains(&i),
-            ) {
-                used.insert(i);
-                actions.push((i, mp));
-            }
-        }
+        let skip = |_: MpId, p: &crate::data::MapPoint| p.observations.contains_key(&g);
+        let actions =
+            self.match_by_projection(m, k, &pose, &center, points, skip, &mut used, radius);
         for (i, mp) in actions {
             if !m.points.contains_key(&mp) {
                 continue;

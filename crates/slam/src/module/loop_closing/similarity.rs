@@ -8,7 +8,7 @@ use stillpoint_geometry::{Se3, Vec3};
 use tracing::debug;
 
 use super::{LoopCloser, Verified};
-use crate::data::{KeyFrame, KfId, Map, MpId};
+use crate::data::{KeyFrame, KfId, Map, MapPoint, MpId};
 use crate::hamming;
 use crate::matching::NearestTwo;
 use crate::solve::rigid::{RigidPair, RigidRansacParams, apply, ransac_rigid, refine_rigid};
@@ -271,15 +271,32 @@ impl LoopCloser {
     ) -> Vec<(usize, MpId)> {
         let center = pose.inverse().translation.vector;
         let mut used: BTreeSet<usize> = taken.keys().copied().collect();
+        let skip = |mp: MpId, _: &MapPoint| already.contains(&mp);
+        self.match_by_projection(m, k, pose, &center, points, skip, &mut used, radius)
+    }
+
+    /// Good map points (but those `skip` names) seen from `pose` (world-to-camera of `k`,
+    /// camera centre `center`) within their scale range and viewing cone, matched one-to-one
+    /// to keypoints of `k` not in `used` (TH_LOW, `radius` x the predicted scale): the
+    /// projection search of loop closing's verification and fusion.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn match_by_projection(
+        &self,
+        m: &Map,
+        k: &KeyFrame,
+        pose: &Se3,
+        center: &Vec3,
+        points: &[MpId],
+        skip: impl Fn(MpId, &MapPoint) -> bool,
+        used: &mut BTreeSet<usize>,
+        radius: f64,
+    ) -> Vec<(usize, MpId)> {
         let mut out = Vec::new();
         for &mp in points {
-            if already.contains(&mp) {
-                continue;
-            }
             let Some(p) = m.points.get(&mp).filter(|p| !p.bad) else {
                 continue;
             };
-            if !p.in_viewing_range(&center) {
+            if skip(mp, p) || !p.in_viewing_range(center) {
                 continue;
             }
             let pc = apply(pose, &p.position);
