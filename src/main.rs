@@ -42,6 +42,10 @@ enum Command {
 fn main() -> std::process::ExitCode {
     die_quietly_on_closed_stdout();
     let cli = Cli::parse();
+    if let Err(e) = check_log_level(&cli.log) {
+        eprintln!("error: {e}");
+        return std::process::ExitCode::FAILURE;
+    }
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(&cli.log));
     tracing_subscriber::fmt()
@@ -65,6 +69,21 @@ fn main() -> std::process::ExitCode {
             eprintln!("error: {}", error_chain(&e));
             std::process::ExitCode::FAILURE
         }
+    }
+}
+
+/// `--log` takes a level or a RUST_LOG-style filter; a bare word that is no level would be read
+/// as a target name and silence every log line.
+fn check_log_level(log: &str) -> Result<(), String> {
+    const LEVELS: [&str; 6] = ["off", "error", "warn", "info", "debug", "trace"];
+    let is_filter = log.contains('=') || log.contains(',');
+    if is_filter || LEVELS.contains(&log.to_ascii_lowercase().as_str()) {
+        Ok(())
+    } else {
+        Err(format!(
+            "--log {log}: expected one of {} (or a filter such as info,stillpoint_slam=debug)",
+            LEVELS.join(", ")
+        ))
     }
 }
 

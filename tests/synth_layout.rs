@@ -109,4 +109,9 @@ fn cli_rejects_bad_arguments_with_clear_errors() {
     ]);
     assert!(ok);
     assert_eq!(lines(&Path::new(out).join("rgb.txt")).len(), 2);
+    let (ok, err) = run(&["run", "--dataset", out, "--no-dynamic", "--frames", "0"]);
+    assert!(!ok && err.contains("--frames 0: nothing to run"), "{err}");
+    // A bare word is no level: it would have silenced every log line.
+    let (ok, err) = run(&["--log", "bogus", "settings"]);
+    assert!(!ok && err.contains("--log bogus: expected one of"), "{err}");
 }

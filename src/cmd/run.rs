@@ -325,6 +325,9 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         }
     };
     let detector_name = o.detector.clone().unwrap_or_else(|| "off".into());
+    if o.frames == Some(0) {
+        bail!("--frames 0: nothing to run (give at least 1, or leave it out for every frame)");
+    }
     let n = o.frames.map_or(seq.len(), |f| f.min(seq.len()));
     if n == 0 {
         bail!("{}: the sequence has no frames", o.dataset.display());

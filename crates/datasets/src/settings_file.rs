@@ -336,7 +336,7 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
             ));
         }
     };
-    Ok(Settings {
+    let settings = Settings {
         rectification,
         sensor,
         camera,
@@ -346,7 +346,107 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
         th_depth: d.any(&["ThDepth", "Stereo.ThDepth"])?.unwrap_or(40.0),
         rgb: d.number("Camera.RGB")?.is_none_or(|v| v != 0.0),
         orb,
-    })
+    };
+    // The file's own key (ORB-SLAM2 or 3 spelling, whichever it has) and its line.
+    let key = |field: Field| -> String {
+        let keys: &[&str] = match field {
+            Field::Fx => &["Camera.fx", "Camera1.fx"],
+            Field::Fy => &["Camera.fy", "Camera1.fy"],
+            Field::Fps => &["Camera.fps"],
+            Field::DepthFactor => &["DepthMapFactor", "RGBD.DepthMapFactor"],
+            Field::Bf => &["Camera.bf", "Stereo.b"],
+            Field::ThDepth => &["ThDepth", "Stereo.ThDepth"],
+            Field::ScaleFactor => &["ORBextractor.scaleFactor"],
+            Field::NFeatures => &["ORBextractor.nFeatures"],
+            Field::NLevels => &["ORBextractor.nLevels"],
+        };
+        let found = keys.iter().find(|k| d.line_of(k) > 0).unwrap_or(&keys[0]);
+        match d.line_of(found) {
+            0 => found.to_string(),
+            line => format!("line {line}: {found}"),
+        }
+    };
+    check_values(&settings, key).map_err(|m| settings_err(path, m))?;
+    Ok(settings)
+}
+
+/// A settings value [`check_values`] can complain about.
+#[derive(Clone, Copy, Debug)]
+enum Field {
+    Fx,
+    Fy,
+    Fps,
+    DepthFactor,
+    Bf,
+    ThDepth,
+    ScaleFactor,
+    NFeatures,
+    NLevels,
+}
+
+/// Value ranges that parse but make nonsense (a focal length of 1e-300 px gave identity poses
+/// and exit code 0); `key` names a field as the file spells it.
+fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Result<(), String> {
+    let c = &s.camera;
+    let bad = |field: Field, why: &str| Err(format!("{} {why}", key(field)));
+    for (field, f) in [(Field::Fx, c.fx), (Field::Fy, c.fy)] {
+        if !(f.is_finite() && (1.0..=1e6).contains(&f)) {
+            return bad(field, &format!("= {f}: a focal length is 1 to 10^6 pixels"));
+        }
+    }
+    if !(s.fps.is_finite() && s.fps > 0.0) {
+        return bad(
+            Field::Fps,
+            &format!("= {}: frames per second must be positive", s.fps),
+        );
+    }
+    if s.sensor == Sensor::Rgbd && !(s.depth_factor.is_finite() && s.depth_factor > 0.0) {
+        return bad(
+            Field::DepthFactor,
+            &format!(
+                "= {}: depth units per metre must be positive (TUM: 5000)",
+                s.depth_factor
+            ),
+        );
+    }
+    if s.sensor == Sensor::Stereo
+        && let Some(bf) = s.bf
+        && !(bf.is_finite() && bf > 0.0)
+    {
+        return bad(
+            Field::Bf,
+            &format!("= {bf}: baseline x focal length must be positive"),
+        );
+    }
+    if !(s.th_depth.is_finite() && s.th_depth > 0.0) {
+        return bad(
+            Field::ThDepth,
+            &format!("= {}: must be positive", s.th_depth),
+        );
+    }
+    let o = &s.orb;
+    if !(o.scale_factor.is_finite() && o.scale_factor > 1.0 && o.scale_factor <= 4.0) {
+        return bad(
+            Field::ScaleFactor,
+            &format!(
+                "= {}: the pyramid's scale must be over 1 (ORB-SLAM: 1.2)",
+                o.scale_factor
+            ),
+        );
+    }
+    if o.n_features == 0 {
+        return bad(
+            Field::NFeatures,
+            "= 0: at least one feature (ORB-SLAM: 1000)",
+        );
+    }
+    if !(1..=32).contains(&o.n_levels) {
+        return bad(
+            Field::NLevels,
+            &format!("= {}: 1 to 32 levels (ORB-SLAM: 8)", o.n_levels),
+        );
+    }
+    Ok(())
 }
 
 /// Read stillpoint's TOML settings (the serde form of [`Settings`]).
@@ -395,6 +495,35 @@ pub fn parse_settings_toml(text: &str, path: &Path) -> Result<Settings, DatasetE
             "camera and rates must be finite, focal lengths positive",
         ));
     }
+    // TOML keys as `stillpoint settings` prints them, with the line where the file sets them.
+    let key = |field: Field| -> String {
+        let (table, name) = match field {
+            Field::Fx => ("camera", "fx"),
+            Field::Fy => ("camera", "fy"),
+            Field::Fps => ("", "fps"),
+            Field::DepthFactor => ("", "depth_factor"),
+            Field::Bf => ("", "bf"),
+            Field::ThDepth => ("", "th_depth"),
+            Field::ScaleFactor => ("orb", "scale_factor"),
+            Field::NFeatures => ("orb", "n_features"),
+            Field::NLevels => ("orb", "n_levels"),
+        };
+        let dotted = if table.is_empty() {
+            name.to_string()
+        } else {
+            format!("{table}.{name}")
+        };
+        let line = text.lines().position(|l| {
+            l.trim_start()
+                .strip_prefix(name)
+                .is_some_and(|r| r.trim_start().starts_with('='))
+        });
+        match line {
+            Some(i) => format!("line {}: {dotted}", i + 1),
+            None => dotted,
+        }
+    };
+    check_values(&s, key).map_err(|m| settings_err(path, m))?;
     Ok(s)
 }
 

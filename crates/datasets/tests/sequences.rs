@@ -226,6 +226,42 @@ fn orbslam_yaml_dialect_and_toml_form() {
     assert!(e.starts_with("t.toml: line 3"), "{e}");
 }
 
+/// Values that parse but make nonsense are refused, naming the file, the line and the key.
+#[test]
+fn settings_out_of_range_are_errors_naming_file_line_and_key() {
+    let base = "%YAML:1.0\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\n\
+                Camera.width: 640\nCamera.height: 480\nDepthMapFactor: 5000\n";
+    assert!(parse_orbslam_yaml(base, "ok.yaml".as_ref()).is_ok());
+    for (change, key) in [
+        ("Camera.fx: 500", "Camera.fx: 1e-300"),
+        ("DepthMapFactor: 5000", "DepthMapFactor: -1"),
+        (
+            "DepthMapFactor: 5000",
+            "DepthMapFactor: 5000\nORBextractor.scaleFactor: 1.0",
+        ),
+        (
+            "DepthMapFactor: 5000",
+            "DepthMapFactor: 5000\nORBextractor.nFeatures: 0",
+        ),
+    ] {
+        let text = base.replace(change, key);
+        let e = parse_orbslam_yaml(&text, "bad.yaml".as_ref())
+            .unwrap_err()
+            .to_string();
+        let name = key.lines().last().unwrap().split(':').next().unwrap();
+        assert!(
+            e.starts_with("bad.yaml: line ") && e.contains(name),
+            "{key}: {e}"
+        );
+    }
+    let toml = "sensor = \"rgbd\"\ndepth_factor = 0.0\n[camera]\nfx = 500.0\nfy = 500.0\n\
+                cx = 320.0\ncy = 240.0\nwidth = 640\nheight = 480\n";
+    let e = parse_settings_toml(toml, "bad.toml".as_ref())
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with("bad.toml: line 2: depth_factor"), "{e}");
+}
+
 #[test]
 fn stereo_rectification_blocks_are_read_whole_and_checked_against_the_camera() {
     let head = "%YAML:1.0\nCamera.fx: 400\nCamera.fy: 400\nCamera.cx: 320\nCamera.cy: 240\n\
