@@ -41,6 +41,7 @@ enum Command {
 
 fn main() -> std::process::ExitCode {
     die_quietly_on_closed_stdout();
+    finish_cleanly_on_interrupt();
     let cli = Cli::parse();
     if let Err(e) = check_log_level(&cli.log) {
         eprintln!("error: {e}");
@@ -112,5 +113,32 @@ fn die_quietly_on_closed_stdout() {
     // SAFETY: called first in main, before any thread exists; SIG_DFL is a valid action.
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
+static INTERRUPTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Ctrl-C or SIGTERM was received: long commands stop taking frames and finish their files
+/// (the trajectory rewritten through the keyframes, the keyframe file) instead of dying with
+/// them half written. A second signal ends the process at once.
+pub fn interrupted() -> bool {
+    INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst)
+}
+
+extern "C" fn on_interrupt(signal: libc::c_int) {
+    INTERRUPTED.store(true, std::sync::atomic::Ordering::SeqCst);
+    // SAFETY: signal() is async-signal-safe; SIG_DFL is a valid action.
+    unsafe {
+        libc::signal(signal, libc::SIG_DFL);
+    }
+}
+
+fn finish_cleanly_on_interrupt() {
+    #[cfg(unix)]
+    // SAFETY: called at the start of main; the handler only stores an atomic and resets itself.
+    unsafe {
+        let handler = on_interrupt as extern "C" fn(libc::c_int) as libc::sighandler_t;
+        libc::signal(libc::SIGINT, handler);
+        libc::signal(libc::SIGTERM, handler);
     }
 }

@@ -111,6 +111,16 @@ fn cli_rejects_bad_arguments_with_clear_errors() {
     assert_eq!(lines(&Path::new(out).join("rgb.txt")).len(), 2);
     let (ok, err) = run(&["run", "--dataset", out, "--no-dynamic", "--frames", "0"]);
     assert!(!ok && err.contains("--frames 0: nothing to run"), "{err}");
+    // Another run holds the trajectory file: this one stops before touching it.
+    let busy = dir.path().join("busy.txt");
+    std::fs::write(&busy, "0 0 0 0 0 0 0 1\n").unwrap();
+    let holder = std::fs::OpenOptions::new().write(true).open(&busy).unwrap();
+    holder.lock().unwrap();
+    let busy_arg = busy.to_str().unwrap();
+    let (ok, err) = run(&["run", "--dataset", out, "--no-dynamic", "--out", busy_arg]);
+    assert!(!ok && err.contains("another run is writing"), "{err}");
+    assert_eq!(std::fs::read_to_string(&busy).unwrap(), "0 0 0 0 0 0 0 1\n");
+    drop(holder);
     // A bare word is no level: it would have silenced every log line.
     let (ok, err) = run(&["--log", "bogus", "settings"]);
     assert!(!ok && err.contains("--log bogus: expected one of"), "{err}");

@@ -332,6 +332,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     if n == 0 {
         bail!("{}: the sequence has no frames", o.dataset.display());
     }
+    let _lock = o.out.as_deref().map(lock_output).transpose()?;
     let mut writer = match &o.out {
         Some(p) => Some(TumWriter::create(p).with_context(|| format!("creating {}", p.display()))?),
         None => None,
@@ -366,6 +367,10 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     let mut depth_scale_checked = false;
     let mut next_index = 0;
     loop {
+        if crate::interrupted() {
+            tracing::warn!("interrupted: finishing the map and the trajectory files");
+            break;
+        }
         let (i, loaded, arrival) = match camera.as_mut() {
             Some(c) => match c.next() {
                 Some(f) => f,
@@ -503,6 +508,27 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         loops,
         realtime: camera.is_some().then_some(realtime),
     })
+}
+
+/// An exclusive lock on the trajectory file for the whole run, taken before the file is
+/// emptied: a second run given the same `--out` fails at once instead of writing into it.
+fn lock_output(path: &Path) -> anyhow::Result<std::fs::File> {
+    let file = std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(path)
+        .with_context(|| format!("opening {}", path.display()))?;
+    match file.try_lock() {
+        Ok(()) => Ok(file),
+        Err(std::fs::TryLockError::WouldBlock) => bail!(
+            "{}: another run is writing this trajectory (give each run its own --out)",
+            path.display()
+        ),
+        Err(std::fs::TryLockError::Error(e)) => {
+            Err(e).with_context(|| format!("locking {}", path.display()))
+        }
+    }
 }
 
 fn ms_since(t: Instant) -> f64 {
@@ -873,6 +899,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     if s.tracked == 0 {
         bail!("no frame could be tracked");
+    }
+    if crate::interrupted() {
+        bail!(
+            "interrupted after {} of {} frames; the trajectory and keyframe files are complete",
+            s.culled_per_frame.len(),
+            s.frames
+        );
     }
     Ok(())
 }

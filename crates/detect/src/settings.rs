@@ -43,6 +43,9 @@ impl std::str::FromStr for Backend {
     }
 }
 
+/// Most intra-op threads a detector may ask for (100,000 hung).
+pub const MAX_THREADS: usize = 256;
+
 /// Settings of the YOLOX detector (the `[detect]` table of a stillpoint TOML settings file).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -85,7 +88,8 @@ impl Default for DetectSettings {
 }
 
 impl DetectSettings {
-    /// Reject settings that would silently give nonsense (NaN thresholds, zero threads).
+    /// Reject settings that would silently give nonsense (NaN thresholds, zero threads, or
+    /// 100,000 threads, which hung).
     pub fn validate(&self) -> Result<(), crate::DetectError> {
         let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
         if !unit(self.conf_threshold) || !unit(self.nms_threshold) {
@@ -94,9 +98,9 @@ impl DetectSettings {
                 self.conf_threshold, self.nms_threshold
             )));
         }
-        if self.threads == 0 || !self.pad_value.is_finite() {
+        if !(1..=MAX_THREADS).contains(&self.threads) || !self.pad_value.is_finite() {
             return Err(crate::DetectError::BadInput(format!(
-                "detect settings: threads must be at least 1 and the pad value finite (threads {}, pad {})",
+                "detect settings: threads must be 1 to {MAX_THREADS} and the pad value finite (threads {}, pad {})",
                 self.threads, self.pad_value
             )));
         }

@@ -216,6 +216,12 @@ pub fn decode(
             }
         }
     }
+    // NMS is quadratic in the candidates: a model whose every row is confident (6300 rows x 80
+    // classes) took ~8 s a frame. Keep the best MAX_NMS_CANDIDATES, as detectors' `nms_pre` does.
+    if candidates.len() > MAX_NMS_CANDIDATES {
+        candidates.select_nth_unstable_by(MAX_NMS_CANDIDATES, |a, b| b.score.total_cmp(&a.score));
+        candidates.truncate(MAX_NMS_CANDIDATES);
+    }
     let kept = nms_class_aware(candidates, params.nms_threshold);
     let (iw, ih) = (image.0 as f32, image.1 as f32);
     let mut out: Vec<Detection> = kept
@@ -233,6 +239,9 @@ pub fn decode(
     out.sort_by(|a, b| b.score.total_cmp(&a.score));
     Ok(out)
 }
+
+/// Boxes kept for non-maximum suppression, best scores first (a real frame has a few dozen).
+pub const MAX_NMS_CANDIDATES: usize = 1000;
 
 /// IoU as YOLOX's `demo_utils.nms` computes it: integer-pixel areas `(x2 - x1 + 1) * (y2 - y1 + 1)`.
 /// Kept (rather than `BBox::iou`) so suppression decisions match the reference pipeline.
@@ -412,6 +421,23 @@ mod tests {
             &PostParams::default(),
         );
         assert!(dets.unwrap().is_empty());
+    }
+
+    #[test]
+    fn a_model_confident_everywhere_is_capped_before_nms() {
+        // Every row of a 480x640 head confident for every class: 6300 x 80 candidates.
+        let (h, w, k) = (480usize, 640usize, 85usize);
+        let rows = (h / 8) * (w / 8) + (h / 16) * (w / 16) + (h / 32) * (w / 32);
+        let mut out = vec![0.9f32; rows * k];
+        for r in 0..rows {
+            out[r * k..r * k + 4].copy_from_slice(&[0.5, 0.5, 0.0, 0.0]);
+        }
+        let params = PostParams {
+            conf_threshold: 0.3,
+            nms_threshold: 0.45,
+        };
+        let dets = decode(&out, &[1, rows, k], (h, w), 1.0, (w, h), &params).unwrap();
+        assert!(!dets.is_empty() && dets.len() <= MAX_NMS_CANDIDATES);
     }
 
     #[test]
