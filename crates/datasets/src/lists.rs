@@ -8,6 +8,8 @@ use std::path::{Path, PathBuf};
 /// skipped.
 pub(crate) fn data_lines(path: &Path) -> Result<Vec<(usize, String)>, DatasetError> {
     let bytes = std::fs::read(path).map_err(io_err(path))?;
+    // Windows editors start UTF-8 files with a byte-order mark; it is not part of the first line.
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes);
     let mut out = Vec::new();
     for (i, raw) in bytes.split(|&b| b == b'\n').enumerate() {
         let text = std::str::from_utf8(raw)

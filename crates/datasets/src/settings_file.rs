@@ -201,7 +201,8 @@ impl Doc<'_> {
 pub fn read_orbslam_yaml(path: &Path) -> Result<Settings, DatasetError> {
     let raw = std::fs::read(path).map_err(io_err(path))?;
     let text = String::from_utf8(raw).map_err(|_| settings_err(path, "file is not valid UTF-8"))?;
-    parse_orbslam_yaml(&text, path)
+    // A byte-order mark (Windows editors) is not part of the first key.
+    parse_orbslam_yaml(text.strip_prefix('\u{feff}').unwrap_or(&text), path)
 }
 
 /// Parse the text of an ORB-SLAM settings file; `path` names it in messages.
@@ -468,7 +469,7 @@ fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Result<(), Strin
 /// ```
 pub fn read_settings_toml(path: &Path) -> Result<Settings, DatasetError> {
     let text = std::fs::read_to_string(path).map_err(io_err(path))?;
-    parse_settings_toml(&text, path)
+    parse_settings_toml(text.strip_prefix('\u{feff}').unwrap_or(&text), path)
 }
 
 /// Parse the TOML settings text; `path` names it in messages.

@@ -254,6 +254,14 @@ fn settings_out_of_range_are_errors_naming_file_line_and_key() {
             "{key}: {e}"
         );
     }
+    // A byte-order mark (Windows editors) is no part of the first key.
+    let d = tempfile::tempdir().unwrap();
+    let bom = d.path().join("bom.yaml");
+    std::fs::write(&bom, format!("\u{feff}{base}")).unwrap();
+    assert_eq!(
+        stillpoint_datasets::read_settings(&bom).unwrap().camera.fx,
+        500.0
+    );
     let toml = "sensor = \"rgbd\"\ndepth_factor = 0.0\n[camera]\nfx = 500.0\nfy = 500.0\n\
                 cx = 320.0\ncy = 240.0\nwidth = 640\nheight = 480\n";
     let e = parse_settings_toml(toml, "bad.toml".as_ref())

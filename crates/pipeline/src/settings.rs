@@ -180,6 +180,7 @@ impl SettingsTree {
                 path: path.to_path_buf(),
                 error,
             })?;
+            let text = text.strip_prefix('\u{feff}').unwrap_or(&text).to_string();
             let mut user: toml::Table =
                 text.parse()
                     .map_err(|e: toml::de::Error| SettingsError::Syntax {

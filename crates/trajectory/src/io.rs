@@ -43,7 +43,8 @@ pub fn read_trajectory(
     format: TrajectoryFormat,
 ) -> Result<Trajectory, TrajectoryError> {
     let bytes = std::fs::read(path).map_err(io_err(path))?;
-    parse(&bytes, &path.display().to_string(), format, false).map(|(t, _)| t)
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes);
+    parse(bytes, &path.display().to_string(), format, false).map(|(t, _)| t)
 }
 
 /// Read a trajectory file, keeping poses with a timestamp equal to the previous one, as evo does
@@ -55,7 +56,8 @@ pub fn read_trajectory_lenient(
     format: TrajectoryFormat,
 ) -> Result<(Trajectory, Vec<usize>), TrajectoryError> {
     let bytes = std::fs::read(path).map_err(io_err(path))?;
-    parse(&bytes, &path.display().to_string(), format, true)
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes);
+    parse(bytes, &path.display().to_string(), format, true)
 }
 
 /// Parse text in the given format; with `allow_duplicates`, equal stamps are kept and their lines
