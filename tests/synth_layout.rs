@@ -121,6 +121,22 @@ fn cli_rejects_bad_arguments_with_clear_errors() {
     assert!(!ok && err.contains("another run is writing"), "{err}");
     assert_eq!(std::fs::read_to_string(&busy).unwrap(), "0 0 0 0 0 0 0 1\n");
     drop(holder);
+    // A run that tracks nothing says why.
+    let none = dir.path().join("none.txt");
+    let (ok, err) = run(&[
+        "run",
+        "--dataset",
+        out,
+        "--no-dynamic",
+        "--set",
+        "slam.init_min_keypoints=100000",
+        "--out",
+        none.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && err.contains("no frame could be tracked: the most keypoints a frame kept was"),
+        "{err}"
+    );
     // A bare word is no level: it would have silenced every log line.
     let (ok, err) = run(&["--log", "bogus", "settings"]);
     assert!(!ok && err.contains("--log bogus: expected one of"), "{err}");

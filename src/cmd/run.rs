@@ -137,6 +137,8 @@ pub struct RunSummary {
     pub loops: Option<stillpoint_slam::module::loop_closing::LoopStats>,
     /// With `--realtime`: what the replay at camera rate processed, dropped and how late.
     pub realtime: Option<RealtimeReport>,
+    /// Why no frame could be tracked, when none was (features, depth, initialisation).
+    pub untracked_reason: Option<String>,
 }
 
 /// A replay at camera rate (`run --realtime`).
@@ -357,6 +359,11 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         None
     };
     let mut realtime = RealtimeReport::default();
+    let pipeline_settings_init = (
+        pipeline_settings.slam.init_min_keypoints,
+        pipeline_settings.slam.init_min_with_depth,
+        pipeline_settings.slam.init_min_cells_with_depth,
+    );
     let mut pipeline = Pipeline::new(pipeline_settings, front, vocabulary);
     let mut times: Vec<FrameTimings> = Vec::with_capacity(n);
     let mut written: Option<f64> = None;
@@ -365,6 +372,8 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     let has_masks = o.dataset.join("mask").is_dir();
     let mut moving_kept = Vec::new();
     let mut depth_scale_checked = false;
+    // For a run that tracks nothing: what the frames offered.
+    let (mut frames_read, mut frames_with_depth, mut most_keypoints) = (0usize, 0usize, 0usize);
     let mut next_index = 0;
     loop {
         if crate::interrupted() {
@@ -391,6 +400,8 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             }
         };
         let started = Instant::now();
+        frames_read += 1;
+        frames_with_depth += usize::from(frame.depth.is_some() || frame.right.is_some());
         if let (false, Some(depth)) = (depth_scale_checked, &frame.depth) {
             // The first frame with depth: a wrong factor scales the whole trajectory silently.
             depth_scale_checked = true;
@@ -408,6 +419,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             realtime.latency_ms.push(ms_since(arrival));
         }
         let n_culled = r.culled();
+        most_keypoints = most_keypoints.max(r.keypoints.len() - n_culled);
         culled.push(n_culled);
         if has_masks {
             let mask = moving_mask(&o.dataset, frame.timestamp);
@@ -507,6 +519,29 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         moving_map_points,
         loops,
         realtime: camera.is_some().then_some(realtime),
+        untracked_reason: (tracked == 0).then(|| {
+            let init = &pipeline_settings_init;
+            if frames_read == 0 {
+                "no frame could be read".to_string()
+            } else if ds.sensor != Sensor::Mono && frames_with_depth == 0 {
+                format!(
+                    "none of the {frames_read} frames had depth (an RGB-D map starts from depth: \
+                     check depth.txt and the depth images)"
+                )
+            } else if most_keypoints < init.0 {
+                format!(
+                    "the most keypoints a frame kept was {most_keypoints}; a map starts with \
+                     {} (slam.init_min_keypoints; plain or dark images, or the front-end culled them)",
+                    init.0
+                )
+            } else {
+                format!(
+                    "the map never started: up to {most_keypoints} keypoints a frame, but fewer than \
+                     {} with depth, or spread over fewer than {} of the 16 image cells",
+                    init.1, init.2
+                )
+            }
+        }),
     })
 }
 
@@ -898,7 +933,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         print_summary(&s);
     }
     if s.tracked == 0 {
-        bail!("no frame could be tracked");
+        match &s.untracked_reason {
+            Some(why) => bail!("no frame could be tracked: {why}"),
+            None => bail!("no frame could be tracked"),
+        }
     }
     if crate::interrupted() {
         bail!(
