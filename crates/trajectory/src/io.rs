@@ -370,26 +370,43 @@ pub fn write_kitti(path: &Path, traj: &Trajectory) -> Result<(), TrajectoryError
 pub struct TumWriter {
     file: std::fs::File,
     path: std::path::PathBuf,
+    /// Bytes of whole lines written so far.
+    len: u64,
 }
 
 impl TumWriter {
     /// Create (truncate) the file and write the header comment.
     pub fn create(path: &Path) -> Result<Self, TrajectoryError> {
         let mut file = std::fs::File::create(path).map_err(io_err(path))?;
-        file.write_all(b"# timestamp tx ty tz qx qy qz qw\n")
-            .map_err(io_err(path))?;
+        const HEADER: &[u8] = b"# timestamp tx ty tz qx qy qz qw\n";
+        file.write_all(HEADER).map_err(io_err(path))?;
         Ok(Self {
             file,
             path: path.to_path_buf(),
+            len: HEADER.len() as u64,
         })
     }
 
-    /// Append one pose (camera-to-world) and flush it.
+    /// Append one pose (camera-to-world) and flush it. When the write fails part way (disk
+    /// full), the partial line is cut off again: the file holds whole lines only.
     pub fn write(&mut self, t: f64, pose: &Se3) -> Result<(), TrajectoryError> {
+        use std::io::{Seek, SeekFrom};
+        let line = tum_line(t, pose);
         // One unbuffered write per line: the line is in the file when this returns.
-        self.file
-            .write_all(tum_line(t, pose).as_bytes())
+        match self
+            .file
+            .write_all(line.as_bytes())
             .and_then(|()| self.file.flush())
-            .map_err(io_err(&self.path))
+        {
+            Ok(()) => {
+                self.len += line.len() as u64;
+                Ok(())
+            }
+            Err(e) => {
+                let _ = self.file.set_len(self.len);
+                let _ = self.file.seek(SeekFrom::Start(self.len));
+                Err(io_err(&self.path)(e))
+            }
+        }
     }
 }
