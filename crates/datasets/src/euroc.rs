@@ -155,6 +155,12 @@ impl EurocSequence {
             }
             Some(paths)
         } else {
+            if settings.sensor == Sensor::Stereo {
+                tracing::warn!(
+                    "{}: stereo settings but no cam1/data.csv: running monocular",
+                    mav.display()
+                );
+            }
             None
         };
         let rectify_maps = settings
