@@ -299,6 +299,8 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         }
         None => None,
     };
+    // What ran: the detector's name, backend and input size (`yolox-tract 640x480`).
+    let mut detector_desc = "off".to_string();
     let front = match &o.detector {
         None => None,
         Some(name) => {
@@ -314,6 +316,10 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
                 GtDetectorParams::default(),
             )
             .with_context(|| format!("opening the {name} detector"))?;
+            detector_desc = match detector.input_size() {
+                Some((h, w)) => format!("{} {w}x{h}", detector.name()),
+                None => detector.name().to_string(),
+            };
             let front = DynamicFrontEnd::new(detector, tree.front_end.clone());
             if tree.front_end.detector_in_background || o.realtime {
                 Some(
@@ -326,7 +332,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
             }
         }
     };
-    let detector_name = o.detector.clone().unwrap_or_else(|| "off".into());
+    let detector_name = detector_desc;
     if o.frames == Some(0) {
         bail!("--frames 0: nothing to run (give at least 1, or leave it out for every frame)");
     }

@@ -118,6 +118,9 @@ impl Detector for YoloxDetector {
     fn name(&self) -> &str {
         &self.name
     }
+    fn input_size(&self) -> Option<(usize, usize)> {
+        Some(self.backend.input_size())
+    }
 }
 
 /// Detector names accepted by [`open_detector`].

@@ -54,6 +54,10 @@ pub trait Detector: Send {
     fn detect(&mut self, input: &DetectInput) -> Result<Vec<Detection>, DetectError>;
     /// Short name for logs (`"none"`, `"gt"`, `"yolox-tract"`, ...).
     fn name(&self) -> &str;
+    /// The network's input (height, width), for a detector that has one.
+    fn input_size(&self) -> Option<(usize, usize)> {
+        None
+    }
 }
 
 impl<D: Detector + ?Sized> Detector for Box<D> {
@@ -62,5 +66,8 @@ impl<D: Detector + ?Sized> Detector for Box<D> {
     }
     fn name(&self) -> &str {
         (**self).name()
+    }
+    fn input_size(&self) -> Option<(usize, usize)> {
+        (**self).input_size()
     }
 }
