@@ -42,6 +42,22 @@ pub enum DatasetError {
         /// What is missing.
         msg: String,
     },
+    /// An image of another size than the settings' camera.
+    #[error(
+        "{path}: image is {width}x{height} but the settings say {expected_width}x{expected_height} (give the settings of this camera)"
+    )]
+    SizeMismatch {
+        /// The image.
+        path: String,
+        /// Its size.
+        width: usize,
+        /// Its size.
+        height: usize,
+        /// The camera's size in the settings.
+        expected_width: u32,
+        /// The camera's size in the settings.
+        expected_height: u32,
+    },
     /// A frame index past the end.
     #[error("frame {index} is out of range: the sequence has {len} frames")]
     OutOfRange {

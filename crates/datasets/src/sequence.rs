@@ -131,14 +131,23 @@ pub fn open(
         None => detect_kind(dir)?,
     };
     let settings = settings.map(crate::read_settings).transpose()?;
-    Ok(match kind {
+    let seq: Box<dyn Sequence> = match kind {
         DatasetKind::Tum | DatasetKind::Synth => {
             Box::new(crate::tum::TumSequence::open(dir, settings)?)
         }
         DatasetKind::Kitti => Box::new(crate::kitti::KittiSequence::open(dir, settings)?),
         DatasetKind::Euroc => Box::new(crate::euroc::EurocSequence::open(dir, settings)?),
         DatasetKind::Folder => Box::new(crate::folder::FolderSequence::open(dir, settings)?),
-    })
+    };
+    // Images of another size than the camera are a wrong settings file, not a bad frame: say
+    // so now rather than skipping every frame. (Other faults of frame 0 are left to the run,
+    // which skips bad frames.)
+    if !seq.is_empty()
+        && let Err(e @ DatasetError::SizeMismatch { .. }) = seq.frame(0)
+    {
+        return Err(e);
+    }
+    Ok(seq)
 }
 
 pub(crate) fn dir_name(dir: &Path) -> String {
@@ -166,12 +175,12 @@ pub(crate) fn check_size(
     if w == s.camera.width as usize && h == s.camera.height as usize {
         Ok(())
     } else {
-        Err(layout_err(
-            path,
-            format!(
-                "image is {w}x{h} but the settings say {}x{}",
-                s.camera.width, s.camera.height
-            ),
-        ))
+        Err(DatasetError::SizeMismatch {
+            path: path.display().to_string(),
+            width: w,
+            height: h,
+            expected_width: s.camera.width,
+            expected_height: s.camera.height,
+        })
     }
 }

@@ -59,6 +59,17 @@ fn tum_layout_reads_lazily_and_associates_depth() {
     std::fs::write(d.path().join("boxes.jsonl"), "").unwrap();
     assert_eq!(detect_kind(d.path()).unwrap(), DatasetKind::Synth);
     assert!(open(d.path(), None, None).unwrap().boxes().is_some());
+    // Settings of another camera: an error when the sequence is opened, not frame by frame.
+    let other = Settings::with_camera(
+        Sensor::Rgbd,
+        PinholeCamera::new(40.0, 40.0, 32.0, 24.0, 64, 48),
+    );
+    write_settings_toml(&d.path().join("settings.toml"), &other).unwrap();
+    let e = open(d.path(), None, None).err().unwrap().to_string();
+    assert!(
+        e.contains("image is 32x24 but the settings say 64x48"),
+        "{e}"
+    );
 }
 
 #[test]
