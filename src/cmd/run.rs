@@ -163,7 +163,9 @@ struct ReplayCamera {
 
 impl ReplayCamera {
     fn start(seq: Box<dyn Sequence>, n: usize) -> Self {
-        let (tx, rx) = std::sync::mpsc::sync_channel(4);
+        // Unbounded: the camera never waits for the consumer (a bounded queue would hold it back
+        // and hide drops); the consumer takes all that arrived each time, so it stays short.
+        let (tx, rx) = std::sync::mpsc::channel();
         std::thread::Builder::new()
             .name("replay camera".into())
             .spawn(move || {
