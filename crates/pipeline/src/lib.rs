@@ -35,7 +35,6 @@ use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::DynamicFrontEnd;
 use stillpoint_frontend::{FilterInput, KeypointFilter};
 use stillpoint_geometry::Se3;
-use stillpoint_slam::data::FreeSpaceCheck;
 use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths};
 use stillpoint_slam::module::loop_closing::LoopStats;
 use stillpoint_slam::place::Vocabulary;
@@ -344,7 +343,7 @@ impl Pipeline {
         if let Some(f) = self.front_end.as_mut() {
             f.observe_pose(frame.index, report.pose_wc.as_ref());
         }
-        self.map_hygiene_against_depth(frame, report.pose_wc.as_ref());
+        self.erase_recent_points_on_movers(frame, report.pose_wc.as_ref());
         if let Some(p) = report.pose_wc
             && self.stamps.last().is_none_or(|&l| frame.timestamp > l)
         {
@@ -368,32 +367,14 @@ impl Pipeline {
         })
     }
 
-    /// Map hygiene after tracking (RGB-D): points the depth image sees through leave the map
-    /// (`SlamSettings::erase_seen_through_after`), and so do points made in the last frames on
-    /// the surface of objects judged moving in this one
+    /// Map hygiene after tracking (RGB-D; the points the depth image sees through leave in
+    /// `slam::System` itself): points made in the last frames on the surface of objects judged
+    /// moving in this one leave the map
     /// (`FrontEndSettings::erase_recent_mover_points_frames`).
-    fn map_hygiene_against_depth(&mut self, frame: &Frame, pose_wc: Option<&Se3>) {
-        let (Some(depth), Some(pose_wc)) = (frame.depth.as_ref(), pose_wc) else {
-            return;
-        };
-        let cam = &self.system.settings.camera;
-        let s = &self.system.settings;
-        let check = FreeSpaceCheck {
-            bf: s.bf,
-            gap_px: s.seen_through_gap_px,
-            erase_after: s.erase_seen_through_after,
-        };
-        let seen_through = self.system.map().lock().map_or(0, |mut m| {
-            m.erase_points_seen_through(&pose_wc.inverse(), cam, depth, &check)
-        });
-        if seen_through > 0 {
-            tracing::debug!(
-                frame = frame.index,
-                seen_through,
-                "map points seen through erased"
-            );
-        }
-        let Some(f) = self.front_end.as_ref() else {
+    fn erase_recent_points_on_movers(&mut self, frame: &Frame, pose_wc: Option<&Se3>) {
+        let (Some(f), Some(depth), Some(pose_wc)) =
+            (self.front_end.as_ref(), frame.depth.as_ref(), pose_wc)
+        else {
             return;
         };
         let Some(mask) = f.mover_surface_mask(depth) else {

@@ -4,11 +4,12 @@
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
+use tracing::debug;
 
 use stillpoint_geometry::Se3;
 use stillpoint_image::DepthMetres;
 
-use crate::data::{KfId, Map};
+use crate::data::{FreeSpaceCheck, KfId, Map};
 use crate::module::local_mapping::{LocalMapper, MapperHooks, MapperThread};
 use crate::module::loop_closing::{LoopCloser, LoopStats, LoopThread};
 use crate::module::tracking::Tracker;
@@ -187,6 +188,7 @@ impl System {
                 msg: "timestamp is not finite".into(),
             });
         }
+        let depth: KeypointDepth<'d> = depth.into();
         let frame = Frame::new_with_mask(
             index,
             timestamp,
@@ -234,6 +236,9 @@ impl System {
         if let Some(kf) = outcome.new_keyframe {
             self.insert_keyframe(kf)?;
         }
+        if let (KeypointDepth::Map(image), Some(pose_wc)) = (depth, outcome.pose_wc) {
+            self.erase_points_seen_through(index, &pose_wc.inverse(), image);
+        }
         Ok(FrameReport {
             index,
             timestamp,
@@ -246,6 +251,23 @@ impl System {
             new_map: outcome.new_map,
             tracking_ms,
         })
+    }
+
+    /// RGB-D map hygiene after each tracked frame: map points the depth image sees through
+    /// leave the map (`Map::erase_points_seen_through`, `SlamSettings::erase_seen_through_after`).
+    fn erase_points_seen_through(&self, index: usize, pose_cw: &Se3, depth: &DepthMetres) {
+        let s = &self.settings;
+        let check = FreeSpaceCheck {
+            bf: s.bf,
+            gap_px: s.seen_through_gap_px,
+            erase_after: s.erase_seen_through_after,
+        };
+        let erased = self.map.lock().map_or(0, |mut m| {
+            m.erase_points_seen_through(pose_cw, &s.camera, depth, &check)
+        });
+        if erased > 0 {
+            debug!(frame = index, erased, "map points seen through erased");
+        }
     }
 
     fn insert_keyframe(&mut self, kf: KfId) -> Result<(), SlamError> {
