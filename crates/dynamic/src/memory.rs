@@ -70,9 +70,7 @@ pub fn carry_forward(
                 .any(|d| d.class_id == r.class_id && refinds(&d.bbox, &r.bbox, p))
         })
         .filter_map(|r| {
-            let (dx, dy) = median_flow(&r.bbox, pts);
-            let b = &r.bbox;
-            let bbox = BBox::new(b.x1 + dx, b.y1 + dy, b.x2 + dx, b.y2 + dy);
+            let bbox = moved_by_flow(&r.bbox, pts);
             let finite = [bbox.x1, bbox.y1, bbox.x2, bbox.y2]
                 .iter()
                 .all(|v| v.is_finite());
@@ -146,9 +144,16 @@ fn refinds(det: &BBox, remembered: &BBox, p: &BoxMemoryParams) -> bool {
     det.iou(remembered) >= p.min_iou || (area > 0.0 && w * h >= p.min_covered * area)
 }
 
+/// `bbox` moved by the median flow (`prev -> cur`) of the points that started strictly inside
+/// it; unmoved with none.
+pub fn moved_by_flow(bbox: &BBox, pts: &[TrackedPoint]) -> BBox {
+    let (dx, dy) = median_flow(bbox, pts);
+    BBox::new(bbox.x1 + dx, bbox.y1 + dy, bbox.x2 + dx, bbox.y2 + dy)
+}
+
 /// Median (dx, dy) of the flows of the points that started strictly inside `bbox`; (0, 0) with
 /// none.
-pub fn median_flow(bbox: &BBox, pts: &[TrackedPoint]) -> (f32, f32) {
+fn median_flow(bbox: &BBox, pts: &[TrackedPoint]) -> (f32, f32) {
     let (mut dx, mut dy): (Vec<f32>, Vec<f32>) = pts
         .iter()
         .filter(|t| bbox.contains_strict(t.prev[0], t.prev[1]))

@@ -266,10 +266,7 @@ impl BackgroundDetector {
             let from = l.at;
             for (index, pts) in self.tracks.iter().filter(|(i, _)| *i > from) {
                 for d in &mut l.boxes {
-                    let (dx, dy) = stillpoint_dynamic::median_flow(&d.bbox, pts);
-                    let b = d.bbox;
-                    d.bbox =
-                        stillpoint_geometry::BBox::new(b.x1 + dx, b.y1 + dy, b.x2 + dx, b.y2 + dy);
+                    d.bbox = stillpoint_dynamic::moved_by_flow(&d.bbox, pts);
                 }
                 l.at = *index;
             }
