@@ -646,8 +646,16 @@ pub fn stats(v: &[f64]) -> (f64, f64, f64) {
     let mut s = v.to_vec();
     s.sort_by(|a, b| a.total_cmp(b));
     let mean = s.iter().sum::<f64>() / s.len() as f64;
-    let at = |q: f64| s[((s.len() - 1) as f64 * q).round() as usize];
-    (mean, at(0.5), at(0.9))
+    (mean, quantile(&s, 0.5), quantile(&s, 0.9))
+}
+
+/// The value at quantile `q` (0..1, nearest rank) of sorted values; 0 when there are none.
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    let last = sorted.len().saturating_sub(1);
+    sorted
+        .get((last as f64 * q).round() as usize)
+        .copied()
+        .unwrap_or(0.0)
 }
 
 /// How a run's trajectory is aligned to the ground truth: SE(3), as the paper, or Sim(3) for a
@@ -811,21 +819,23 @@ pub fn summary_json(s: &RunSummary) -> serde_json::Value {
 /// The replay at camera rate in the JSON summary (`frames_processed`, `frames_dropped`,
 /// `latency_ms`, `ate_m` as the README states them).
 fn realtime_json(r: &RealtimeReport, ate_m: Option<f64>) -> serde_json::Value {
-    let q = |v: &[f64], p: f64| {
-        let mut s = v.to_vec();
-        s.sort_by(f64::total_cmp);
-        s.get(((s.len().max(1) - 1) as f64 * p).round() as usize)
-            .copied()
-            .unwrap_or(0.0)
-    };
-    let (mean_ms, _, _) = stats(&r.processing_ms);
+    let [median, p95, max] = r.latency_quantiles();
     serde_json::json!({
         "frames_processed": r.frames_processed,
         "frames_dropped": r.frames_dropped,
-        "latency_ms": {"median": q(&r.latency_ms, 0.5), "p95": q(&r.latency_ms, 0.95), "max": q(&r.latency_ms, 1.0)},
-        "processing_ms_mean": mean_ms,
+        "latency_ms": {"median": median, "p95": p95, "max": max},
+        "processing_ms_mean": stats(&r.processing_ms).0,
         "ate_m": ate_m,
     })
+}
+
+impl RealtimeReport {
+    /// Latency median, p95 and max, ms.
+    fn latency_quantiles(&self) -> [f64; 3] {
+        let mut s = self.latency_ms.clone();
+        s.sort_by(f64::total_cmp);
+        [0.5, 0.95, 1.0].map(|q| quantile(&s, q))
+    }
 }
 
 pub fn print_summary(s: &RunSummary) {
@@ -871,15 +881,12 @@ pub fn print_summary(s: &RunSummary) {
     }
     print_culled_row(s);
     if let Some(r) = &s.realtime {
-        let j = realtime_json(r, None);
+        let [median, p95, max] = r.latency_quantiles();
         println!(
-            "real time: {} frames processed, {} dropped; latency median {:.1} ms, p95 {:.1}, max {:.1}; {:.1} ms a processed frame",
+            "real time: {} frames processed, {} dropped; latency median {median:.1} ms, p95 {p95:.1}, max {max:.1}; {:.1} ms a processed frame",
             r.frames_processed,
             r.frames_dropped,
-            j["latency_ms"]["median"].as_f64().unwrap_or(0.0),
-            j["latency_ms"]["p95"].as_f64().unwrap_or(0.0),
-            j["latency_ms"]["max"].as_f64().unwrap_or(0.0),
-            j["processing_ms_mean"].as_f64().unwrap_or(0.0),
+            stats(&r.processing_ms).0,
         );
     }
     if let Some(l) = &s.loops {
