@@ -4,6 +4,7 @@
 use crate::error::{DatasetError, io_err, layout_err, parse_err};
 use crate::lists::{data_lines, read_times};
 use crate::sequence::{GroundTruthFormat, Sequence, check_index, check_size, dir_name, is_image};
+use crate::settings_file::{Field, check_values};
 use crate::{Frame, Sensor, Settings};
 use std::path::{Path, PathBuf};
 use stillpoint_geometry::PinholeCamera;
@@ -167,42 +168,28 @@ fn settings_from_calib(
     let get = |k: &str| calib.iter().find(|(n, _)| n == k).map(|(_, m)| *m);
     let (kl, kr) = if colour { ("P2", "P3") } else { ("P0", "P1") };
     let p = get(kl).ok_or_else(|| layout_err(&calib_path, format!("no {kl} line")))?;
-    for (i, what) in [(0, "fx"), (5, "fy")] {
-        if !(p[i].is_finite() && (1.0..=1e6).contains(&p[i])) {
-            return Err(layout_err(
-                &calib_path,
-                format!(
-                    "{kl}[{i}] ({what}) = {}: a focal length is 1 to 10^6 pixels",
-                    p[i]
-                ),
-            ));
-        }
-    }
     let img = read_gray(first)?;
     let camera = PinholeCamera::new(p[0], p[5], p[2], p[6], img.width as u32, img.height as u32);
     let mut s = Settings::with_camera(if stereo { Sensor::Stereo } else { Sensor::Mono }, camera);
     // P_r[3] = -fx * baseline (relative to P_l[3] for the colour pair).
     s.bf = get(kr).map(|pr| -(pr[3] - p[3]));
-    match s.bf {
-        None if stereo => {
-            tracing::warn!("{}: no {kr} line: running monocular", calib_path.display());
-            s.sensor = Sensor::Mono;
-        }
-        Some(bf) if stereo && !(bf.is_finite() && bf > 0.0) => {
-            return Err(layout_err(
-                &calib_path,
-                format!(
-                    "{kr}[3] gives baseline x fx = {bf}: it must be positive (P_right[3] = -fx x \
-                     baseline)"
-                ),
-            ));
-        }
-        _ => {}
+    if stereo && s.bf.is_none() {
+        tracing::warn!("{}: no {kr} line: running monocular", calib_path.display());
+        s.sensor = Sensor::Mono;
     }
     // ORB-SLAM's KITTI settings: 10 fps, ThDepth 35, 2000 features, FAST 20/7.
     s.fps = 10.0;
     s.th_depth = 35.0;
     s.orb.n_features = 2000;
+    let key = |field: Field| match field {
+        Field::Fx => format!("{kl}[0] (fx)"),
+        Field::Fy => format!("{kl}[5] (fy)"),
+        Field::Cx => format!("{kl}[2] (cx)"),
+        Field::Cy => format!("{kl}[6] (cy)"),
+        Field::Bf => format!("{kr}[3] (-fx x baseline)"),
+        other => format!("{other:?}"),
+    };
+    check_values(&s, key).map_err(|m| layout_err(&calib_path, m))?;
     Ok(s)
 }
 

@@ -247,9 +247,6 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
         p2: coef("p2")?,
         k3: coef("k3")?,
     };
-    if !(fx > 0.0 && fy > 0.0) {
-        return Err(settings_err(path, "focal lengths must be positive"));
-    }
     let depth_factor = d.any(&["DepthMapFactor", "RGBD.DepthMapFactor"])?;
     let bf = match d.number("Camera.bf")? {
         Some(bf) => Some(bf),
@@ -353,6 +350,8 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
         let keys: &[&str] = match field {
             Field::Fx => &["Camera.fx", "Camera1.fx"],
             Field::Fy => &["Camera.fy", "Camera1.fy"],
+            Field::Cx => &["Camera.cx", "Camera1.cx"],
+            Field::Cy => &["Camera.cy", "Camera1.cy"],
             Field::Fps => &["Camera.fps"],
             Field::DepthFactor => &["DepthMapFactor", "RGBD.DepthMapFactor"],
             Field::Bf => &["Camera.bf", "Stereo.b"],
@@ -373,9 +372,11 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
 
 /// A settings value [`check_values`] can complain about.
 #[derive(Clone, Copy, Debug)]
-enum Field {
+pub(crate) enum Field {
     Fx,
     Fy,
+    Cx,
+    Cy,
     Fps,
     DepthFactor,
     Bf,
@@ -386,13 +387,19 @@ enum Field {
 }
 
 /// Value ranges that parse but make nonsense (a focal length of 1e-300 px gave identity poses
-/// and exit code 0); `key` names a field as the file spells it.
-fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Result<(), String> {
+/// and exit code 0), for every way settings are read (ORB-SLAM YAML, TOML, KITTI `calib.txt`);
+/// `key` names a field as the source spells it.
+pub(crate) fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Result<(), String> {
     let c = &s.camera;
     let bad = |field: Field, why: &str| Err(format!("{} {why}", key(field)));
     for (field, f) in [(Field::Fx, c.fx), (Field::Fy, c.fy)] {
         if !(f.is_finite() && (1.0..=1e6).contains(&f)) {
             return bad(field, &format!("= {f}: a focal length is 1 to 10^6 pixels"));
+        }
+    }
+    for (field, v) in [(Field::Cx, c.cx), (Field::Cy, c.cy)] {
+        if !v.is_finite() {
+            return bad(field, &format!("= {v}: must be a finite number"));
         }
     }
     if !(s.fps.is_finite() && s.fps > 0.0) {
@@ -484,23 +491,13 @@ pub fn parse_settings_toml(text: &str, path: &Path) -> Result<Settings, DatasetE
             None => settings_err(path, msg),
         }
     })?;
-    let c = &s.camera;
-    if ![c.fx, c.fy, c.cx, c.cy, s.fps, s.depth_factor, s.th_depth]
-        .iter()
-        .all(|v| v.is_finite())
-        || c.fx <= 0.0
-        || c.fy <= 0.0
-    {
-        return Err(settings_err(
-            path,
-            "camera and rates must be finite, focal lengths positive",
-        ));
-    }
     // TOML keys as `stillpoint settings` prints them, with the line where the file sets them.
     let key = |field: Field| -> String {
         let (table, name) = match field {
             Field::Fx => ("camera", "fx"),
             Field::Fy => ("camera", "fy"),
+            Field::Cx => ("camera", "cx"),
+            Field::Cy => ("camera", "cy"),
             Field::Fps => ("", "fps"),
             Field::DepthFactor => ("", "depth_factor"),
             Field::Bf => ("", "bf"),

@@ -154,6 +154,22 @@ fn kitti_folder_and_euroc_layouts() {
             .to_string()
             .contains("times.txt:3:")
     );
+    std::fs::write(k.join("times.txt"), "0.0\n0.1\n0.2\n").unwrap();
+    // A calibration that parses but is no camera: named, not run.
+    for (calib, key) in [
+        (
+            "P0: 0 0 16 0 0 40 12 0 0 0 1 0\nP1: 40 0 16 -20 0 40 12 0 0 0 1 0\n",
+            "P0[0] (fx)",
+        ),
+        (
+            "P0: 40 0 16 0 0 40 12 0 0 0 1 0\nP1: 40 0 16 20 0 40 12 0 0 0 1 0\n",
+            "P1[3]",
+        ),
+    ] {
+        std::fs::write(k.join("calib.txt"), calib).unwrap();
+        let e = open(&k, None, None).err().unwrap().to_string();
+        assert!(e.contains("calib.txt") && e.contains(key), "{e}");
+    }
 
     let f = d.path().join("folder");
     std::fs::create_dir_all(&f).unwrap();
