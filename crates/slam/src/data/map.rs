@@ -602,17 +602,21 @@ impl Map {
                     return (p.id, None);
                 };
                 let (x, y) = (px.x.round() as isize, px.y.round() as isize);
-                let mut nearest = f32::INFINITY;
-                for dy in -2..=2 {
-                    for dx in -2..=2 {
-                        match depth.get_checked(x + dx, y + dy) {
-                            Some(d) if d.is_finite() && d > 0.0 => nearest = nearest.min(d),
-                            _ => nearest = f32::NEG_INFINITY,
-                        }
-                    }
-                }
-                if !nearest.is_finite() || pc.z <= 0.0 {
+                // Most of a map is out of view: no evidence, and no pixel to read.
+                let (w, h) = (depth.width as isize, depth.height as isize);
+                if x < 2 || y < 2 || x + 2 >= w || y + 2 >= h || pc.z <= 0.0 {
                     return (p.id, None);
+                }
+                let mut nearest = f32::INFINITY;
+                for v in y - 2..=y + 2 {
+                    for u in x - 2..=x + 2 {
+                        let d = depth.get(u as usize, v as usize);
+                        if !(d.is_finite() && d > 0.0) {
+                            // No reading: no evidence.
+                            return (p.id, None);
+                        }
+                        nearest = nearest.min(d);
+                    }
                 }
                 let behind = nearest as f64;
                 let gap_px = bf / pc.z - bf / behind;
