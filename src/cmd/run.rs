@@ -49,14 +49,8 @@ pub struct Args {
     /// Only the first N frames.
     #[arg(long)]
     pub frames: Option<usize>,
-    /// stillpoint settings file (TOML; tables `slam`, `orb`, `stereo`, `front_end`, `detect`:
-    /// `stillpoint settings` prints them all), laid over the defaults and `--settings`.
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Override one setting, `section.key=value` (repeatable; after `--config`), e.g.
-    /// `--set front_end.dynamic.world.enabled=false`.
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub sets: Vec<String>,
+    #[command(flatten)]
+    pub layers: SettingsArgs,
     /// Turn loop closing off (on by default: bag-of-words detection, SE3 verification,
     /// essential-graph correction).
     #[arg(long)]
@@ -74,6 +68,28 @@ pub struct Args {
     /// Print a JSON summary on stdout instead of the tables.
     #[arg(long)]
     pub json: bool,
+}
+
+/// What the command line lays over the dataset's settings (`run` and `settings` share it).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct SettingsArgs {
+    /// stillpoint settings file (TOML; tables `slam`, `orb`, `stereo`, `front_end`, `detect`:
+    /// `stillpoint settings` prints them all), laid over the defaults and `--settings`.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Override one setting, `section.key=value` (repeatable; after `--config`), e.g.
+    /// `--set front_end.dynamic.world.enabled=false`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub sets: Vec<String>,
+}
+
+/// `--kind NAME` as a dataset kind (`None`: detect it).
+pub fn parse_kind(kind: Option<&str>) -> anyhow::Result<Option<DatasetKind>> {
+    kind.map(|k| {
+        k.parse::<DatasetKind>()
+            .map_err(|e| anyhow::anyhow!("--kind {k}: {e}"))
+    })
+    .transpose()
 }
 
 /// How one run is set up (shared with `demo` and `bench tum`).
@@ -910,13 +926,7 @@ pub fn print_culled_row(s: &RunSummary) {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let kind = match &args.kind {
-        Some(k) => Some(
-            k.parse::<DatasetKind>()
-                .map_err(|e| anyhow::anyhow!("--kind {k}: {e}"))?,
-        ),
-        None => None,
-    };
+    let kind = parse_kind(args.kind.as_deref())?;
     let o = RunOptions {
         dataset: args.dataset.clone(),
         kind,
@@ -930,8 +940,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         progress: true,
         paper_cull: args.paper_cull,
         overrides: Overrides {
-            config: args.config.clone(),
-            sets: args.sets.clone(),
+            config: args.layers.config.clone(),
+            sets: args.layers.sets.clone(),
             no_loop_closing: args.no_loop_closing,
             vocabulary: args.vocabulary.clone(),
         },

@@ -4,9 +4,9 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use stillpoint_datasets::{DatasetKind, Sensor};
+use stillpoint_datasets::Sensor;
 
-use crate::cmd::run::{Overrides, settings_layers};
+use crate::cmd::run::{Overrides, SettingsArgs, parse_kind, settings_layers};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -20,12 +20,8 @@ pub struct Args {
     /// ORB-SLAM YAML or stillpoint TOML dataset settings, as for `run`.
     #[arg(long)]
     pub settings: Option<PathBuf>,
-    /// stillpoint settings file (TOML), as for `run`.
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Override one setting, `section.key=value` (repeatable), as for `run`.
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub sets: Vec<String>,
+    #[command(flatten)]
+    pub layers: SettingsArgs,
     /// Start from `run --paper-cull`'s preset.
     #[arg(long)]
     pub paper_cull: bool,
@@ -37,13 +33,7 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let ds = match &args.dataset {
         Some(dir) => {
-            let kind = match &args.kind {
-                Some(k) => Some(
-                    k.parse::<DatasetKind>()
-                        .map_err(|e| anyhow::anyhow!("--kind {k}: {e}"))?,
-                ),
-                None => None,
-            };
+            let kind = parse_kind(args.kind.as_deref())?;
             let seq = stillpoint_datasets::open(dir, kind, args.settings.as_deref())
                 .with_context(|| format!("opening {}", dir.display()))?;
             seq.settings().clone()
@@ -55,8 +45,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     };
     let overrides = Overrides {
-        config: args.config.clone(),
-        sets: args.sets.clone(),
+        config: args.layers.config.clone(),
+        sets: args.layers.sets.clone(),
         ..Overrides::default()
     };
     let layers = settings_layers(&ds, args.settings.as_deref(), args.paper_cull, &overrides)?;
