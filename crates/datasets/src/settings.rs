@@ -28,6 +28,21 @@ pub struct OrbSettings {
     pub ini_th_fast: u8,
     /// FAST threshold where a cell finds nothing (`ORBextractor.minThFAST`).
     pub min_th_fast: u8,
+    /// A third FAST threshold where `min_th_fast` found nothing either (plain walls); 0 = off.
+    /// Not in ORB-SLAM: there 7 leaves plain views nearly empty.
+    #[serde(default = "default_low_texture_th_fast")]
+    pub low_texture_th_fast: u8,
+    /// The third threshold is at least this many times the image noise's sigma.
+    #[serde(default = "default_noise_th_factor")]
+    pub noise_th_factor: f32,
+}
+
+fn default_low_texture_th_fast() -> u8 {
+    3
+}
+
+fn default_noise_th_factor() -> f32 {
+    2.0
 }
 
 impl Default for OrbSettings {
@@ -39,6 +54,8 @@ impl Default for OrbSettings {
             n_levels: 8,
             ini_th_fast: 20,
             min_th_fast: 7,
+            low_texture_th_fast: default_low_texture_th_fast(),
+            noise_th_factor: default_noise_th_factor(),
         }
     }
 }

@@ -279,6 +279,7 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
         n_levels: int("ORBextractor.nLevels", defaults.n_levels as f64)?.max(1.0) as usize,
         ini_th_fast: int("ORBextractor.iniThFAST", defaults.ini_th_fast as f64)?.min(255.0) as u8,
         min_th_fast: int("ORBextractor.minThFAST", defaults.min_th_fast as f64)?.min(255.0) as u8,
+        ..defaults
     };
     let rectification = match (
         d.rectifying_view("LEFT", (width, height))?,
@@ -359,6 +360,8 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
             Field::ScaleFactor => &["ORBextractor.scaleFactor"],
             Field::NFeatures => &["ORBextractor.nFeatures"],
             Field::NLevels => &["ORBextractor.nLevels"],
+            // not an ORB-SLAM key: only stillpoint's own settings set it
+            Field::NoiseThFactor => &["orb.noise_th_factor"],
         };
         let found = keys.iter().find(|k| d.line_of(k) > 0).unwrap_or(&keys[0]);
         match d.line_of(found) {
@@ -384,6 +387,7 @@ pub(crate) enum Field {
     ScaleFactor,
     NFeatures,
     NLevels,
+    NoiseThFactor,
 }
 
 /// Value ranges that parse but make nonsense (a focal length of 1e-300 px gave identity poses
@@ -454,6 +458,15 @@ pub(crate) fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Resul
             &format!("= {}: 1 to 32 levels (ORB-SLAM: 8)", o.n_levels),
         );
     }
+    if !(o.noise_th_factor.is_finite() && o.noise_th_factor >= 0.0) {
+        return bad(
+            Field::NoiseThFactor,
+            &format!(
+                "= {}: a factor of the image noise, 0 or more (default 2)",
+                o.noise_th_factor
+            ),
+        );
+    }
     Ok(())
 }
 
@@ -505,6 +518,7 @@ pub fn parse_settings_toml(text: &str, path: &Path) -> Result<Settings, DatasetE
             Field::ScaleFactor => ("orb", "scale_factor"),
             Field::NFeatures => ("orb", "n_features"),
             Field::NLevels => ("orb", "n_levels"),
+            Field::NoiseThFactor => ("orb", "noise_th_factor"),
         };
         let dotted = if table.is_empty() {
             name.to_string()

@@ -73,7 +73,7 @@ pub use matcher::{
     KeypointGrid, Match, MatchParams, Projected, ProjectionParams, RotationHistogram, hamming,
     match_brute_force, match_keypoints, search_by_projection,
 };
-pub use orb::{KeyPoint, OrbExtractor, OrbFeatures, OrbParams, OrbScore, OrbTimings};
+pub use orb::{KeyPoint, OrbExtractor, OrbFeatures, OrbParams, OrbScore, OrbTimings, noise_sigma};
 pub use stillpoint_image::{Gray8, rgb_to_gray};
 
 /// A 256-bit binary descriptor (ORB).

@@ -51,6 +51,22 @@ pub struct OrbParams {
     pub ini_th_fast: u8,
     /// FAST threshold used in cells where the first found nothing (`ORBextractor.minThFAST`: 7).
     pub min_th_fast: u8,
+    /// A third, lower FAST threshold for cells where `min_th_fast` found nothing too: plain walls
+    /// and floors (ORB-SLAM's 7 leaves them empty and the map thins out on a turn). 0 = off.
+    #[serde(default = "default_low_texture_th_fast")]
+    pub low_texture_th_fast: u8,
+    /// The third threshold is raised to this many times the image's noise (sigma estimated on
+    /// each frame, Immerkaer 1996), so a noisy sensor does not fill plain cells with noise.
+    #[serde(default = "default_noise_th_factor")]
+    pub noise_th_factor: f32,
+}
+
+fn default_low_texture_th_fast() -> u8 {
+    3
+}
+
+fn default_noise_th_factor() -> f32 {
+    2.0
 }
 
 impl Default for OrbParams {
@@ -61,6 +77,8 @@ impl Default for OrbParams {
             n_levels: 8,
             ini_th_fast: 20,
             min_th_fast: 7,
+            low_texture_th_fast: default_low_texture_th_fast(),
+            noise_th_factor: default_noise_th_factor(),
         }
     }
 }
@@ -214,6 +232,18 @@ impl OrbExtractor {
         self
     }
 
+    /// The third FAST threshold for this frame: `low_texture_th_fast` raised to the image's
+    /// noise times `noise_th_factor`; none when that is not under `min_th_fast`.
+    fn low_texture_threshold(&self, img: &Gray8) -> Option<u8> {
+        let p = &self.params;
+        if p.low_texture_th_fast == 0 || p.low_texture_th_fast >= p.min_th_fast {
+            return None;
+        }
+        let noise_floor = (p.noise_th_factor.max(0.0) * noise_sigma(img)).round();
+        let th = (p.low_texture_th_fast as f32).max(noise_floor);
+        (th < p.min_th_fast as f32).then_some(th as u8)
+    }
+
     /// The settings in use.
     pub fn params(&self) -> &OrbParams {
         &self.params
@@ -251,6 +281,7 @@ impl OrbExtractor {
         self.build_pyramid(img);
         self.timings.pyramid_ms = ms(t0);
         let mut corners = Vec::new();
+        let low_th = self.low_texture_threshold(img);
         for level in 0..self.params.n_levels {
             let t1 = Instant::now();
             let level_img = if level == 0 {
@@ -266,7 +297,7 @@ impl OrbExtractor {
                 break;
             }
             corners.clear();
-            detect_in_cells(level_img, &self.params, &mut corners);
+            detect_in_cells(level_img, &self.params, low_th, &mut corners);
             let to_image = LevelToImage::new(img, level_img);
             if let Some(mask) = &self.exclude_mask {
                 corners.retain(|c| {
@@ -397,9 +428,41 @@ fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
+/// The standard deviation of an image's noise in grey levels (Immerkaer 1996, "Fast noise
+/// variance estimation": the mean absolute response to a mask that cancels planes and lines,
+/// here on every second row). Texture adds to it, so it errs high.
+///
+/// ```
+/// use stillpoint_image::Gray8;
+/// let flat = Gray8::new(64, 48, 90);
+/// assert_eq!(stillpoint_features::noise_sigma(&flat), 0.0);
+/// ```
+pub fn noise_sigma(img: &Gray8) -> f32 {
+    let (w, h) = (img.width, img.height);
+    if w < 3 || h < 3 || img.data.len() != w * h {
+        return 0.0;
+    }
+    let px = |x: usize, y: usize| img.data[y * w + x] as i32;
+    let (mut sum, mut n) = (0u64, 0u64);
+    for y in (1..h - 1).step_by(2) {
+        for x in 1..w - 1 {
+            let r = px(x - 1, y - 1) - 2 * px(x, y - 1) + px(x + 1, y - 1) - 2 * px(x - 1, y)
+                + 4 * px(x, y)
+                - 2 * px(x + 1, y)
+                + px(x - 1, y + 1)
+                - 2 * px(x, y + 1)
+                + px(x + 1, y + 1);
+            sum += r.unsigned_abs() as u64;
+            n += 1;
+        }
+    }
+    (std::f64::consts::FRAC_PI_2.sqrt() * sum as f64 / (6.0 * n as f64)) as f32
+}
+
 /// FAST on ORB-SLAM3's grid: cells of ~35 px between borders of 16 px, threshold
-/// `ini_th_fast`, and `min_th_fast` in the cells where that found nothing.
-fn detect_in_cells(img: &Gray8, p: &OrbParams, out: &mut Vec<Corner>) {
+/// `ini_th_fast`, `min_th_fast` in the cells where that found nothing, and `low_th` (when
+/// under `min_th_fast`) in the cells still empty.
+fn detect_in_cells(img: &Gray8, p: &OrbParams, low_th: Option<u8>, out: &mut Vec<Corner>) {
     let (min_x, min_y) = (EDGE_THRESHOLD - 3, EDGE_THRESHOLD - 3);
     let (max_x, max_y) = (
         img.width - EDGE_THRESHOLD + 3,
@@ -446,7 +509,11 @@ fn detect_in_cells(img: &Gray8, p: &OrbParams, out: &mut Vec<Corner>) {
                 (y0 + h_cell).min(area[3])
             };
             if x0 < x1 && y0 < y1 {
+                let before = out.len();
                 fast::detect(img, [x0, y0, x1, y1], p.min_th_fast, out);
+                if let Some(th) = low_th.filter(|_| out.len() == before) {
+                    fast::detect(img, [x0, y0, x1, y1], th, out);
+                }
             }
         }
     }
@@ -747,6 +814,62 @@ mod tests {
         img
     }
 
+    /// A flat grey image with Gaussian noise of `sigma` grey levels.
+    fn noisy_flat(w: usize, h: usize, sigma: f32, seed: u32) -> Gray8 {
+        let mut rng = crate::test_rng::Lcg(seed);
+        let mut img = Gray8::new(w, h, 0);
+        for o in img.data.iter_mut() {
+            let (u1, u2) = (rng.unit().max(1e-7), rng.unit());
+            let g = (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos();
+            *o = (128.0 + sigma * g).round().clamp(0.0, 255.0) as u8;
+        }
+        img
+    }
+
+    #[test]
+    fn noise_sigma_measures_gaussian_noise() {
+        for sigma in [1.0f32, 3.0, 6.0] {
+            let est = noise_sigma(&noisy_flat(320, 240, sigma, 7));
+            assert!((est - sigma).abs() < 0.15 * sigma + 0.15, "{sigma}: {est}");
+        }
+    }
+
+    /// A plain, low-contrast surface (blobs of a few grey levels): ORB-SLAM's thresholds (20, 7)
+    /// find little there, the third pass fills its cells.
+    #[test]
+    fn plain_surfaces_get_corners_from_the_low_texture_pass() {
+        let mut img = texture(640, 480, 3);
+        for v in img.data.iter_mut() {
+            *v = (128.0 + (*v as f32 - 128.0) * 0.1).round() as u8;
+        }
+        let count = |low| {
+            OrbExtractor::new(OrbParams {
+                low_texture_th_fast: low,
+                ..OrbParams::default()
+            })
+            .extract(&img)
+            .keypoints
+            .len()
+        };
+        let (without, with) = (count(0), count(3));
+        assert!(with > 2 * without && with > 300, "{without} -> {with}");
+    }
+
+    /// On a noisy sensor the third threshold rises with the noise; over `min_th_fast` there is
+    /// no third pass at all, and the output is ORB-SLAM's.
+    #[test]
+    fn noisy_images_skip_the_low_texture_pass() {
+        let img = noisy_flat(320, 240, 4.0, 11);
+        let run = |low| {
+            OrbExtractor::new(OrbParams {
+                low_texture_th_fast: low,
+                ..OrbParams::default()
+            })
+            .extract(&img)
+        };
+        assert_eq!(run(0), run(3));
+    }
+
     /// A wide blob's centroid on every level, mapped back, lands where the blob is: the levels
     /// are resized with pixel centres aligned, so `x * scale` (ORB-SLAM's map) would be off by
     /// `(scale - 1) / 2`, 1.3 px on level 7.
@@ -914,6 +1037,8 @@ mod tests {
             n_levels: 0,
             ini_th_fast: 0,
             min_th_fast: 0,
+            low_texture_th_fast: 0,
+            noise_th_factor: f32::NAN,
         });
         assert!(odd.extract(&texture(100, 100, 1)).keypoints.is_empty());
     }

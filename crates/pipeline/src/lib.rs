@@ -91,6 +91,8 @@ impl PipelineSettings {
             n_levels: s.orb.n_levels,
             ini_th_fast: s.orb.ini_th_fast,
             min_th_fast: s.orb.min_th_fast,
+            low_texture_th_fast: s.orb.low_texture_th_fast,
+            noise_th_factor: s.orb.noise_th_factor,
         };
         Self {
             slam,

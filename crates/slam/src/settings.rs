@@ -134,6 +134,10 @@ pub struct SlamSettings {
     /// Run local mapping in its own thread (ORB-SLAM3 does). `false` runs it inline after each
     /// keyframe: deterministic, used by tests and the demo.
     pub local_mapping_thread: bool,
+    /// How many nice steps (Linux) the local-mapping and loop-closing threads run below tracking.
+    /// On two cores beside a detector, tracking must not wait for mapping (ORB-SLAM's tracking is
+    /// the real-time thread too); a busy mapper then takes fewer keyframes, as ORB-SLAM's does.
+    pub background_nice: i32,
     /// Frames of failed relocalisation after which a new map is started (ORB-SLAM3 Atlas starts a
     /// new map when relocalisation keeps failing; 1 s of frames here).
     pub new_map_after_lost_frames: usize,
@@ -267,6 +271,7 @@ impl SlamSettings {
             kf_redundancy: 0.9,
             ba_iterations: [5, 10],
             local_mapping_thread: true,
+            background_nice: 10,
             new_map_after_lost_frames: fps.max(1.0).round() as usize,
             reloc_candidates: 20,
             loop_closing: Default::default(),

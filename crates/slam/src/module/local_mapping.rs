@@ -668,6 +668,7 @@ impl MapperThread {
         let handle = std::thread::Builder::new()
             .name("local-mapping".into())
             .spawn(move || {
+                super::lower_this_thread_priority(mapper.s.background_nice);
                 let mut mapper = mapper;
                 while let Ok(Msg::KeyFrame(kf)) = rx.recv() {
                     idle2.store(false, Ordering::SeqCst);

@@ -340,6 +340,7 @@ impl LoopThread {
         let handle = std::thread::Builder::new()
             .name("loop-closing".into())
             .spawn(move || {
+                crate::module::lower_this_thread_priority(closer.s.background_nice);
                 let mut closer = closer;
                 while let Ok(kf) = keyframes.recv() {
                     closer.process(&map, kf, Some(&mapping_busy), Some(&pending));
