@@ -17,6 +17,7 @@ pub enum Sensor {
 
 /// ORB extractor settings (`ORBextractor.*` in ORB-SLAM files).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct OrbSettings {
     /// Features per frame (`ORBextractor.nFeatures`).
     pub n_features: usize,
@@ -60,8 +61,10 @@ impl Default for OrbSettings {
     }
 }
 
-/// Everything needed to interpret a sequence's images.
+/// Everything needed to interpret a sequence's images. A misspelt key is an error, not a
+/// silent default.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Settings {
     /// What the sequence provides.
     pub sensor: Sensor,

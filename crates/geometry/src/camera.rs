@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 
 /// Radial-tangential distortion coefficients k1 k2 p1 p2 k3, OpenCV's order.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct RadTan {
     /// Radial, r^2.
     pub k1: f64,
@@ -56,6 +57,7 @@ impl RadTan {
 
 /// A pinhole camera: focal lengths and principal point in pixels, image size, distortion.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PinholeCamera {
     /// Focal length along x, pixels.
     pub fx: f64,
