@@ -25,6 +25,8 @@ enum Command {
     Demo(cmd::demo::Args),
     /// Run SLAM on a dataset and write the trajectory.
     Run(cmd::run::Args),
+    /// List a ROS recording's topics: message types, counts, image sizes and encodings.
+    Info(cmd::info::Args),
     /// Print the effective settings tree and where each value came from.
     Settings(cmd::settings::Args),
     /// Write a synthetic dynamic sequence with exact ground truth.
@@ -58,6 +60,7 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Run(a) => cmd::run::run(a),
+        Command::Info(a) => cmd::info::run(a),
         Command::Settings(a) => cmd::settings::run(a),
         Command::Synth(a) => cmd::synth::run(a),
         Command::Detect(a) => cmd::detect::run(a),

@@ -4,6 +4,7 @@ pub mod bench;
 pub mod demo;
 pub mod detect;
 pub mod eval;
+pub mod info;
 pub mod run;
 pub mod settings;
 pub mod synth;

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
+use stillpoint_datasets::mcap::McapTopics;
 use stillpoint_datasets::{DatasetError, DatasetKind, Frame, GroundTruthFormat, Sensor, Sequence};
 use stillpoint_detect::GtDetectorParams;
 use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
@@ -17,8 +18,24 @@ use stillpoint_trajectory::{Alignment, AteOptions, RpeOptions, Trajectory, TumWr
 #[derive(clap::Args)]
 pub struct Args {
     /// Sequence folder (TUM/Bonn layout, a `stillpoint synth` output, ...).
-    #[arg(long)]
-    pub dataset: PathBuf,
+    #[arg(long, required_unless_present = "bag", conflicts_with = "bag")]
+    pub dataset: Option<PathBuf>,
+    /// A ROS 2 recording (`.mcap`, or the `ros2 bag` folder holding one) to run on instead of a
+    /// folder: colour from `--rgb-topic`, depth from `--depth-topic` (monocular without), the
+    /// camera from `--settings` or the recording's CameraInfo.
+    #[arg(long, requires = "rgb_topic", conflicts_with = "kind")]
+    pub bag: Option<PathBuf>,
+    /// The recording's colour images (sensor_msgs Image or CompressedImage), e.g.
+    /// /camera/color/image_raw.
+    #[arg(long, requires = "bag")]
+    pub rgb_topic: Option<String>,
+    /// The recording's depth images registered to the colour ones (16UC1 mm or 32FC1 m), e.g.
+    /// /camera/aligned_depth_to_color/image_raw.
+    #[arg(long, requires = "bag")]
+    pub depth_topic: Option<String>,
+    /// The colour camera's CameraInfo topic; by default camera_info beside --rgb-topic.
+    #[arg(long, requires = "bag")]
+    pub camera_info_topic: Option<String>,
     /// YOLOX ONNX model (else the settings, $STILLPOINT_MODEL, models/ beside the binary,
     /// ../shared/models).
     #[arg(long)]
@@ -124,6 +141,8 @@ pub struct Overrides {
     pub no_loop_closing: bool,
     /// A DBoW2 text vocabulary instead of the one trained online.
     pub vocabulary: Option<PathBuf>,
+    /// `dataset` is a ROS recording read from these topics (`--bag`).
+    pub recording: Option<McapTopics>,
 }
 
 /// What a run produced.
@@ -297,11 +316,19 @@ fn paper_cull(s: &mut FrontEndSettings) {
     s.dynamic.objects.enabled = false;
 }
 
+/// Open the run's sequence: a dataset folder, or a recording's topics (`--bag`).
+fn open_sequence(o: &RunOptions) -> anyhow::Result<Box<dyn Sequence>> {
+    let settings = o.settings.as_deref();
+    let seq = match &o.overrides.recording {
+        Some(topics) => stillpoint_datasets::mcap::open(&o.dataset, topics, settings),
+        None => stillpoint_datasets::open(&o.dataset, o.kind, settings),
+    };
+    seq.with_context(|| format!("opening {}", o.dataset.display()))
+}
+
 /// Run SLAM over a sequence. Frames that cannot be read are logged and skipped.
 pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
-    let seq: Box<dyn Sequence> =
-        stillpoint_datasets::open(&o.dataset, o.kind, o.settings.as_deref())
-            .with_context(|| format!("opening {}", o.dataset.display()))?;
+    let seq = open_sequence(o)?;
     let ds = seq.settings().clone();
     let tree = settings_layers(&ds, o.settings.as_deref(), o.paper_cull, &o.overrides)?.tree;
     let mut pipeline_settings = tree.pipeline();
@@ -376,9 +403,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         indicatif::ProgressBar::hidden()
     };
     let mut camera = if o.realtime {
-        let replay = stillpoint_datasets::open(&o.dataset, o.kind, o.settings.as_deref())
-            .with_context(|| format!("opening {}", o.dataset.display()))?;
-        Some(ReplayCamera::start(replay, n))
+        Some(ReplayCamera::start(open_sequence(o)?, n))
     } else {
         None
     };
@@ -927,8 +952,17 @@ pub fn print_culled_row(s: &RunSummary) {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let kind = parse_kind(args.kind.as_deref())?;
+    // clap requires one of them.
+    let Some(dataset) = args.dataset.clone().or(args.bag.clone()) else {
+        bail!("give --dataset DIR or --bag FILE");
+    };
+    let recording = args.rgb_topic.clone().map(|rgb| McapTopics {
+        rgb,
+        depth: args.depth_topic.clone(),
+        camera_info: args.camera_info_topic.clone(),
+    });
     let o = RunOptions {
-        dataset: args.dataset.clone(),
+        dataset,
         kind,
         settings: args.settings.clone(),
         out: Some(args.out.clone()),
@@ -944,6 +978,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             sets: args.layers.sets.clone(),
             no_loop_closing: args.no_loop_closing,
             vocabulary: args.vocabulary.clone(),
+            recording,
         },
     };
     let s = run_sequence(&o)?;

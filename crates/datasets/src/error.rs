@@ -58,6 +58,16 @@ pub enum DatasetError {
         /// The camera's size in the settings.
         expected_height: u32,
     },
+    /// A recording (MCAP) that cannot be read, or a message in it that cannot be decoded.
+    #[error("{path}: {at}: {msg}")]
+    Recording {
+        /// The file.
+        path: String,
+        /// Where: a byte offset, or a topic's message index and its byte offset.
+        at: String,
+        /// What is wrong.
+        msg: String,
+    },
     /// A frame index past the end.
     #[error("frame {index} is out of range: the sequence has {len} frames")]
     OutOfRange {
@@ -86,6 +96,18 @@ pub(crate) fn parse_err(path: &Path, line: usize, msg: impl Into<String>) -> Dat
 pub(crate) fn layout_err(path: &Path, msg: impl Into<String>) -> DatasetError {
     DatasetError::Layout {
         path: path.display().to_string(),
+        msg: msg.into(),
+    }
+}
+
+pub(crate) fn recording_err(
+    path: &Path,
+    at: impl Into<String>,
+    msg: impl Into<String>,
+) -> DatasetError {
+    DatasetError::Recording {
+        path: path.display().to_string(),
+        at: at.into(),
         msg: msg.into(),
     }
 }

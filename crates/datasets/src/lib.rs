@@ -1,6 +1,7 @@
 //! Datasets: readers that turn TUM, Bonn, KITTI, EuRoC and image folders (and stillpoint's own
-//! synthetic sequences, which use the TUM layout) into a stream of timestamped frames with
-//! calibration, and the settings files (ORB-SLAM `%YAML:1.0`, our TOML) that describe a camera.
+//! synthetic sequences, which use the TUM layout) and ROS recordings ([`mcap`]) into a stream of
+//! timestamped frames with calibration, and the settings files (ORB-SLAM `%YAML:1.0`, our TOML)
+//! that describe a camera.
 //!
 //! Frames are read lazily: [`open`] reads file lists only, [`Sequence::frame`] loads one frame.
 
@@ -14,6 +15,7 @@ pub mod folder;
 pub mod frame;
 pub mod kitti;
 pub mod lists;
+pub mod mcap;
 pub mod sequence;
 pub mod settings;
 pub mod settings_file;

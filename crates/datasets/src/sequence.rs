@@ -82,6 +82,12 @@ pub(crate) fn is_image(p: &Path) -> bool {
 /// Which layout `dir` has.
 pub fn detect_kind(dir: &Path) -> Result<DatasetKind, DatasetError> {
     if !dir.is_dir() {
+        if dir.extension().is_some_and(|e| e == "mcap" || e == "bag") {
+            return Err(layout_err(
+                dir,
+                "a ROS recording, not a sequence folder: give it as --bag FILE --rgb-topic TOPIC",
+            ));
+        }
         return Err(layout_err(dir, "not a directory"));
     }
     if dir.join("mav0").is_dir() || dir.join("cam0/data.csv").is_file() {
