@@ -10,7 +10,7 @@ use std::sync::mpsc;
 use std::time::Duration;
 
 mod common;
-use common::stillpoint;
+use common::{stillpoint, synth_static};
 
 /// Longest a case may run; a case that takes longer has hung.
 const HANG: Duration = Duration::from_secs(300);
@@ -233,18 +233,7 @@ fn whole_lines(traj: &Path) -> usize {
 fn broken_inputs_end_with_a_clear_line_and_no_loss() {
     let tmp = tempfile::tempdir().unwrap();
     let base = tmp.path().join("base");
-    let st = stillpoint()
-        .args([
-            "synth", "--preset", "static", "--frames", "12", "--seed", "0", "--out",
-        ])
-        .arg(&base)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    synth_static(&base, 12, 0);
     let frames = 12;
     for (i, case) in corpus().into_iter().enumerate() {
         let seq = tmp.path().join(format!("case{i}"));
@@ -308,18 +297,7 @@ fn broken_inputs_end_with_a_clear_line_and_no_loss() {
 fn an_interrupted_run_keeps_what_it_tracked() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("seq");
-    let st = stillpoint()
-        .args([
-            "synth", "--preset", "static", "--frames", "150", "--seed", "1", "--out",
-        ])
-        .arg(&seq)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    synth_static(&seq, 150, 1);
     let traj = tmp.path().join("traj.txt");
     let mut child = stillpoint()
         .args([

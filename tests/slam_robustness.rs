@@ -4,25 +4,7 @@
 use std::path::Path;
 
 mod common;
-use common::stillpoint;
-
-/// `stillpoint synth --preset static --frames N --seed S --out DIR`; must succeed.
-fn synth_static(dir: &Path, frames: usize, seed: u64) {
-    let st = stillpoint()
-        .args(["synth", "--preset", "static", "--frames"])
-        .arg(frames.to_string())
-        .arg("--seed")
-        .arg(seed.to_string())
-        .arg("--out")
-        .arg(dir)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
-}
+use common::synth_static;
 
 /// File names in `dir`, sorted (the synth stamps sort in time order).
 fn sorted_names(dir: &Path) -> Vec<String> {

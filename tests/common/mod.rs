@@ -20,3 +20,21 @@ pub fn run_without_detector(seq: &Path, traj: &Path) -> Output {
         .output()
         .unwrap()
 }
+
+/// `stillpoint synth --preset static --frames N --seed S --out DIR`; must succeed.
+pub fn synth_static(dir: &Path, frames: usize, seed: u64) {
+    let st = stillpoint()
+        .args(["synth", "--preset", "static", "--frames"])
+        .arg(frames.to_string())
+        .arg("--seed")
+        .arg(seed.to_string())
+        .arg("--out")
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+}
