@@ -168,7 +168,7 @@ pub use motion_consistency::{
     motion_consistency_pyramids,
 };
 pub use objects::{
-    Evidence, ObjectDecision, ObjectParams, ObjectTracker, TrackedObject, evidence_of,
+    Evidence, ObjectDecision, ObjectParams, ObjectTracker, TrackedObject, WorldCheck, evidence_of,
 };
 pub use seated_motion::{
     SeatedMotionParams, apply_seated_motion, camera_motion, seated_candidates, seated_residual,

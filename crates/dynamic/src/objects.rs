@@ -241,13 +241,32 @@ impl ObjectTracker {
     }
 }
 
-/// The evidence of a box judged by the paper's rules: a dynamic verdict is motion; a static one
-/// is stillness only when its tracks were judged against the static world (`world`) and at
-/// least `min_tracks` of them lie inside; anything else is inconclusive.
-pub fn evidence_of(state: &BoxState, world: bool, min_tracks: usize) -> Evidence {
+/// Whether a frame's tracks were judged against the static world ([`crate::world_motion()`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WorldCheck {
+    /// They were: outliers broke the static world's motion.
+    Judged,
+    /// They should have been (a depth frame with the check on) but the static world's motion
+    /// could not be had (the first frame of a map, too few static tracks): the outliers are the
+    /// two-frame check's, which follows whatever dominates the view.
+    Missing,
+    /// The check does not apply (no depth, or turned off): the two-frame check is all there is.
+    NotUsed,
+}
+
+/// The evidence of a box judged by the paper's rules: a dynamic verdict is motion, unless the
+/// static world's check was missing on a frame that should have had it (inconclusive); a static
+/// one is stillness only when its tracks were judged against the static world and at least
+/// `min_tracks` of them lie inside; anything else is inconclusive.
+pub fn evidence_of(state: &BoxState, world: WorldCheck, min_tracks: usize) -> Evidence {
     match state.verdict {
+        Verdict::Dynamic if world == WorldCheck::Missing => Evidence::Inconclusive,
         Verdict::Dynamic => Evidence::Moving,
-        Verdict::Static if world && state.tracked >= min_tracks && state.outliers == 0 => {
+        Verdict::Static
+            if world == WorldCheck::Judged
+                && state.tracked >= min_tracks
+                && state.outliers == 0 =>
+        {
             Evidence::Still
         }
         _ => Evidence::Inconclusive,
@@ -334,13 +353,39 @@ mod tests {
 
     #[test]
     fn evidence_needs_the_static_world_and_enough_tracks() {
+        use WorldCheck::*;
         let still = state(0, 0.0, Verdict::Static);
-        assert_eq!(evidence_of(&still, true, 8), Evidence::Still);
-        assert_eq!(evidence_of(&still, false, 8), Evidence::Inconclusive);
-        assert_eq!(evidence_of(&still, true, 30), Evidence::Inconclusive);
+        assert_eq!(evidence_of(&still, Judged, 8), Evidence::Still);
+        assert_eq!(evidence_of(&still, NotUsed, 8), Evidence::Inconclusive);
+        assert_eq!(evidence_of(&still, Missing, 8), Evidence::Inconclusive);
+        assert_eq!(evidence_of(&still, Judged, 30), Evidence::Inconclusive);
         let moving = state(0, 0.0, Verdict::Dynamic);
-        assert_eq!(evidence_of(&moving, false, 8), Evidence::Moving);
+        assert_eq!(evidence_of(&moving, NotUsed, 8), Evidence::Moving);
+        assert_eq!(evidence_of(&moving, Judged, 8), Evidence::Moving);
         let unknown = state(0, 0.0, Verdict::StaticUnknown);
-        assert_eq!(evidence_of(&unknown, true, 0), Evidence::Inconclusive);
+        assert_eq!(evidence_of(&unknown, Judged, 0), Evidence::Inconclusive);
+    }
+
+    /// A painting in a plain room, judged moving by the two-frame check on the frame before the
+    /// static world's motion is known, then still: it must never be culled as a mover.
+    #[test]
+    fn two_frame_motion_alone_does_not_make_furniture_move_on_a_depth_frame() {
+        const TV: u16 = 62;
+        let p = ObjectParams::default();
+        let mut t = ObjectTracker::default();
+        let mut s = [state(TV, 0.0, Verdict::Dynamic)];
+        let e = [evidence_of(&s[0], WorldCheck::Missing, p.still_min_tracks)];
+        t.update(1, &mut s, &e, &p);
+        assert_eq!(s[0].verdict, Verdict::Static);
+        let mut s = [state(TV, 1.0, Verdict::Static)];
+        let e = [evidence_of(&s[0], WorldCheck::Judged, p.still_min_tracks)];
+        t.update(2, &mut s, &e, &p);
+        assert_eq!(s[0].verdict, Verdict::Static);
+        // Without depth the two-frame check is the evidence, as in the paper.
+        let mut t = ObjectTracker::default();
+        let mut s = [state(TV, 0.0, Verdict::Dynamic)];
+        let e = [evidence_of(&s[0], WorldCheck::NotUsed, p.still_min_tracks)];
+        t.update(1, &mut s, &e, &p);
+        assert_eq!(s[0].verdict, Verdict::Dynamic);
     }
 }

@@ -64,7 +64,7 @@ use stillpoint_detect::{
 };
 use stillpoint_dynamic::{
     BoxPart, BoxState, CulledFrame, DynamicSettings, Evidence, ObjectDecision, ObjectTracker,
-    RememberedBox, SeatedMotionParams, TrackedPoint, Verdict, WorldSource,
+    RememberedBox, SeatedMotionParams, TrackedPoint, Verdict, WorldCheck, WorldSource,
 };
 use stillpoint_features::LkPyramid;
 use stillpoint_geometry::{PinholeCamera, Se3};
@@ -707,7 +707,7 @@ impl DynamicFrontEnd {
         // Nothing is known of the objects yet: movable ones start moving.
         let evidence: Vec<Evidence> = states
             .iter()
-            .map(|s| stillpoint_dynamic::evidence_of(s, false, usize::MAX))
+            .map(|s| stillpoint_dynamic::evidence_of(s, WorldCheck::NotUsed, usize::MAX))
             .collect();
         let decisions = self.objects.update(
             frame.index,
@@ -961,6 +961,17 @@ impl KeypointFilter for DynamicFrontEnd {
             dets.len(),
         ));
         // Objects over time (ours): each box's verdict is its object's state, with hysteresis.
+        // On a depth frame where the static world's motion could not be had, a box judged
+        // moving heard only the two-frame check: no evidence either way (in a plain room that
+        // made a painting "moving" on frame 1 and culled it for 76 frames).
+        let world = if world {
+            WorldCheck::Judged
+        } else if settings.world.enabled && settings.world.camera.is_some() && frame.depth.is_some()
+        {
+            WorldCheck::Missing
+        } else {
+            WorldCheck::NotUsed
+        };
         let evidence: Vec<Evidence> = states
             .iter()
             .map(|s| stillpoint_dynamic::evidence_of(s, world, settings.objects.still_min_tracks))
@@ -985,6 +996,25 @@ impl KeypointFilter for DynamicFrontEnd {
             frame.depth,
             Some((&prev_pyramid, &pyramid)),
             settings,
+        );
+        tracing::debug!(
+            "frame {}: box states {:?}",
+            frame.index,
+            states
+                .iter()
+                .map(|s| (
+                    s.class_id,
+                    format!("{:?}", s.verdict),
+                    s.bbox.x1 as i32,
+                    s.bbox.x2 as i32,
+                    s.depth.map(|d| (d.metres, d.near, d.far)),
+                    (s.tracked, s.outliers),
+                    kps.iter()
+                        .zip(&culled.removed)
+                        .filter(|(k, r)| **r && s.bbox.contains_strict(k[0], k[1]))
+                        .count()
+                ))
+                .collect::<Vec<_>>()
         );
         let mut seated_kept = Vec::new();
         out.dynamic = match (&prev_depth, frame.depth) {
