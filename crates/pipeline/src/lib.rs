@@ -137,6 +137,9 @@ pub struct FrameResult {
     pub dynamic_boxes: usize,
     /// Map points matched by tracking (pose inliers).
     pub inliers: usize,
+    /// Per keypoint: matched to a map point and kept by the pose (culled keypoints never are);
+    /// empty when the frame was not tracked.
+    pub matched: Vec<bool>,
     /// The frame became a keyframe.
     pub new_keyframe: bool,
     /// Tracking was lost and came back in the same map.
@@ -352,6 +355,16 @@ impl Pipeline {
             self.stamps.push(frame.timestamp);
             self.poses.push(p);
         }
+        // Tracking saw the kept keypoints only: spread its flags back over all of them.
+        let matched = if report.matched.is_empty() {
+            Vec::new()
+        } else {
+            let mut kept = report.matched.iter();
+            dynamic
+                .iter()
+                .map(|&d| !d && kept.next().copied().unwrap_or(false))
+                .collect()
+        };
         Ok(FrameResult {
             index: frame.index,
             timestamp: frame.timestamp,
@@ -362,6 +375,7 @@ impl Pipeline {
             no_new_points,
             dynamic_boxes,
             inliers: report.inliers,
+            matched,
             new_keyframe: report.new_keyframe,
             relocalised: report.relocalised,
             new_map: report.new_map,

@@ -100,6 +100,19 @@ pub struct SlamSettings {
     /// Measured with `seen_through_gap_px` (20 living-room sequences, `run --sequential`):
     /// YOLOX worst ATE 2.58 -> 1.96 cm, map points on movers 31 -> 0 on living_turn seed 0.
     pub erase_seen_through_after: u32,
+    /// Ours: each tracked frame's pose is optimised again against the map once local mapping
+    /// has refined the keyframes around it (this many keyframes later; 0 = off, ORB-SLAM's
+    /// saved trajectory), and the frame then follows its reference keyframe from there. ORB-SLAM
+    /// keeps a frame's pose relative to its reference keyframe as tracking left it, so a
+    /// keyframe that bundle adjustment later moves a long way (one made while a mover the
+    /// detector missed dragged tracking) drags its frames along although they were tracked
+    /// right: synth walking_static with YOLOX, frame 83 13.5 cm off.
+    #[serde(default = "default_settle_keyframes")]
+    pub trajectory_settle_keyframes: usize,
+    /// ... the settled pose is kept when it has at least this many inliers (else the frame
+    /// follows its keyframe as tracking left it).
+    #[serde(default = "default_settle_min_inliers")]
+    pub trajectory_settle_min_inliers: usize,
     /// ... "well behind": by more than this many pixels of virtual disparity (`bf / z`) and
     /// 10 cm (measured 0.5 / 1 / 2 px: gt mean ATE 1.54 / 1.47 / 1.47 cm, YOLOX worst 1.93 /
     /// 1.96 / 4.11 on the seeds tried).
@@ -259,6 +272,8 @@ impl SlamSettings {
             no_points_from_pose_outliers: false,
             point_max_rejections: 0,
             erase_seen_through_after: 2,
+            trajectory_settle_keyframes: default_settle_keyframes(),
+            trajectory_settle_min_inliers: default_settle_min_inliers(),
             seen_through_gap_px: 1.0,
             kf_new_points_min: 100,
             covisibility_min_shared: 15,
@@ -294,4 +309,12 @@ impl SlamSettings {
     pub fn inv_level_sigma2(&self) -> Vec<f64> {
         self.scale_factors().iter().map(|s| 1.0 / (s * s)).collect()
     }
+}
+
+fn default_settle_keyframes() -> usize {
+    2
+}
+
+fn default_settle_min_inliers() -> usize {
+    20
 }

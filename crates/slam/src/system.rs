@@ -1,6 +1,7 @@
 //! [`System`]: tracking plus local mapping and loop closing (threaded or inline) over a shared
 //! map.
 
+use std::collections::VecDeque;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -12,7 +13,8 @@ use stillpoint_image::DepthMetres;
 use crate::data::{FreeSpaceCheck, KfId, Map};
 use crate::module::local_mapping::{LocalMapper, MapperHooks, MapperThread};
 use crate::module::loop_closing::{LoopCloser, LoopStats, LoopThread};
-use crate::module::tracking::Tracker;
+use crate::module::tracking::{FrameObservation, Tracker};
+use crate::optimize::{PoseObservation, optimize_pose};
 use crate::place::Vocabulary;
 use crate::{Descriptor, Feature, Frame, KeypointDepth, SlamError, SlamSettings, TrackingState};
 
@@ -26,6 +28,9 @@ pub struct FrameReport {
     pub pose_wc: Option<Se3>,
     pub keypoints: usize,
     pub inliers: usize,
+    /// Per keypoint handed to tracking: a pose inlier matched to a map point (empty when the
+    /// frame was not tracked).
+    pub matched: Vec<bool>,
     pub new_keyframe: bool,
     pub relocalised: bool,
     pub new_map: bool,
@@ -56,6 +61,22 @@ pub struct System {
     /// Per tracked frame: timestamp, reference keyframe, pose relative to it (T_c_ref); the
     /// trajectory rebuilt through the keyframes after loop corrections.
     anchors: Vec<(f64, KfId, Se3)>,
+    /// Tracked frames waiting for local mapping to refine the keyframes around them before
+    /// their pose is optimised again (`SlamSettings::trajectory_settle_keyframes`).
+    unsettled: VecDeque<Unsettled>,
+    /// Keyframes handed to local mapping so far.
+    keyframes_inserted: usize,
+}
+
+/// A tracked frame whose anchor is not final yet.
+struct Unsettled {
+    /// Its entry in `System::anchors`.
+    anchor: usize,
+    /// World-to-camera as tracking left it.
+    pose_cw: Se3,
+    observations: Vec<FrameObservation>,
+    /// `System::keyframes_inserted` when it was tracked.
+    keyframes_at: usize,
 }
 
 impl System {
@@ -125,6 +146,8 @@ impl System {
             mapping_ms,
             looping,
             anchors: Vec::new(),
+            unsettled: VecDeque::new(),
+            keyframes_inserted: 0,
         }
     }
 
@@ -219,13 +242,22 @@ impl System {
                     self.tracker.on_map_corrected(&c.poses);
                 }
             }
-            let outcome = self.tracker.track(frame, &mut map, idle, queued);
+            let mut outcome = self.tracker.track(frame, &mut map, idle, queued);
             if let Some(wc) = outcome.pose_wc
                 && let Some(r) = self.tracker.reference_keyframe()
                 && let Some(k) = map.keyframes.get(&r)
             {
+                let pose_cw = wc.inverse();
+                if self.settings.trajectory_settle_keyframes > 0 {
+                    self.unsettled.push_back(Unsettled {
+                        anchor: self.anchors.len(),
+                        pose_cw,
+                        observations: std::mem::take(&mut outcome.observations),
+                        keyframes_at: self.keyframes_inserted,
+                    });
+                }
                 self.anchors
-                    .push((timestamp, r, wc.inverse() * k.pose_cw.inverse()));
+                    .push((timestamp, r, pose_cw * k.pose_cw.inverse()));
             }
             outcome
         };
@@ -239,6 +271,7 @@ impl System {
         if let (KeypointDepth::Map(image), Some(pose_wc)) = (depth, outcome.pose_wc) {
             self.erase_points_seen_through(index, &pose_wc.inverse(), image);
         }
+        self.settle(false);
         Ok(FrameReport {
             index,
             timestamp,
@@ -246,6 +279,7 @@ impl System {
             pose_wc: outcome.pose_wc,
             keypoints,
             inliers: outcome.inliers,
+            matched: outcome.matched,
             new_keyframe: outcome.new_keyframe.is_some(),
             relocalised: outcome.relocalised,
             new_map: outcome.new_map,
@@ -271,6 +305,7 @@ impl System {
     }
 
     fn insert_keyframe(&mut self, kf: KfId) -> Result<(), SlamError> {
+        self.keyframes_inserted += 1;
         match &mut self.mapping {
             Mapping::Inline(m) => {
                 let t0 = Instant::now();
@@ -304,7 +339,74 @@ impl System {
         if let Looping::Thread(t) = &mut self.looping {
             t.finish()?;
         }
+        self.settle(true);
         Ok(())
+    }
+
+    /// Optimise again the poses of the tracked frames that local mapping has since refined the
+    /// keyframes around (`SlamSettings::trajectory_settle_keyframes` keyframes later, mapping
+    /// idle), or all of them (`all`, at the end), against the map as it is now, and anchor each
+    /// to its reference keyframe from there.
+    fn settle(&mut self, all: bool) {
+        let s = &self.settings;
+        let mapping_idle = match &self.mapping {
+            Mapping::Inline(_) => true,
+            Mapping::Thread(t) => {
+                t.idle.load(Ordering::SeqCst) && t.queued.load(Ordering::SeqCst) == 0
+            }
+        };
+        let due = |u: &Unsettled| {
+            all || (mapping_idle
+                && u.keyframes_at + s.trajectory_settle_keyframes <= self.keyframes_inserted)
+        };
+        if !self.unsettled.front().is_some_and(due) {
+            return;
+        }
+        let Ok(map) = self.map.lock() else {
+            return;
+        };
+        let inv_sigma2 = s.inv_level_sigma2();
+        while self.unsettled.front().is_some_and(due) {
+            let Some(u) = self.unsettled.pop_front() else {
+                break;
+            };
+            let (_, r, t_cr) = self.anchors[u.anchor];
+            let Some(ref_cw) = map.keyframe_pose_cw(r) else {
+                continue;
+            };
+            let obs: Vec<PoseObservation> = u
+                .observations
+                .iter()
+                .filter_map(|o| {
+                    let p = map.points.get(&o.point).filter(|p| !p.bad)?;
+                    Some(PoseObservation {
+                        world: p.position,
+                        u: o.u,
+                        v: o.v,
+                        u_right: (o.u_right > 0.0).then_some(o.u_right as f64),
+                        inv_sigma2: inv_sigma2.get(o.octave as usize).copied().unwrap_or(1.0),
+                    })
+                })
+                .collect();
+            if obs.len() < s.trajectory_settle_min_inliers {
+                continue;
+            }
+            // From the pose tracking found and from the one its keyframe carries it to now
+            // (they differ after a loop correction, or when the keyframe moved): the start with
+            // more inliers wins.
+            let best = [u.pose_cw, t_cr * ref_cw]
+                .into_iter()
+                .map(|mut pose| {
+                    let outliers = optimize_pose(&mut pose, &obs, s);
+                    (outliers.iter().filter(|&&o| !o).count(), pose)
+                })
+                .max_by_key(|(inliers, _)| *inliers);
+            if let Some((inliers, pose)) = best
+                && inliers >= s.trajectory_settle_min_inliers
+            {
+                self.anchors[u.anchor].2 = pose * ref_cw.inverse();
+            }
+        }
     }
 
     /// Loop-closing statistics (`None` when it is off, or its thread still runs).

@@ -35,6 +35,12 @@ pub struct TrackOutcome {
     /// Camera-to-world pose when tracked.
     pub pose_wc: Option<Se3>,
     pub inliers: usize,
+    /// Per keypoint handed to tracking: matched to a map point and kept by the pose (an
+    /// inlier); empty when the frame was not tracked.
+    pub matched: Vec<bool>,
+    /// The pose inliers (map point, undistorted pixel, virtual right coordinate, octave), for
+    /// optimising the frame's pose again once the map around it is refined.
+    pub observations: Vec<FrameObservation>,
     pub new_keyframe: Option<KfId>,
     /// Monocular initialisation makes the reference frame a keyframe too; local mapping takes it
     /// before `new_keyframe`.
@@ -42,6 +48,18 @@ pub struct TrackOutcome {
     pub initialised: bool,
     pub relocalised: bool,
     pub new_map: bool,
+}
+
+/// One pose inlier of a tracked frame.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameObservation {
+    pub point: MpId,
+    /// Undistorted pixel.
+    pub u: f64,
+    pub v: f64,
+    /// Virtual right coordinate (negative without depth).
+    pub u_right: f32,
+    pub octave: u8,
 }
 
 /// The tracking state machine.
@@ -112,6 +130,8 @@ impl Tracker {
                     out.new_keyframe = Some(kf);
                     out.pose_wc = frame.pose_cw.map(|p| p.inverse());
                     out.inliers = frame.map_points.iter().flatten().count();
+                    out.matched = matched(&frame, true);
+                    out.observations = observations(&frame, &out.matched);
                     self.finish_frame(frame, true);
                     return out;
                 }
@@ -192,12 +212,16 @@ impl Tracker {
                         out.new_map = true;
                         out.new_keyframe = Some(kf);
                         out.pose_wc = frame.pose_cw.map(|p| p.inverse());
+                        out.matched = matched(&frame, true);
+                        out.observations = observations(&frame, &out.matched);
                         self.finish_frame(frame, true);
                         return out;
                     }
                 }
             }
         }
+        out.matched = matched(&frame, ok);
+        out.observations = observations(&frame, &out.matched);
         self.finish_frame(frame, ok);
         out
     }
@@ -777,4 +801,35 @@ fn cells_with_depth(frame: &Frame, camera: &stillpoint_geometry::PinholeCamera) 
         }
     }
     cells.iter().filter(|&&c| c).count()
+}
+
+/// The pose inliers of a frame (`matched` from [`matched`]).
+fn observations(frame: &Frame, matched: &[bool]) -> Vec<FrameObservation> {
+    matched
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| **m)
+        .filter_map(|(i, _)| {
+            Some(FrameObservation {
+                point: frame.map_points[i]?,
+                u: frame.points[i].x,
+                v: frame.points[i].y,
+                u_right: frame.u_right[i],
+                octave: frame.octaves[i],
+            })
+        })
+        .collect()
+}
+
+/// Per keypoint: matched to a map point and not an outlier of the pose (empty when not tracked).
+fn matched(frame: &Frame, ok: bool) -> Vec<bool> {
+    if !ok {
+        return Vec::new();
+    }
+    frame
+        .map_points
+        .iter()
+        .enumerate()
+        .map(|(i, m)| m.is_some() && !frame.outliers.get(i).copied().unwrap_or(false))
+        .collect()
 }
