@@ -33,7 +33,7 @@ use rand_pcg::Pcg64Mcg;
 use render::{DrawItem, Target};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
-use stillpoint_datasets::{GtBox, OrbSettings, Sensor, Settings};
+use stillpoint_datasets::{GtBox, OrbParams, Sensor, Settings};
 use stillpoint_geometry::{BBox, PinholeCamera, Se3};
 use stillpoint_image::{DepthMetres, Gray8, ImageBuf, Rgb8};
 
@@ -340,7 +340,7 @@ impl Generator {
             bf: Some(bf),
             th_depth: 40.0,
             rgb: true,
-            orb: OrbSettings::default(),
+            orb: OrbParams::default(),
             rectification: None,
         }
     }
