@@ -24,6 +24,7 @@ pub enum TrackingState {
     /// Waiting for a frame with enough keypoints with depth (monocular: for two views that
     /// reconstruct).
     NotInitialized,
+    /// Tracking: the frame has a pose in the current map.
     Ok,
     /// The last frame(s) could not be tracked; relocalising.
     Lost,
@@ -34,19 +35,26 @@ pub enum TrackingState {
 pub struct TrackOutcome {
     /// Camera-to-world pose when tracked.
     pub pose_wc: Option<Se3>,
+    /// Map points matched by the final pose optimisation.
     pub inliers: usize,
+    /// The keyframe made from this frame, if one was.
     pub new_keyframe: Option<KfId>,
     /// Monocular initialisation makes the reference frame a keyframe too; local mapping takes it
     /// before `new_keyframe`.
     pub first_keyframe: Option<KfId>,
+    /// A map was started with this frame.
     pub initialised: bool,
+    /// Relocalised in the same map after being lost.
     pub relocalised: bool,
+    /// The map started is a new one (the old one was lost for good).
     pub new_map: bool,
 }
 
 /// The tracking state machine.
 pub struct Tracker {
+    /// The settings it runs with.
     pub s: SlamSettings,
+    /// Where it stands after the last frame.
     pub state: TrackingState,
     last_frame: Option<Frame>,
     /// T_cw(current) * T_wc(last): the constant-velocity model.
@@ -64,6 +72,7 @@ pub struct Tracker {
 }
 
 impl Tracker {
+    /// A tracker waiting for its first map.
     pub fn new(s: SlamSettings) -> Self {
         let inv_sigma2 = s.inv_level_sigma2();
         Self {
@@ -738,6 +747,7 @@ impl Tracker {
         false
     }
 
+    /// The keyframe the last frame was tracked against (ORB-SLAM's `mpReferenceKF`).
     pub fn reference_keyframe(&self) -> Option<KfId> {
         self.reference_kf
     }
