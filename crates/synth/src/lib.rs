@@ -142,6 +142,24 @@ pub fn tum_fr3_camera() -> PinholeCamera {
     PinholeCamera::new(535.4, 539.2, 320.1, 247.6, 640, 480)
 }
 
+/// [`tum_fr3_camera`] for an image of `width` x `height`: the same field of view, focal
+/// lengths scaled per axis and the principal point moved with the pixel centres (`synth
+/// --size`).
+pub fn tum_fr3_camera_sized(width: u32, height: u32) -> PinholeCamera {
+    let mut cam = tum_fr3_camera();
+    let (sx, sy) = (
+        width as f64 / cam.width as f64,
+        height as f64 / cam.height as f64,
+    );
+    cam.fx *= sx;
+    cam.fy *= sy;
+    cam.cx = (cam.cx + 0.5) * sx - 0.5;
+    cam.cy = (cam.cy + 0.5) * sy - 0.5;
+    cam.width = width;
+    cam.height = height;
+    cam
+}
+
 /// One object's box in one frame, per part (written to `parts.jsonl`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PartBox {
@@ -643,6 +661,18 @@ impl Iterator for Generator {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_resized_camera_keeps_the_field_of_view() {
+        let full = tum_fr3_camera();
+        assert_eq!(tum_fr3_camera_sized(640, 480), full);
+        let half = tum_fr3_camera_sized(320, 240);
+        assert_eq!((half.width, half.height), (320, 240));
+        assert_eq!((half.fx, half.fy), (full.fx / 2.0, full.fy / 2.0));
+        // pixel centres stay aligned: level-0 pixel x maps to (x + 0.5) / 2 - 0.5
+        assert_eq!(half.cx, (full.cx + 0.5) / 2.0 - 0.5);
+        assert_eq!(half.cy, (full.cy + 0.5) / 2.0 - 0.5);
+    }
 
     fn small(preset: Preset) -> SynthConfig {
         let mut camera = tum_fr3_camera();
