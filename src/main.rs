@@ -128,6 +128,11 @@ pub fn interrupted() -> bool {
     INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst)
 }
 
+/// The flag [`interrupted`] reads, for the library's runs to stop on (`RunOptions::stop`).
+pub fn interrupt_flag() -> &'static std::sync::atomic::AtomicBool {
+    &INTERRUPTED
+}
+
 extern "C" fn on_interrupt(signal: libc::c_int) {
     INTERRUPTED.store(true, std::sync::atomic::Ordering::SeqCst);
     // SAFETY: signal() is async-signal-safe; SIG_DFL is a valid action.

@@ -2,6 +2,7 @@
 //! `stillpoint synth --stereo` writes: tracks every frame from stereo depth alone, and reads the
 //! KITTI ground truth (12 numbers a line, stamps from times.txt) to report an ATE.
 
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_slam::Feature;
@@ -92,19 +93,22 @@ fn keypoint_depths(
     (kl, depth)
 }
 
+/// The first image of a folder, by name.
+fn first_image(dir: &Path) -> PathBuf {
+    let mut v: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    v.sort();
+    v[0].clone()
+}
+
 /// Stereo depths against the renderer's exact depth map (synth static, 0.1 m baseline).
 #[test]
 fn stereo_depths_match_the_rendered_depth() {
     let dir = tempfile::tempdir().unwrap();
     let seq = synth_static_stereo(dir.path(), 1);
-    let first = |sub: &str| {
-        let mut v: Vec<_> = std::fs::read_dir(seq.join(sub))
-            .unwrap()
-            .map(|e| e.unwrap().path())
-            .collect();
-        v.sort();
-        v[0].clone()
-    };
+    let first = |sub: &str| first_image(&seq.join(sub));
     let left = stillpoint_image::read_gray(&first("image_0")).unwrap();
     let right = stillpoint_image::read_gray(&first("image_1")).unwrap();
     let truth = stillpoint_image::read_depth_metres(&first("depth"), 5000.0).unwrap();
@@ -166,14 +170,7 @@ fn euroc_layout_stereo_is_rectified_before_matching() {
     use stillpoint_image::{Gray8, read_gray, remap_bilinear, write_gray};
     let dir = tempfile::tempdir().unwrap();
     let seq = synth_static_stereo(dir.path(), 1);
-    let first = |sub: &str| {
-        let mut v: Vec<_> = std::fs::read_dir(seq.join(sub))
-            .unwrap()
-            .map(|e| e.unwrap().path())
-            .collect();
-        v.sort();
-        v[0].clone()
-    };
+    let first = |sub: &str| first_image(&seq.join(sub));
     let rect_l = read_gray(&first("image_0")).unwrap();
     let rect_r = read_gray(&first("image_1")).unwrap();
     let truth = stillpoint_image::read_depth_metres(&first("depth"), 5000.0).unwrap();

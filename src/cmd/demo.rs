@@ -3,11 +3,11 @@
 //! nothing but the binary (the gt detector reads the boxes the generator wrote).
 
 use anyhow::Context;
-use stillpoint_synth::{Preset, SynthConfig, WriteOptions};
+use stillpoint_bench::demo::{DemoOptions, demo};
+use stillpoint_eval::stats;
+use stillpoint_synth::Preset;
 
-use super::run::{
-    RunOptions, RunSummary, accuracy, print_culled_row, run_sequence, stats, summary_json,
-};
+use super::run::{ProgressBar, print_culled_row, summary_json};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -31,68 +31,31 @@ pub struct Args {
     pub json: bool,
 }
 
-fn ate_of(s: &RunSummary) -> Option<f64> {
-    accuracy(s).map(|(a, _)| a.stats.rmse)
-}
-
 pub fn run(args: Args) -> anyhow::Result<()> {
     let preset = Preset::from_name(&args.preset)
         .with_context(|| format!("unknown preset {:?}", args.preset))?;
-    let dir = match &args.keep {
-        Some(d) => d.clone(),
-        None => std::env::temp_dir().join(format!("stillpoint-demo-{}", std::process::id())),
-    };
-    let cfg = SynthConfig {
-        preset,
-        frames: args.frames,
-        seed: args.seed,
-        ..Default::default()
-    };
-    tracing::info!(
-        "rendering {} frames of {} into {}",
-        cfg.frames,
-        preset.name(),
-        dir.display()
-    );
-    stillpoint_synth::write_sequence(&cfg, WriteOptions::default(), &dir)
-        .with_context(|| format!("writing the synthetic sequence into {}", dir.display()))?;
-    let base = RunOptions {
-        realtime: false,
-        dataset: dir.clone(),
-        kind: None,
-        settings: None,
-        out: None,
-        detector: None,
-        sequential: true,
-        frames: None,
-        progress: true,
-        paper_cull: false,
-        model: None,
-        overrides: Default::default(),
-    };
-    tracing::info!("run 1/2: dynamic front-end off");
-    let off = run_sequence(&base)?;
-    tracing::info!("run 2/2: dynamic front-end on ({})", args.detector);
-    let on = run_sequence(&RunOptions {
-        detector: Some(args.detector.clone()),
-        ..base
-    })?;
-    if args.keep.is_none() {
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-    let (a_off, a_on) = (ate_of(&off), ate_of(&on));
-    let improvement = match (a_off, a_on) {
-        (Some(a), Some(b)) if a > 0.0 => Some(100.0 * (a - b) / a),
-        _ => None,
-    };
+    let mut bar = ProgressBar::default();
+    let report = demo(
+        &DemoOptions {
+            preset,
+            frames: args.frames,
+            detector: args.detector.clone(),
+            seed: args.seed,
+            keep: args.keep.clone(),
+            stop: Some(crate::interrupt_flag()),
+        },
+        &mut |e| bar.show(e),
+    )?;
+    let (off, on) = (&report.off, &report.on);
+    let (a_off, a_on, improvement) = (report.ate_off, report.ate_on, report.improvement_percent);
     if args.json {
         println!(
             "{}",
             serde_json::json!({
                 "preset": preset.name(),
                 "frames": args.frames,
-                "off": summary_json(&off),
-                "on": summary_json(&on),
+                "off": summary_json(off),
+                "on": summary_json(on),
                 "ate_rmse_off": a_off,
                 "ate_rmse_on": a_on,
                 "improvement_percent": improvement,
@@ -112,7 +75,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "{:<24} {:>12} {:>14} {:>10} {:>11}",
         "dynamic front-end", "ATE RMSE", "tracked", "keyframes", "map points"
     );
-    for (name, s, a) in [("off (baseline)", &off, a_off), ("on", &on, a_on)] {
+    for (name, s, a) in [("off (baseline)", off, a_off), ("on", on, a_on)] {
         println!(
             "{:<24} {:>12} {:>14} {:>10} {:>11}",
             name,
@@ -143,6 +106,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .map_or("-".to_string(), |(_, b)| format!("{:.2}", stats(b).0));
         println!("{k:<30} {m:>9.2} {med:>9.2} {p90:>9.2} {base:>12}");
     }
-    print_culled_row(&on);
+    print_culled_row(on);
     Ok(())
 }

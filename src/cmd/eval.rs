@@ -111,15 +111,7 @@ fn load_pair(i: &Inputs) -> Result<(Trajectory, Trajectory, Matching)> {
     let gt_format = i.gt_format.unwrap_or(i.format);
     let gt = load(&i.gt, gt_format)?;
     let est = load(&i.est, i.format)?;
-    // KITTI files carry no stamps: pair by index, as evo does for `evo_ape kitti`.
-    let matching = if gt_format == TrajectoryFormat::Kitti || i.format == TrajectoryFormat::Kitti {
-        Matching::ByIndex
-    } else {
-        Matching::Nearest {
-            max_diff: i.max_diff,
-            offset: i.offset,
-        }
-    };
+    let matching = Matching::for_formats(gt_format, i.format, i.max_diff, i.offset);
     Ok((gt, est, matching))
 }
 

@@ -6,7 +6,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use stillpoint_datasets::Sensor;
 
-use crate::cmd::run::{Overrides, SettingsArgs, parse_kind, settings_layers};
+use stillpoint_run::{Overrides, settings_layers};
+
+use crate::cmd::run::{SettingsArgs, parse_kind};
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -79,14 +79,7 @@ fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
 
 fn config(args: &Args, preset: Preset) -> anyhow::Result<SynthConfig> {
     let (w, h) = parse_size(&args.size)?;
-    let mut cam = stillpoint_synth::tum_fr3_camera();
-    let (sx, sy) = (w as f64 / cam.width as f64, h as f64 / cam.height as f64);
-    cam.fx *= sx;
-    cam.fy *= sy;
-    cam.cx = (cam.cx + 0.5) * sx - 0.5;
-    cam.cy = (cam.cy + 0.5) * sy - 0.5;
-    cam.width = w;
-    cam.height = h;
+    let cam = stillpoint_synth::tum_fr3_camera_sized(w, h);
     let noise = match args.noise.as_deref() {
         None => preset.default_noise(),
         Some("none") => Noise::None,

@@ -27,8 +27,10 @@ pub use error::DatasetError;
 pub use frame::Frame;
 pub use lists::{associate_nearest, read_associations, read_stamped_list, read_times};
 pub use sequence::{DatasetKind, GroundTruthFormat, Sequence, detect_kind, open};
-pub use settings::{OrbSettings, Sensor, Settings};
+pub use settings::{Sensor, Settings};
 pub use settings_file::{
     parse_orbslam_yaml, parse_settings_toml, read_orbslam_yaml, read_settings, read_settings_toml,
     write_settings_toml,
 };
+/// The ORB extractor's settings as a dataset's settings carry them (`Settings::orb`).
+pub use stillpoint_features::OrbParams;

@@ -1,6 +1,7 @@
 //! Camera and front-end settings, as ORB-SLAM's settings files carry them.
 
 use serde::{Deserialize, Serialize};
+use stillpoint_features::OrbParams;
 use stillpoint_geometry::{PinholeCamera, StereoRectification};
 
 /// What the sequence provides.
@@ -13,52 +14,6 @@ pub enum Sensor {
     Stereo,
     /// One camera.
     Mono,
-}
-
-/// ORB extractor settings (`ORBextractor.*` in ORB-SLAM files).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct OrbSettings {
-    /// Features per frame (`ORBextractor.nFeatures`).
-    pub n_features: usize,
-    /// Scale between pyramid levels (`ORBextractor.scaleFactor`).
-    pub scale_factor: f32,
-    /// Pyramid levels (`ORBextractor.nLevels`).
-    pub n_levels: usize,
-    /// FAST threshold (`ORBextractor.iniThFAST`).
-    pub ini_th_fast: u8,
-    /// FAST threshold where a cell finds nothing (`ORBextractor.minThFAST`).
-    pub min_th_fast: u8,
-    /// A third FAST threshold where `min_th_fast` found nothing either (plain walls); 0 = off.
-    /// Not in ORB-SLAM: there 7 leaves plain views nearly empty.
-    #[serde(default = "default_low_texture_th_fast")]
-    pub low_texture_th_fast: u8,
-    /// The third threshold is at least this many times the image noise's sigma.
-    #[serde(default = "default_noise_th_factor")]
-    pub noise_th_factor: f32,
-}
-
-fn default_low_texture_th_fast() -> u8 {
-    3
-}
-
-fn default_noise_th_factor() -> f32 {
-    2.0
-}
-
-impl Default for OrbSettings {
-    /// ORB-SLAM's TUM settings: 1000 features, 1.2, 8 levels, FAST 20 / 7.
-    fn default() -> Self {
-        Self {
-            n_features: 1000,
-            scale_factor: 1.2,
-            n_levels: 8,
-            ini_th_fast: 20,
-            min_th_fast: 7,
-            low_texture_th_fast: default_low_texture_th_fast(),
-            noise_th_factor: default_noise_th_factor(),
-        }
-    }
 }
 
 /// Everything needed to interpret a sequence's images. A misspelt key is an error, not a
@@ -87,9 +42,10 @@ pub struct Settings {
     /// True when the images are RGB (`Camera.RGB: 1`), false for BGR.
     #[serde(default = "default_rgb")]
     pub rgb: bool,
-    /// The ORB extractor's settings.
+    /// The ORB extractor's settings (`ORBextractor.*`; the extractor's own type, so the values
+    /// reach it as read).
     #[serde(default)]
-    pub orb: OrbSettings,
+    pub orb: OrbParams,
     /// For a stereo camera whose images are not rectified (EuRoC): the raw cameras and the
     /// rectifying rotations and projections (ORB-SLAM's `LEFT.K/D/R/P`, `RIGHT.*`). The EuRoC
     /// reader then rectifies both images, and `camera` / `bf` describe the rectified pair.
@@ -122,7 +78,7 @@ impl Settings {
             bf: Some(40.0),
             th_depth: default_th_depth(),
             rgb: true,
-            orb: OrbSettings::default(),
+            orb: OrbParams::default(),
             rectification: None,
         }
     }

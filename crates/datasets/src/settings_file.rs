@@ -7,8 +7,9 @@
 //! before `yaml-rust2` parses it.
 
 use crate::error::{DatasetError, io_err};
-use crate::settings::{OrbSettings, Sensor, Settings};
+use crate::settings::{Sensor, Settings};
 use std::path::Path;
+use stillpoint_features::OrbParams;
 use stillpoint_geometry::{PinholeCamera, RadTan, RectifyingView, StereoRectification};
 use yaml_rust2::{Yaml, YamlLoader};
 
@@ -259,7 +260,7 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
     } else {
         Sensor::Mono
     };
-    let defaults = OrbSettings::default();
+    let defaults = OrbParams::default();
     let int = |k: &str, dflt: f64| -> Result<f64, DatasetError> {
         let v = d.number(k)?.unwrap_or(dflt);
         if v >= 0.0 && v.fract() == 0.0 {
@@ -271,7 +272,7 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
             ))
         }
     };
-    let orb = OrbSettings {
+    let orb = OrbParams {
         n_features: int("ORBextractor.nFeatures", defaults.n_features as f64)? as usize,
         scale_factor: d
             .number("ORBextractor.scaleFactor")?

@@ -38,8 +38,10 @@ pub struct KeyPoint {
 
 /// ORB extractor settings. `Default` = ORB-SLAM3's TUM settings (`ORBextractor.*` in
 /// `TUM1.yaml`, the values the paper used); KITTI stereo uses `n_features: 2000`.
+/// Datasets carry it in their settings (`datasets::Settings::orb`, `[orb]` in a settings file);
+/// a key it does not have is an error there, not a silent default.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct OrbParams {
     /// Target number of features per image (`ORBextractor.nFeatures`: 1000 TUM, 2000 KITTI).
     pub n_features: usize,

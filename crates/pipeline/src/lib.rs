@@ -85,15 +85,7 @@ impl PipelineSettings {
         slam.th_depth = s.th_depth;
         slam.scale_factor = s.orb.scale_factor as f64;
         slam.n_levels = s.orb.n_levels.max(1);
-        let orb = OrbParams {
-            n_features: s.orb.n_features,
-            scale_factor: s.orb.scale_factor,
-            n_levels: s.orb.n_levels,
-            ini_th_fast: s.orb.ini_th_fast,
-            min_th_fast: s.orb.min_th_fast,
-            low_texture_th_fast: s.orb.low_texture_th_fast,
-            noise_th_factor: s.orb.noise_th_factor,
-        };
+        let orb = s.orb.clone();
         Self {
             slam,
             orb,

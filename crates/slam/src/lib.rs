@@ -14,7 +14,7 @@
 //! - [`System`]: the entry point that ties them together.
 //!
 //! The crate works on already extracted features ([`Feature`] + [`Descriptor`]), so the ORB
-//! extractor and the dynamic front-end stay in their own crates; the binary wires them.
+//! extractor and the dynamic front-end stay in their own crates; `stillpoint-pipeline` wires them.
 //!
 //! ```
 //! use stillpoint_slam::{SlamSettings, System};
@@ -24,6 +24,8 @@
 //! let system = System::new(settings);
 //! assert_eq!(system.keyframe_count(), 0);
 //! ```
+
+#![deny(missing_docs)]
 
 pub mod data;
 pub mod matching;
@@ -42,8 +44,15 @@ pub use system::{FrameReport, System};
 /// Errors from the SLAM core. Input problems (wrong sizes, NaN) are reported, not panicked on.
 #[derive(Debug, thiserror::Error)]
 pub enum SlamError {
+    /// The input of a frame is unusable (sizes differ, NaN).
     #[error("frame {index}: {msg}")]
-    BadInput { index: usize, msg: String },
+    BadInput {
+        /// The frame's index.
+        index: usize,
+        /// What is wrong.
+        msg: String,
+    },
+    /// The local mapping thread died or cannot be started.
     #[error("local mapping thread stopped: {0}")]
     LocalMapping(String),
 }

@@ -61,6 +61,7 @@ pub struct SlamSettings {
     pub chi2_mono: f64,
     /// Pose optimisation rounds x iterations (ORB-SLAM3: 4 x 10).
     pub pose_rounds: usize,
+    /// Iterations a round (ORB-SLAM3: 10).
     pub pose_iterations: usize,
     /// Keyframe ratio threshold vs the reference keyframe's tracked points (ORB-SLAM3 RGB-D: 0.75,
     /// monocular: 0.9).

@@ -21,18 +21,26 @@ use crate::{Descriptor, Feature, Frame, KeypointDepth, SlamError, SlamSettings, 
 /// What the system did with one frame.
 #[derive(Clone, Debug)]
 pub struct FrameReport {
+    /// Position of the frame in its sequence.
     pub index: usize,
+    /// Time of the frame, seconds.
     pub timestamp: f64,
+    /// Tracking's state after it.
     pub state: TrackingState,
     /// Camera-to-world pose when tracked (TUM convention).
     pub pose_wc: Option<Se3>,
+    /// Keypoints handed to tracking.
     pub keypoints: usize,
+    /// Map points matched by the final pose optimisation.
     pub inliers: usize,
     /// Per keypoint handed to tracking: a pose inlier matched to a map point (empty when the
     /// frame was not tracked).
     pub matched: Vec<bool>,
+    /// The frame became a keyframe.
     pub new_keyframe: bool,
+    /// Relocalised in the same map after being lost.
     pub relocalised: bool,
+    /// A new map was started.
     pub new_map: bool,
     /// Tracking time (ms), frame building included.
     pub tracking_ms: f64,
@@ -52,6 +60,7 @@ enum Looping {
 /// The SLAM system: RGB-D, stereo (depth per keypoint) or monocular input (see
 /// [`SlamSettings::monocular`]).
 pub struct System {
+    /// The settings it runs with (read-only once tracking started).
     pub settings: SlamSettings,
     map: Arc<Mutex<Map>>,
     tracker: Tracker,
@@ -431,6 +440,7 @@ impl System {
             .collect()
     }
 
+    /// Tracking's state after the last frame.
     pub fn state(&self) -> TrackingState {
         self.tracker.state
     }
@@ -443,6 +453,7 @@ impl System {
             .unwrap_or(0)
     }
 
+    /// Map points in the map (all maps).
     pub fn map_point_count(&self) -> usize {
         self.map.lock().map(|m| m.points.len()).unwrap_or(0)
     }

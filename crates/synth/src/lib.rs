@@ -14,6 +14,8 @@
 //! }
 //! ```
 
+#![deny(missing_docs)]
+
 pub mod living;
 pub mod mesh;
 pub mod noise;
@@ -33,26 +35,38 @@ use rand_pcg::Pcg64Mcg;
 use render::{DrawItem, Target};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
-use stillpoint_datasets::{GtBox, OrbSettings, Sensor, Settings};
+use stillpoint_datasets::{GtBox, OrbParams, Sensor, Settings};
 use stillpoint_geometry::{BBox, PinholeCamera, Se3};
 use stillpoint_image::{DepthMetres, Gray8, ImageBuf, Rgb8};
 
 /// Errors of the generator.
 #[derive(Debug, thiserror::Error)]
 pub enum SynthError {
+    /// A preset name that is not one of `Preset::ALL`: (name, the known names).
     #[error("unknown preset {0:?} (known: {1})")]
     UnknownPreset(String, String),
+    /// A configuration the renderer cannot use (distorted or tiny camera, bad rate, baseline).
     #[error("bad configuration: {0}")]
     Config(String),
+    /// A file cannot be read or written.
     #[error("{path}: {source}")]
     Io {
+        /// The file.
         path: PathBuf,
+        /// Why.
         source: std::io::Error,
     },
+    /// An image cannot be read or written.
     #[error(transparent)]
     Image(#[from] stillpoint_image::ImageError),
     #[error("{path}: {msg}")]
-    Write { path: PathBuf, msg: String },
+    /// A file of the sequence cannot be encoded or laid out (its message says why).
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        msg: String,
+    },
 }
 
 /// Sensor noise applied to the rendered frames.
@@ -69,6 +83,7 @@ pub enum Noise {
 /// bytes.
 #[derive(Clone, Debug)]
 pub struct SynthConfig {
+    /// The scene and the camera's motion.
     pub preset: Preset,
     /// Number of frames (TUM fr3 walking sequences hold 700-1000; 300 is 10 s).
     pub frames: usize,
@@ -81,6 +96,7 @@ pub struct SynthConfig {
     pub fps: f64,
     /// Timestamp of the first frame in seconds (non-zero, TUM-like Unix time).
     pub start_time: f64,
+    /// Sensor noise on the rendered depth and colour (`Preset::default_noise` for the preset's own).
     pub noise: Noise,
     /// Folder of photos: used as posters, and person cut-outs (an RGB image with a
     /// `<stem>_person_mask*.png` beside it anywhere under the folder) replace the people.
@@ -126,21 +142,47 @@ pub fn tum_fr3_camera() -> PinholeCamera {
     PinholeCamera::new(535.4, 539.2, 320.1, 247.6, 640, 480)
 }
 
+/// [`tum_fr3_camera`] for an image of `width` x `height`: the same field of view, focal
+/// lengths scaled per axis and the principal point moved with the pixel centres (`synth
+/// --size`).
+pub fn tum_fr3_camera_sized(width: u32, height: u32) -> PinholeCamera {
+    let mut cam = tum_fr3_camera();
+    let (sx, sy) = (
+        width as f64 / cam.width as f64,
+        height as f64 / cam.height as f64,
+    );
+    cam.fx *= sx;
+    cam.fy *= sy;
+    cam.cx = (cam.cx + 0.5) * sx - 0.5;
+    cam.cy = (cam.cy + 0.5) * sy - 0.5;
+    cam.width = width;
+    cam.height = height;
+    cam
+}
+
 /// One object's box in one frame, per part (written to `parts.jsonl`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PartBox {
+    /// Index of the object in `Generator::objects`.
     pub object: u32,
+    /// The part's name (`PERSON_PARTS` for people).
     pub part: String,
+    /// Tight box of the part's visible pixels.
     pub bbox: BBox,
+    /// The part moved since the previous frame.
     pub moving: bool,
+    /// Visible pixels of the part.
     pub pixels: usize,
 }
 
 /// One rendered frame with its ground truth.
 #[derive(Clone, Debug)]
 pub struct SynthFrame {
+    /// Position in the sequence.
     pub index: usize,
+    /// Time of the frame, seconds (`SynthConfig::start_time` + index / fps).
     pub timestamp: f64,
+    /// The colour image (with noise when the config has it).
     pub rgb: Rgb8,
     /// Depth along the optical axis in metres, 0 where there is none.
     pub depth: DepthMetres,
@@ -161,9 +203,13 @@ pub struct SynthFrame {
 /// Name and class of a scene object (`objects.json`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ObjectInfo {
+    /// Index of the object (the `object` of its boxes).
     pub object: u32,
+    /// Its name in the scene (`walker`, `desk`, ...).
     pub name: String,
+    /// COCO class, `None` for things that get no box (walls, shelves).
     pub class_id: Option<u16>,
+    /// Names of its rigid parts, in id order.
     pub parts: Vec<String>,
 }
 
@@ -227,6 +273,8 @@ fn moved(a: &Se3, b: &Se3) -> bool {
 }
 
 impl Generator {
+    /// The sequence `config` describes: checks the camera and rates, loads the photos, builds the
+    /// scene and the camera path (deterministic for the seed).
     pub fn new(config: &SynthConfig) -> Result<Generator, SynthError> {
         let c = &config.camera;
         if !c.distortion.is_zero() {
@@ -279,6 +327,7 @@ impl Generator {
         })
     }
 
+    /// The configuration it was built from.
     pub fn config(&self) -> &SynthConfig {
         &self.config
     }
@@ -288,6 +337,7 @@ impl Generator {
         self.config.frames
     }
 
+    /// No frames to render.
     pub fn is_empty(&self) -> bool {
         self.config.frames == 0
     }
@@ -340,7 +390,7 @@ impl Generator {
             bf: Some(bf),
             th_depth: 40.0,
             rgb: true,
-            orb: OrbSettings::default(),
+            orb: OrbParams::default(),
             rectification: None,
         }
     }
@@ -611,6 +661,18 @@ impl Iterator for Generator {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_resized_camera_keeps_the_field_of_view() {
+        let full = tum_fr3_camera();
+        assert_eq!(tum_fr3_camera_sized(640, 480), full);
+        let half = tum_fr3_camera_sized(320, 240);
+        assert_eq!((half.width, half.height), (320, 240));
+        assert_eq!((half.fx, half.fy), (full.fx / 2.0, full.fy / 2.0));
+        // pixel centres stay aligned: level-0 pixel x maps to (x + 0.5) / 2 - 0.5
+        assert_eq!(half.cx, (full.cx + 0.5) / 2.0 - 0.5);
+        assert_eq!(half.cy, (full.cy + 0.5) / 2.0 - 0.5);
+    }
 
     fn small(preset: Preset) -> SynthConfig {
         let mut camera = tum_fr3_camera();

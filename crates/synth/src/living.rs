@@ -20,6 +20,7 @@ pub const LIVING_ROOM: [[f64; 2]; 3] = [[-2.3, 2.3], [-1.6, 2.9], [0.0, 2.6]];
 /// Where the hand-held camera is held (before its sway) and what it looks at: the back wall
 /// with the sofa, 3.85 m ahead, about 10 degrees down.
 pub const LIVING_EYE: [f64; 3] = [0.0, -0.95, 1.45];
+/// The point the hand-held camera looks at: low on the back wall, above the sofa.
 pub const LIVING_TARGET: [f64; 3] = [0.0, 2.9, 0.75];
 
 /// Build a living-room preset. Random draws, in order: the room's textures, the camera's

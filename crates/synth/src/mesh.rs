@@ -9,14 +9,18 @@ pub type P3 = Vector3<f64>;
 /// One textured triangle. `tex` indexes the scene's texture list.
 #[derive(Clone, Debug)]
 pub struct Tri {
+    /// Corners in the part's local frame, metres.
     pub p: [P3; 3],
+    /// Texture coordinates of the corners (0..1, rows grow downwards).
     pub uv: [[f32; 2]; 3],
+    /// Index of the texture in the scene's list.
     pub tex: u16,
 }
 
 /// A list of triangles sharing a rigid frame.
 #[derive(Clone, Debug, Default)]
 pub struct Mesh {
+    /// The triangles, in the part's local frame.
     pub tris: Vec<Tri>,
 }
 

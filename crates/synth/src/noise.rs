@@ -10,17 +10,22 @@ use rand_pcg::Pcg64Mcg;
 pub struct KinectNoise {
     /// Axial noise sigma = a + b (z - c)^2 metres (Nguyen et al.: 0.0012, 0.0019, 0.4).
     pub sigma_a: f32,
+    /// `b` of the axial sigma above, metres per square metre.
     pub sigma_b: f32,
+    /// `c` of the axial sigma above, metres.
     pub sigma_c: f32,
     /// Valid range in metres (Kinect v1: about 0.4 to 5-6 m).
     pub min_depth: f32,
+    /// Farthest valid depth, metres; beyond it depth is 0.
     pub max_depth: f32,
     /// A pixel next to a depth jump larger than this fraction of its depth is dropped with
     /// probability `edge_dropout` (shadowing and mixed pixels at object borders).
     pub edge_jump: f32,
+    /// Probability that a pixel at such a jump is dropped.
     pub edge_dropout: f64,
     /// Random elliptical holes per frame (specular or dark surfaces), radius range in pixels.
     pub holes: usize,
+    /// Hole radius range (min, max), pixels.
     pub hole_radius: [f32; 2],
     /// Image noise sigma in grey levels per channel.
     pub image_sigma: f32,

@@ -16,12 +16,20 @@ use stillpoint_geometry::Se3;
 /// A scene preset, named after the TUM sequence it imitates.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Preset {
+    /// TUM fr3/walking_xyz: two people walk loops in front of the desks, the camera
+    /// translates along x, y, z.
     WalkingXyz,
+    /// TUM fr3/walking_static: the walkers, a nearly still camera.
     WalkingStatic,
+    /// TUM fr3/walking_halfsphere: the walkers, the camera on an arc of a sphere.
     WalkingHalfsphere,
+    /// TUM fr3/walking_rpy: the walkers, the camera rotating in place (roll, pitch, yaw).
     WalkingRpy,
+    /// TUM fr3/sitting_xyz: two people seated at the desk, the camera translating.
     SittingXyz,
+    /// TUM fr3/sitting_static: the seated people, a nearly still camera.
     SittingStatic,
+    /// TUM fr3/sitting_halfsphere: the seated people, the camera on an arc of a sphere.
     SittingHalfsphere,
     /// Five walkers.
     Crowd,
@@ -53,6 +61,7 @@ pub enum Preset {
 }
 
 impl Preset {
+    /// Every preset, in the order `synth --contact-sheet --preset all` shows them.
     pub const ALL: [Preset; 16] = [
         Preset::WalkingXyz,
         Preset::WalkingStatic,
@@ -72,6 +81,7 @@ impl Preset {
         Preset::LivingEmpty,
     ];
 
+    /// The preset's name on the command line (`walking_xyz`, ...).
     pub fn name(&self) -> &'static str {
         match self {
             Preset::WalkingXyz => "walking_xyz",
@@ -123,46 +133,77 @@ pub enum CameraPath {
     /// Translation around `base` (sinusoids per axis), looking along `base -> target` always
     /// (TUM "xyz"; with tiny amplitudes, "static").
     Xyz {
+        /// Where the camera oscillates around (world, metres).
         base: P3,
+        /// What it looks at.
         target: P3,
+        /// Amplitude of the oscillation along x, y, z (metres).
         amp: P3,
+        /// Period of the oscillation along x, y, z (seconds).
         period: P3,
     },
     /// Rotation about the camera centre: yaw, pitch, roll amplitudes (rad) and periods (TUM "rpy").
     Rpy {
+        /// The camera's centre (world, metres).
         base: P3,
+        /// What it looks at when the angles are zero.
         target: P3,
+        /// Yaw, pitch and roll amplitudes (radians).
         amp: P3,
+        /// Yaw, pitch and roll periods (seconds).
         period: P3,
     },
     /// An arc on a sphere around `centre`, looking at it (TUM "halfsphere").
     Halfsphere {
+        /// The point looked at, centre of the sphere (world, metres).
         centre: P3,
+        /// Radius of the sphere (metres).
         radius: f64,
+        /// Azimuth amplitude around the -y direction (radians).
         azimuth_amp: f64,
+        /// Azimuth period (seconds).
         azimuth_period: f64,
+        /// Mean elevation above the horizontal (radians).
         elevation: f64,
+        /// Elevation amplitude (radians).
         elevation_amp: f64,
+        /// Elevation period (seconds).
         elevation_period: f64,
     },
     /// Follow a walker from behind the walker's line, at a fixed height.
-    Follow { route: Route, y: f64, height: f64 },
+    Follow {
+        /// The walker's route.
+        route: Route,
+        /// The camera's fixed y (world, metres); its x follows the walker's at 0.7.
+        y: f64,
+        /// The camera's height (metres).
+        height: f64,
+    },
     /// Round a horizontal circle at constant speed, looking outwards (slightly down, with a
     /// gentle bob), one lap per `period` seconds from the angle `start`.
     Circle {
+        /// Centre of the circle (world, metres).
         centre: P3,
+        /// Radius (metres).
         radius: f64,
+        /// Seconds a lap.
         period: f64,
+        /// Angle of the first frame on the circle (radians, from +x).
         start: f64,
+        /// How far the view points down (radians).
         pitch: f64,
     },
     /// Hand-held: looking from `base` at `target`, with smooth sums of sinusoids added to the
     /// position (world x, y, z, metres) and to the orientation (yaw, pitch, roll in the camera
     /// frame, radians, as in `Rpy`).
     Handheld {
+        /// Where the camera is held (world, metres).
         base: P3,
+        /// What it looks at.
         target: P3,
+        /// Sinusoids added to the position along world x, y, z.
         pos: [Vec<Wave>; 3],
+        /// Sinusoids added to yaw, pitch and roll.
         rot: [Vec<Wave>; 3],
     },
 }
@@ -170,8 +211,11 @@ pub enum CameraPath {
 /// One sinusoid of a hand-held camera path: `amp * sin(2 pi t / period + phase)`.
 #[derive(Clone, Copy, Debug)]
 pub struct Wave {
+    /// Amplitude (metres or radians).
     pub amp: f64,
+    /// Period (seconds).
     pub period: f64,
+    /// Phase (radians).
     pub phase: f64,
 }
 

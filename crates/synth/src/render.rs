@@ -18,8 +18,11 @@ pub const NEAR: f64 = 0.05;
 /// Colour, depth and part id of one rendered view.
 #[derive(Clone, Debug)]
 pub struct Target {
+    /// Image width, pixels.
     pub width: usize,
+    /// Image height, pixels.
     pub height: usize,
+    /// Colour, row-major.
     pub rgb: Vec<[u8; 3]>,
     /// Depth along the optical axis in metres; `f32::INFINITY` where nothing was drawn.
     pub depth: Vec<f32>,
@@ -28,6 +31,7 @@ pub struct Target {
 }
 
 impl Target {
+    /// An empty view: black, infinitely far, no part.
     pub fn new(width: usize, height: usize) -> Target {
         Target {
             width,
@@ -42,9 +46,13 @@ impl Target {
 /// One rigid part to draw: its mesh, its pose in the camera frame and its pose's rotation in the
 /// world (for lighting, so a static surface keeps its brightness when the camera moves).
 pub struct DrawItem<'a> {
+    /// The part's triangles.
     pub mesh: &'a Mesh,
+    /// The part's pose in the camera frame (part to camera).
     pub t_cp: Isometry3<f64>,
+    /// The part's rotation in the world (part to world), for the lighting.
     pub r_wp: nalgebra::UnitQuaternion<f64>,
+    /// The id written to the id buffer where this part is seen.
     pub id: u16,
 }
 

@@ -11,38 +11,53 @@ use stillpoint_geometry::Se3;
 
 /// COCO class ids used by the generator.
 pub mod coco {
+    /// A person.
     pub const PERSON: u16 = 0;
     /// The carried cardboard box: COCO has no "box"; suitcase is the nearest container class.
     pub const SUITCASE: u16 = 28;
     /// The balloon: COCO has no balloon; sports ball is the nearest class.
     pub const SPORTS_BALL: u16 = 32;
+    /// A bottle.
     pub const BOTTLE: u16 = 39;
+    /// A cup.
     pub const CUP: u16 = 41;
+    /// A chair.
     pub const CHAIR: u16 = 56;
+    /// A couch (the living room's sofa).
     pub const COUCH: u16 = 57;
+    /// A potted plant.
     pub const POTTED_PLANT: u16 = 58;
     /// Desks: COCO's "dining table".
     pub const DINING_TABLE: u16 = 60;
+    /// A TV (the monitors on the desks).
     pub const TV: u16 = 62;
+    /// A laptop.
     pub const LAPTOP: u16 = 63;
+    /// A keyboard.
     pub const KEYBOARD: u16 = 66;
+    /// A book.
     pub const BOOK: u16 = 73;
 }
 
 /// One rigid piece of an object.
 #[derive(Clone, Debug)]
 pub struct Part {
+    /// The part's name (`PERSON_PARTS` for people).
     pub name: &'static str,
+    /// Its triangles, in its own frame.
     pub mesh: Mesh,
 }
 
 /// Something in the scene with an identity: the room, a desk, a person.
 #[derive(Clone, Debug)]
 pub struct Object {
+    /// Its name (`walker`, `desk`, ...).
     pub name: String,
     /// COCO class; `None` for things that get no box (walls, shelves, static cartons).
     pub class_id: Option<u16>,
+    /// Its rigid parts.
     pub parts: Vec<Part>,
+    /// How the parts move in time.
     pub motion: Motion,
 }
 
@@ -50,8 +65,11 @@ pub struct Object {
 /// at each waypoint (turning on the spot there).
 #[derive(Clone, Debug)]
 pub struct Route {
+    /// Waypoints on the floor (x, y, metres); the route closes back to the first.
     pub points: Vec<[f64; 2]>,
+    /// Seconds standing at each waypoint.
     pub dwell: Vec<f64>,
+    /// Walking speed, metres a second.
     pub speed: f64,
     /// Seconds added to the clock, so walkers on one route are spread out.
     pub offset: f64,
@@ -60,6 +78,7 @@ pub struct Route {
 /// Where a walker is at one instant.
 #[derive(Clone, Copy, Debug)]
 pub struct RouteState {
+    /// Position on the floor (x, y, metres).
     pub pos: [f64; 2],
     /// Angle about z of the body's forward (+y) axis.
     pub heading: f64,
@@ -138,6 +157,7 @@ impl Route {
         t - self.offset
     }
 
+    /// Where the walker is at time `t` (seconds).
     pub fn state(&self, t: f64) -> RouteState {
         let n = self.points.len();
         let (lap_len, lap_time) = self.lap();
@@ -194,34 +214,63 @@ pub enum Motion {
     Static(Se3),
     /// An articulated person (parts in [`PERSON_PARTS`] order) walking a route; `carry_until`
     /// holds the arms forward (carrying) until that time.
-    Walker { route: Route, carry_until: f64 },
+    Walker {
+        /// The route walked.
+        route: Route,
+        /// Time until which the arms hold something (seconds).
+        carry_until: f64,
+    },
     /// An articulated person seated on a chair at `base` (pelvis above the seat): legs and torso
     /// still, head and arms moving in bursts (`phase` shifts the bursts).
-    Seated { base: Se3, phase: f64 },
+    Seated {
+        /// The pelvis's pose above the seat.
+        base: Se3,
+        /// Shift of the head and arm bursts (seconds).
+        phase: f64,
+    },
     /// Carried by a walker in front of the hands until `route`'s arrival at waypoint
     /// `place_at`, lowered onto `place` over `lower` seconds, then still.
     Carried {
+        /// The carrier's route.
         route: Route,
+        /// The waypoint where the object is put down.
         place_at: usize,
+        /// Seconds spent lowering it.
         lower: f64,
+        /// Where it rests after.
         place: Se3,
     },
     /// Lifted from `base` by `lift` metres and tilted, once every `period` seconds for
     /// `duration` seconds, resting in between.
     Lifted {
+        /// The resting pose.
         base: Se3,
+        /// How high it is lifted (metres).
         lift: f64,
+        /// Seconds between lifts.
         period: f64,
+        /// Seconds a lift lasts.
         duration: f64,
+        /// Shift of the lifts in time (seconds).
         phase: f64,
     },
     /// Drifting around `base` (a balloon).
-    Floating { base: P3, amp: P3, period: P3 },
+    Floating {
+        /// The centre of the drift (world, metres).
+        base: P3,
+        /// Drift amplitude along x, y, z (metres).
+        amp: P3,
+        /// Drift period along x, y, z (seconds).
+        period: P3,
+    },
     /// A flat cut-out that stands at a route's position (or `fixed`) and turns to face the
     /// camera.
     Billboard {
+        /// The route it stands on, or `None` to stand at `fixed`.
         route: Option<Route>,
+        /// Where it stands without a route (x, y, metres).
         fixed: [f64; 2],
+        /// It bobs up and down while its route walks (a walking cut-out person).
         bob: bool,
     },
 }
@@ -461,22 +510,31 @@ impl Motion {
 
 /// Scene under construction: textures and objects.
 pub struct Scene {
+    /// The texture list that triangles index.
     pub textures: Vec<Texture>,
+    /// The objects, in id order.
     pub objects: Vec<Object>,
 }
 
 /// The texture ids a person is dressed in.
 #[derive(Clone, Copy, Debug)]
 pub struct Outfit {
+    /// The shirt's texture.
     pub shirt: u16,
+    /// The trousers' texture.
     pub trousers: u16,
+    /// The skin's texture (arms, hands, neck).
     pub skin: u16,
+    /// The face's texture.
     pub head: u16,
+    /// The hair's texture.
     pub hair: u16,
+    /// The shoes' texture.
     pub shoes: u16,
 }
 
 impl Scene {
+    /// An empty scene.
     pub fn new() -> Scene {
         Scene {
             textures: Vec::new(),
@@ -484,15 +542,18 @@ impl Scene {
         }
     }
 
+    /// Add a texture; returns its id.
     pub fn add_texture(&mut self, t: Texture) -> u16 {
         self.textures.push(t);
         (self.textures.len() - 1) as u16
     }
 
+    /// Add a procedural texture of `style`, `w` x `h` texels; returns its id.
     pub fn paint(&mut self, style: Style, w: usize, h: usize, rng: &mut Pcg64Mcg) -> u16 {
         self.add_texture(procedural(style, w, h, rng))
     }
 
+    /// Add an object with its parts and motion; its id is its position in `objects`.
     pub fn add(&mut self, name: &str, class_id: Option<u16>, parts: Vec<Part>, motion: Motion) {
         self.objects.push(Object {
             name: name.to_string(),

@@ -9,14 +9,18 @@ use stillpoint_image::Rgb8;
 /// One mip level, RGBA.
 #[derive(Clone, Debug)]
 pub struct Level {
+    /// Width, texels.
     pub width: usize,
+    /// Height, texels.
     pub height: usize,
+    /// RGBA texels, row-major.
     pub data: Vec<[u8; 4]>,
 }
 
 /// A texture with its mip chain (level 0 full size, each next level half as large).
 #[derive(Clone, Debug)]
 pub struct Texture {
+    /// Level 0 (full size) first, each next one half as large.
     pub levels: Vec<Level>,
     /// True when some texel is transparent (alpha-tested cut-outs).
     pub has_alpha: bool,
@@ -126,8 +130,11 @@ impl Texture {
 
 /// A float RGB canvas procedural textures are painted on.
 pub struct Canvas {
+    /// Width, pixels.
     pub width: usize,
+    /// Height, pixels.
     pub height: usize,
+    /// RGB in 0..1, row-major.
     pub data: Vec<[f32; 3]>,
 }
 
@@ -191,6 +198,7 @@ pub enum Style {
 }
 
 impl Canvas {
+    /// A `width` x `height` canvas filled with colour `c`.
     pub fn new(width: usize, height: usize, c: [f32; 3]) -> Canvas {
         Canvas {
             width,

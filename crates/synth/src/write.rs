@@ -23,15 +23,19 @@ pub struct WriteOptions {
 /// What [`write_sequence`] did.
 #[derive(Clone, Debug)]
 pub struct WriteSummary {
+    /// The sequence's folder.
     pub dir: PathBuf,
+    /// Frames written.
     pub frames: usize,
     /// Wall time of rendering and writing, seconds.
     pub seconds: f64,
+    /// Frames rendered and written a second.
     pub frames_per_second: f64,
     /// Mean fraction of pixels showing something that moves.
     pub mean_dynamic_fraction: f64,
     /// Mean fraction of pixels covered by people.
     pub mean_person_fraction: f64,
+    /// Boxes written to `boxes.jsonl`.
     pub boxes: usize,
 }
 

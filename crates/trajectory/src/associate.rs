@@ -30,6 +30,25 @@ impl Default for Matching {
     }
 }
 
+impl Matching {
+    /// How files of these formats are paired: by index when either is KITTI (its files carry
+    /// no stamps, as `evo_ape kitti` pairs them), else by nearest stamp within `max_diff` after
+    /// adding `offset` to the estimate's stamps.
+    pub fn for_formats(
+        gt: crate::TrajectoryFormat,
+        est: crate::TrajectoryFormat,
+        max_diff: f64,
+        offset: f64,
+    ) -> Self {
+        use crate::TrajectoryFormat::Kitti;
+        if gt == Kitti || est == Kitti {
+            Matching::ByIndex
+        } else {
+            Matching::Nearest { max_diff, offset }
+        }
+    }
+}
+
 /// For each stamp of `short`, the index in `long` (sorted) of the nearest stamp within `max_diff`,
 /// as evo's binary-search `matching_time_indices`.
 fn matching_time_indices(short: &[f64], long: &[f64], max_diff: f64) -> Vec<(usize, usize)> {
@@ -110,6 +129,26 @@ pub fn associate(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn kitti_files_pair_by_index() {
+        use crate::TrajectoryFormat::{Euroc, Kitti, Tum};
+        assert_eq!(
+            Matching::for_formats(Kitti, Tum, 0.01, 0.0),
+            Matching::ByIndex
+        );
+        assert_eq!(
+            Matching::for_formats(Tum, Kitti, 0.01, 0.0),
+            Matching::ByIndex
+        );
+        assert_eq!(
+            Matching::for_formats(Euroc, Tum, 0.02, 0.5),
+            Matching::Nearest {
+                max_diff: 0.02,
+                offset: 0.5
+            }
+        );
+    }
     use stillpoint_geometry::Se3;
 
     fn traj(stamps: &[f64]) -> Trajectory {

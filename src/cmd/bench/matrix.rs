@@ -1,16 +1,14 @@
 //! `stillpoint bench matrix`: SLAM accuracy over synthetic presets x seeds x front-end modes
 //! (off, perfect boxes, YOLOX), with the share of map points that lie on movers. Sequences are
 //! generated in-process (with per-pixel masks, so map points on movers can be counted) into
-//! `--out`, then each run goes through `run::run_sequence`, `--jobs` at a time.
+//! `--out`, then each run goes through `stillpoint_run::run_sequence`, `--jobs` at a time
+//! (`stillpoint_bench::matrix`).
 
-use std::path::{Path, PathBuf};
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use stillpoint_synth::{KinectNoise, Noise, Preset, SynthConfig, WriteOptions};
-
-use crate::cmd::run::{RunOptions, accuracy, run_sequence};
+use stillpoint_bench::matrix::{MatrixOptions, Row, run_matrix};
+use stillpoint_synth::{KinectNoise, Noise, Preset};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -55,28 +53,6 @@ pub struct Args {
     pub json: bool,
 }
 
-/// One run of the matrix.
-#[derive(Clone, Debug, serde::Serialize)]
-struct Row {
-    preset: String,
-    seed: u64,
-    mode: String,
-    ate_cm: Option<f64>,
-    tracked: usize,
-    frames: usize,
-    first_tracked: Option<usize>,
-    map_points: usize,
-    map_points_on_movers: Option<usize>,
-    error: Option<String>,
-}
-
-impl Row {
-    fn movers_share(&self) -> Option<f64> {
-        self.map_points_on_movers
-            .map(|m| m as f64 / self.map_points.max(1) as f64)
-    }
-}
-
 fn parse_seeds(s: &str) -> anyhow::Result<Vec<u64>> {
     if let Some((a, b)) = s.split_once('-') {
         let (a, b): (u64, u64) = (
@@ -93,71 +69,6 @@ fn parse_seeds(s: &str) -> anyhow::Result<Vec<u64>> {
         .collect()
 }
 
-fn generate(args: &Args, preset: Preset, seed: u64, dir: &Path) -> anyhow::Result<()> {
-    if dir.join("groundtruth.txt").is_file() && dir.join("mask").is_dir() {
-        return Ok(());
-    }
-    let noise = match args.noise.as_str() {
-        "none" => Noise::None,
-        "kinect" => Noise::Kinect(KinectNoise::default()),
-        other => bail!("--noise {other:?}: expected none or kinect"),
-    };
-    let cfg = SynthConfig {
-        preset,
-        frames: args.frames,
-        seed,
-        noise,
-        textures: args.textures.clone(),
-        ..SynthConfig::default()
-    };
-    let opts = WriteOptions {
-        stereo: false,
-        masks: true,
-    };
-    stillpoint_synth::write_sequence(&cfg, opts, dir).with_context(|| {
-        format!(
-            "writing {} seed {seed} into {}",
-            preset.name(),
-            dir.display()
-        )
-    })?;
-    Ok(())
-}
-
-fn run_one(args: &Args, dir: &Path, mode: &str, out: PathBuf) -> anyhow::Result<Row> {
-    let s = run_sequence(&RunOptions {
-        realtime: false,
-        dataset: dir.to_path_buf(),
-        kind: None,
-        settings: None,
-        out: Some(out),
-        detector: (mode != "off").then(|| mode.to_string()),
-        sequential: !args.threaded,
-        frames: None,
-        progress: false,
-        paper_cull: false,
-        model: args.model.clone(),
-        overrides: Default::default(),
-    })?;
-    let ate = accuracy(&s).map(|a| a.0.stats.rmse * 100.0);
-    let first_tracked = s.ground_truth.as_ref().and_then(|gt| {
-        let t0 = *s.trajectory.stamps.first()?;
-        Some(gt.stamps.iter().filter(|&&t| t < t0 - 1e-6).count())
-    });
-    Ok(Row {
-        preset: String::new(),
-        seed: 0,
-        mode: mode.to_string(),
-        ate_cm: ate,
-        tracked: s.tracked,
-        frames: s.frames,
-        first_tracked,
-        map_points: s.map_points,
-        map_points_on_movers: s.moving_map_points,
-        error: None,
-    })
-}
-
 pub fn run(args: Args) -> anyhow::Result<()> {
     let seeds = parse_seeds(&args.seeds)?;
     let presets: Vec<Preset> = args
@@ -170,63 +81,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             })
         })
         .collect::<anyhow::Result<_>>()?;
-    for m in &args.modes {
-        if !["off", "gt", "yolox", "none"].contains(&m.as_str()) {
-            bail!("--modes: unknown mode {m:?} (off, gt, yolox, none)");
-        }
-    }
-    if args.frames == 0 || args.jobs == 0 {
-        bail!("--frames and --jobs must be at least 1");
-    }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
-    let mut jobs = Vec::new();
-    for p in &presets {
-        for &seed in &seeds {
-            let dir = args.out.join(format!("{}_s{seed}", p.name()));
-            tracing::info!("generating {}", dir.display());
-            generate(&args, *p, seed, &dir)?;
-            for m in &args.modes {
-                jobs.push((p.name().to_string(), seed, dir.clone(), m.clone()));
-            }
-        }
-    }
-    let next = AtomicUsize::new(0);
-    let rows = Mutex::new(Vec::new());
-    std::thread::scope(|sc| {
-        for _ in 0..args.jobs.min(jobs.len()) {
-            sc.spawn(|| {
-                loop {
-                    let k = next.fetch_add(1, Ordering::SeqCst);
-                    let Some((preset, seed, dir, mode)) = jobs.get(k) else {
-                        break;
-                    };
-                    let out = args.out.join(format!("{preset}_s{seed}_{mode}.txt"));
-                    tracing::info!("[{}/{}] {preset} seed {seed} {mode}", k + 1, jobs.len());
-                    let mut row = run_one(&args, dir, mode, out).unwrap_or_else(|e| Row {
-                        preset: String::new(),
-                        seed: 0,
-                        mode: mode.clone(),
-                        ate_cm: None,
-                        tracked: 0,
-                        frames: args.frames,
-                        first_tracked: None,
-                        map_points: 0,
-                        map_points_on_movers: None,
-                        error: Some(format!("{e:#}")),
-                    });
-                    row.preset = preset.clone();
-                    row.seed = *seed;
-                    if let Ok(mut r) = rows.lock() {
-                        r.push((k, row));
-                    }
-                }
-            });
-        }
-    });
-    let mut rows = rows.into_inner().unwrap_or_default();
-    rows.sort_by_key(|(k, _)| *k);
-    let rows: Vec<Row> = rows.into_iter().map(|(_, r)| r).collect();
+    let noise = match args.noise.as_str() {
+        "none" => Noise::None,
+        "kinect" => Noise::Kinect(KinectNoise::default()),
+        other => bail!("--noise {other:?}: expected none or kinect"),
+    };
+    let rows = run_matrix(&MatrixOptions {
+        presets,
+        seeds,
+        modes: args.modes.clone(),
+        frames: args.frames,
+        noise,
+        textures: args.textures.clone(),
+        out: args.out.clone(),
+        model: args.model.clone(),
+        jobs: args.jobs,
+        threaded: args.threaded,
+        stop: Some(crate::interrupt_flag()),
+    })?;
     if args.json {
         println!("{}", serde_json::to_string(&rows)?);
     } else {

@@ -21,6 +21,13 @@ pub enum BenchCommand {
     Matrix(matrix::Args),
 }
 
+/// The shared data folder: `$STILLPOINT_SHARED`, else `../shared` (the benches' default inputs).
+fn shared_dir() -> std::path::PathBuf {
+    std::env::var_os("STILLPOINT_SHARED")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| std::path::PathBuf::from("../shared"))
+}
+
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Features(a) => features::run(a),

@@ -1,9 +1,12 @@
 //! `stillpoint bench tum`: the paper's accuracy table (ATE RMSE / S.D., translational RPE RMSE /
-//! S.D. over 1 s, metres) for each sequence with the dynamic front-end on and off.
+//! S.D. over 1 s, metres) for each sequence with the dynamic front-end on and off
+//! (`stillpoint_bench::tum`).
 
 use std::path::PathBuf;
 
-use crate::cmd::run::{RunOptions, accuracy, run_sequence};
+use stillpoint_bench::tum::{TumOptions, paper_table};
+
+use crate::cmd::run::ProgressBar;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -24,61 +27,43 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let mut rows = Vec::new();
-    for d in &args.dataset {
-        for on in [false, true] {
-            let s = run_sequence(&RunOptions {
-                realtime: false,
-                dataset: d.clone(),
-                kind: None,
-                settings: None,
-                out: None,
-                detector: on.then(|| args.detector.clone()),
-                sequential: true,
-                frames: args.frames,
-                progress: true,
-                paper_cull: false,
-                model: args.model.clone(),
-                overrides: Default::default(),
-            })?;
-            let acc = accuracy(&s);
-            rows.push(serde_json::json!({
-                "sequence": s.name,
-                "dynamic": on,
-                "detector": s.detector,
-                "tracked": s.tracked,
-                "frames": s.frames,
-                "ate_rmse": acc.as_ref().map(|a| a.0.stats.rmse),
-                "ate_std": acc.as_ref().map(|a| a.0.stats.std),
-                "rpe_trans_rmse": acc.as_ref().and_then(|a| a.1.as_ref()).map(|r| r.translation.rmse),
-                "rpe_trans_std": acc.as_ref().and_then(|a| a.1.as_ref()).map(|r| r.translation.std),
-            }));
-        }
-    }
+    let mut bar = ProgressBar::default();
+    let rows = paper_table(
+        &TumOptions {
+            datasets: args.dataset.clone(),
+            detector: args.detector.clone(),
+            frames: args.frames,
+            model: args.model.clone(),
+            stop: Some(crate::interrupt_flag()),
+        },
+        &mut |e| bar.show(e),
+    )?;
     if args.json {
-        println!("{}", serde_json::Value::Array(rows));
+        println!("{}", serde_json::to_value(&rows)?);
         return Ok(());
     }
-    let f = |v: &serde_json::Value| v.as_f64().map_or("n/a".into(), |x| format!("{x:.4}"));
+    let f = |v: Option<f64>| v.map_or("n/a".into(), |x| format!("{x:.4}"));
     println!(
         "{:<28} {:<8} {:>10} {:>10} {:>10} {:>10} {:>9}",
         "sequence", "dynamic", "ATE RMSE", "ATE S.D.", "RPE RMSE", "RPE S.D.", "tracked"
     );
+    // The tracked column prints unpadded, as it always has (the padding was once asked of JSON
+    // values, whose Display ignores it).
     for r in &rows {
         println!(
-            "{:<28} {:<8} {:>10} {:>10} {:>10} {:>10} {:>4}/{:<4}",
-            r["sequence"].as_str().unwrap_or(""),
-            if r["dynamic"].as_bool() == Some(true) {
-                r["detector"].as_str().unwrap_or("")
+            "{:<28} {:<8} {:>10} {:>10} {:>10} {:>10} {}/{}",
+            r.sequence,
+            if r.dynamic {
+                r.detector.as_str()
             } else {
                 "off"
             },
-            f(&r["ate_rmse"]),
-            f(&r["ate_std"]),
-            f(&r["rpe_trans_rmse"]),
-            f(&r["rpe_trans_std"]),
-            r["tracked"],
-            r["frames"],
+            f(r.ate_rmse),
+            f(r.ate_std),
+            f(r.rpe_trans_rmse),
+            f(r.rpe_trans_std),
+            r.tracked,
+            r.frames,
         );
     }
     Ok(())

@@ -13,9 +13,13 @@ pub use stillpoint_features::Descriptor;
 /// orientation in degrees.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Feature {
+    /// Column of the level-0 pixel (distorted, as in the image).
     pub x: f32,
+    /// Row of the level-0 pixel.
     pub y: f32,
+    /// Pyramid level it was found at.
     pub octave: u8,
+    /// Orientation in degrees, [0, 360).
     pub angle: f32,
 }
 
@@ -34,8 +38,11 @@ impl From<&stillpoint_features::KeyPoint> for Feature {
 /// pixel) or one value per keypoint (stereo matching; 0 = none).
 #[derive(Clone, Copy, Debug)]
 pub enum KeypointDepth<'a> {
+    /// No depth (monocular).
     None,
+    /// A depth image registered to the colour image, metres.
     Map(&'a DepthMetres),
+    /// One depth per keypoint, metres (stereo matching; 0 = none).
     PerKeypoint(&'a [f32]),
 }
 
@@ -131,12 +138,15 @@ impl KeypointGrid {
 pub struct Frame {
     /// Position in the sequence.
     pub index: usize,
+    /// Time of the frame, seconds.
     pub timestamp: f64,
     /// Undistorted keypoint positions (pixels of the ideal camera).
     pub points: Vec<Vec2>,
+    /// Pyramid level of each keypoint.
     pub octaves: Vec<u8>,
     /// Orientation in degrees (for the rotation-consistency histogram).
     pub angles: Vec<f32>,
+    /// ORB descriptor of each keypoint.
     pub descriptors: Vec<Descriptor>,
     /// Depth per keypoint in metres, 0 when unknown.
     pub depth: Vec<f32>,
@@ -152,6 +162,7 @@ pub struct Frame {
     pub no_new_point: Vec<bool>,
     /// World-to-camera pose once tracked.
     pub pose_cw: Option<Se3>,
+    /// Keypoints by image cell, for searches in a window.
     pub grid: KeypointGrid,
 }
 
@@ -257,10 +268,12 @@ impl Frame {
         Ok(f)
     }
 
+    /// Number of keypoints.
     pub fn len(&self) -> usize {
         self.points.len()
     }
 
+    /// No keypoints.
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
     }

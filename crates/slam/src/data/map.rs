@@ -8,34 +8,50 @@ use stillpoint_image::{DepthMetres, Gray8};
 use super::frame::{Descriptor, Frame, KeypointGrid};
 use crate::hamming;
 
+/// Keyframe id, unique over the run (all maps).
 pub type KfId = u64;
+/// Map point id, unique over the run (all maps).
 pub type MpId = u64;
 
 /// A keyframe: a frame kept in the map, with its observations.
 #[derive(Clone, Debug)]
 pub struct KeyFrame {
+    /// Its id.
     pub id: KfId,
     /// Map this keyframe belongs to (a new map starts when tracking is lost for good).
     pub map_epoch: u32,
+    /// Index of the frame it was made from.
     pub frame_index: usize,
+    /// Time of that frame, seconds.
     pub timestamp: f64,
+    /// World-to-camera pose (refined by bundle adjustment and loop closing).
     pub pose_cw: Se3,
+    /// Undistorted keypoint positions, pixels.
     pub points: Vec<Vec2>,
+    /// Pyramid level of each keypoint.
     pub octaves: Vec<u8>,
+    /// Orientation of each keypoint, degrees.
     pub angles: Vec<f32>,
+    /// ORB descriptor of each keypoint.
     pub descriptors: Vec<Descriptor>,
+    /// Depth of each keypoint, metres (0 = none).
     pub depth: Vec<f32>,
+    /// Virtual right coordinate of each keypoint (negative = no depth).
     pub u_right: Vec<f32>,
+    /// Map point observed by each keypoint.
     pub map_points: Vec<Option<MpId>>,
     /// Keypoints the front-end allows to be tracked but not to found a map point.
     pub no_new_point: Vec<bool>,
+    /// Keypoints by image cell, for searches in a window.
     pub grid: KeypointGrid,
     /// Covisibility: keyframe -> shared map points (only edges with >= the minimum weight, or
     /// the single best when none reaches it, as ORB-SLAM).
     pub connections: BTreeMap<KfId, usize>,
     /// Spanning tree.
     pub parent: Option<KfId>,
+    /// Spanning-tree children.
     pub children: BTreeSet<KfId>,
+    /// Culled: kept only so that frames anchored to it can follow its parent.
     pub bad: bool,
     /// Set when culled: this keyframe's pose relative to its parent then (ORB-SLAM's `mTcp`),
     /// so that frames anchored to it follow the parent as bundle adjustment moves it.
@@ -43,6 +59,7 @@ pub struct KeyFrame {
 }
 
 impl KeyFrame {
+    /// A keyframe made from a tracked frame; `None` when the frame has no pose.
     pub fn from_frame(id: KfId, map_epoch: u32, f: &Frame) -> Option<Self> {
         Some(Self {
             id,
@@ -67,10 +84,12 @@ impl KeyFrame {
         })
     }
 
+    /// Camera centre in the world.
     pub fn camera_center(&self) -> Vec3 {
         self.pose_cw.inverse().translation.vector
     }
 
+    /// Keypoint `i` back-projected into the world with its depth; `None` without depth.
     pub fn unproject_world(&self, i: usize, cam: &PinholeCamera) -> Option<Vec3> {
         let z = *self.depth.get(i)?;
         (z > 0.0).then(|| {
@@ -114,8 +133,11 @@ impl KeyFrame {
 /// A 3D landmark.
 #[derive(Clone, Debug)]
 pub struct MapPoint {
+    /// Its id.
     pub id: MpId,
+    /// Map it belongs to.
     pub map_epoch: u32,
+    /// Position in the world, metres.
     pub position: Vec3,
     /// Representative descriptor: the observation descriptor with the least median distance to
     /// the others (ORB-SLAM's `ComputeDistinctiveDescriptors`).
@@ -124,19 +146,24 @@ pub struct MapPoint {
     pub normal: Vec3,
     /// Scale-invariance distances: the point can be matched between these camera distances.
     pub min_distance: f64,
+    /// Farthest camera distance at which it can be matched (see `min_distance`).
     pub max_distance: f64,
     /// keyframe -> keypoint index.
     pub observations: BTreeMap<KfId, usize>,
+    /// Keyframe whose observation sets its scale and normal (ORB-SLAM's `mpRefKF`).
     pub reference_kf: KfId,
+    /// Keyframe that created it.
     pub first_kf: KfId,
     /// Frames in whose frustum the point fell / frames in which it was matched.
     pub visible: u32,
+    /// Frames in which it was matched (see `visible`).
     pub found: u32,
     /// Frames in which the matched point failed the chi-square test of local-map tracking.
     pub rejected: u32,
     /// Frames whose depth image showed a surface well behind the point along its ray: the
     /// point is no longer there (it was on something that moved).
     pub seen_through: u32,
+    /// Erased: kept by id only until no structure refers to it.
     pub bad: bool,
 }
 
@@ -174,6 +201,7 @@ impl MapPoint {
             && po.dot(&self.normal) >= 0.5 * dist
     }
 
+    /// Share of the frames that saw it in their frustum that also matched it (`found / visible`).
     pub fn found_ratio(&self) -> f64 {
         self.found as f64 / self.visible.max(1) as f64
     }
@@ -195,7 +223,9 @@ pub struct FreeSpaceCheck {
 /// The map: keyframes and points by id (ordered maps, so iteration is deterministic).
 #[derive(Clone, Debug, Default)]
 pub struct Map {
+    /// Keyframes by id, culled ones included (`bad`).
     pub keyframes: BTreeMap<KfId, KeyFrame>,
+    /// Map points by id.
     pub points: BTreeMap<MpId, MapPoint>,
     next_kf: KfId,
     next_mp: MpId,
@@ -206,10 +236,12 @@ pub struct Map {
 }
 
 impl Map {
+    /// An empty map.
     pub fn new() -> Self {
         Self::default()
     }
 
+    /// Reserve the next keyframe id.
     pub fn next_kf_id(&mut self) -> KfId {
         let id = self.next_kf;
         self.next_kf += 1;

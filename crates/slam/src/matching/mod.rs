@@ -17,8 +17,11 @@ const HISTO_LENGTH: usize = 30;
 /// (ORB-SLAM's bestDist / bestDist2 loops); `u32::MAX` where there is none.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct NearestTwo {
+    /// Distance of the nearest.
     pub distance: u32,
+    /// Index of the nearest among the candidates.
     pub index: usize,
+    /// Distance of the second nearest.
     pub second: u32,
 }
 
@@ -151,11 +154,17 @@ pub fn search_by_projection_last(
 
 /// A local map point prepared for projection into the current frame.
 pub struct ProjectedPoint {
+    /// The map point.
     pub id: MpId,
+    /// Its projection's column, undistorted pixels.
     pub u: f64,
+    /// Its projection's row.
     pub v: f64,
+    /// Its virtual right coordinate (u - bf / z).
     pub u_right: f64,
+    /// The pyramid level it should be seen at from this distance.
     pub level: i32,
+    /// Cosine of the angle between the viewing ray and the point's mean viewing direction.
     pub view_cos: f64,
 }
 

@@ -40,8 +40,11 @@ impl Default for StereoParams {
 /// One image of a rectified pair: its keypoints (level-0 coordinates), descriptors and pyramid
 /// levels (level 0 first, each scaled by `scales[l]`).
 pub struct StereoView<'a> {
+    /// Keypoints in level-0 pixels.
     pub keypoints: &'a [Feature],
+    /// Their ORB descriptors.
     pub descriptors: &'a [Descriptor],
+    /// The image's pyramid, level 0 first.
     pub levels: Vec<&'a Gray8>,
 }
 

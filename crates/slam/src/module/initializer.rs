@@ -15,7 +15,9 @@ use crate::solve::two_view::{TwoViewModel, TwoViewParams, reconstruct};
 /// A point of the initial map and the keypoints that see it.
 #[derive(Clone, Copy, Debug)]
 pub struct InitialPoint {
+    /// Its keypoint in the reference frame.
     pub reference_keypoint: usize,
+    /// Its keypoint in the current frame.
     pub keypoint: usize,
     /// In the reference camera's frame.
     pub position: Vec3,
@@ -25,11 +27,15 @@ pub struct InitialPoint {
 /// points, scaled to a median depth of 1 in the reference camera.
 #[derive(Clone, Debug)]
 pub struct Initialisation {
+    /// The first of the two views (it becomes the first keyframe).
     pub reference: Frame,
     /// Current camera from the reference camera.
     pub pose21: Se3,
+    /// The triangulated points.
     pub points: Vec<InitialPoint>,
+    /// Whether the homography or the fundamental matrix gave the motion.
     pub model: TwoViewModel,
+    /// Parallax of the points, degrees (ORB-SLAM's measure: the 51st largest).
     pub parallax_deg: f64,
 }
 

@@ -21,6 +21,7 @@ use crate::optimize::{BaObservation, BaProblem, local_bundle_adjustment};
 
 /// Local mapping state: the recently created points awaiting culling.
 pub struct LocalMapper {
+    /// The settings it runs with.
     pub s: SlamSettings,
     recent_points: Vec<MpId>,
     scales: Vec<f64>,
@@ -28,6 +29,7 @@ pub struct LocalMapper {
 }
 
 impl LocalMapper {
+    /// A mapper with no recent points.
     pub fn new(s: SlamSettings) -> Self {
         Self {
             scales: s.scale_factors(),
@@ -631,8 +633,11 @@ enum Msg {
 pub struct MapperThread {
     tx: Sender<Msg>,
     handle: Option<std::thread::JoinHandle<()>>,
+    /// No keyframe is waiting or being processed.
     pub idle: Arc<AtomicBool>,
+    /// Keyframes sent and not yet processed.
     pub queued: Arc<AtomicUsize>,
+    /// Time per processed keyframe, ms.
     pub times_ms: Arc<Mutex<Vec<f64>>>,
 }
 
@@ -641,11 +646,14 @@ pub struct MapperThread {
 /// stop local mapping between keyframes).
 #[derive(Default)]
 pub struct MapperHooks {
+    /// Where each processed keyframe is sent next (loop closing), if anywhere.
     pub processed: Option<Sender<KfId>>,
+    /// Held while a keyframe is processed.
     pub busy: Arc<Mutex<()>>,
 }
 
 impl MapperThread {
+    /// Start the thread on `map`; each keyframe's time goes to `times_ms`.
     pub fn spawn(
         mapper: LocalMapper,
         map: Arc<Mutex<Map>>,
@@ -695,6 +703,7 @@ impl MapperThread {
         })
     }
 
+    /// Queue keyframe `kf`; false when the thread has stopped.
     pub fn send(&self, kf: KfId) -> bool {
         self.queued.fetch_add(1, Ordering::SeqCst);
         self.idle.store(false, Ordering::SeqCst);

@@ -24,6 +24,7 @@ pub enum TrackingState {
     /// Waiting for a frame with enough keypoints with depth (monocular: for two views that
     /// reconstruct).
     NotInitialized,
+    /// Tracking: the frame has a pose in the current map.
     Ok,
     /// The last frame(s) could not be tracked; relocalising.
     Lost,
@@ -34,6 +35,7 @@ pub enum TrackingState {
 pub struct TrackOutcome {
     /// Camera-to-world pose when tracked.
     pub pose_wc: Option<Se3>,
+    /// Map points matched by the final pose optimisation.
     pub inliers: usize,
     /// Per keypoint handed to tracking: matched to a map point and kept by the pose (an
     /// inlier); empty when the frame was not tracked.
@@ -41,30 +43,39 @@ pub struct TrackOutcome {
     /// The pose inliers (map point, undistorted pixel, virtual right coordinate, octave), for
     /// optimising the frame's pose again once the map around it is refined.
     pub observations: Vec<FrameObservation>,
+    /// The keyframe made from this frame, if one was.
     pub new_keyframe: Option<KfId>,
     /// Monocular initialisation makes the reference frame a keyframe too; local mapping takes it
     /// before `new_keyframe`.
     pub first_keyframe: Option<KfId>,
+    /// A map was started with this frame.
     pub initialised: bool,
+    /// Relocalised in the same map after being lost.
     pub relocalised: bool,
+    /// The map started is a new one (the old one was lost for good).
     pub new_map: bool,
 }
 
 /// One pose inlier of a tracked frame.
 #[derive(Clone, Copy, Debug)]
 pub struct FrameObservation {
+    /// The map point matched.
     pub point: MpId,
-    /// Undistorted pixel.
+    /// Undistorted pixel, column.
     pub u: f64,
+    /// Undistorted pixel, row.
     pub v: f64,
     /// Virtual right coordinate (negative without depth).
     pub u_right: f32,
+    /// Pyramid level of the keypoint.
     pub octave: u8,
 }
 
 /// The tracking state machine.
 pub struct Tracker {
+    /// The settings it runs with.
     pub s: SlamSettings,
+    /// Where it stands after the last frame.
     pub state: TrackingState,
     last_frame: Option<Frame>,
     /// T_cw(current) * T_wc(last): the constant-velocity model.
@@ -82,6 +93,7 @@ pub struct Tracker {
 }
 
 impl Tracker {
+    /// A tracker waiting for its first map.
     pub fn new(s: SlamSettings) -> Self {
         let inv_sigma2 = s.inv_level_sigma2();
         Self {
@@ -762,6 +774,7 @@ impl Tracker {
         false
     }
 
+    /// The keyframe the last frame was tracked against (ORB-SLAM's `mpReferenceKF`).
     pub fn reference_keyframe(&self) -> Option<KfId> {
         self.reference_kf
     }

@@ -11,21 +11,30 @@ use crate::SlamSettings;
 /// One observation of point `point` by camera `camera`.
 #[derive(Clone, Copy, Debug)]
 pub struct BaObservation {
+    /// Index into `BaProblem::poses`.
     pub camera: usize,
+    /// Index into `BaProblem::points`.
     pub point: usize,
+    /// Observed undistorted column, pixels.
     pub u: f64,
+    /// Observed undistorted row, pixels.
     pub v: f64,
     /// Virtual right coordinate when the keypoint has depth.
     pub u_right: Option<f64>,
+    /// Inverse variance of the keypoint's level (1 / scale²).
     pub inv_sigma2: f64,
 }
 
 /// Cameras (world-to-camera, some fixed), points and observations.
 #[derive(Clone, Debug, Default)]
 pub struct BaProblem {
+    /// World-to-camera poses.
     pub poses: Vec<Se3>,
+    /// Per pose: held fixed (the gauge, keyframes outside the local window).
     pub fixed: Vec<bool>,
+    /// Point positions in the world.
     pub points: Vec<Vec3>,
+    /// Every observation of a point by a camera.
     pub observations: Vec<BaObservation>,
 }
 

@@ -12,9 +12,11 @@ use crate::SlamSettings;
 /// One 3D-2D(+u_r) correspondence.
 #[derive(Clone, Copy, Debug)]
 pub struct PoseObservation {
+    /// The map point in the world.
     pub world: Vec3,
     /// Observed undistorted pixel.
     pub u: f64,
+    /// Observed undistorted row (with `u`, the column).
     pub v: f64,
     /// Observed virtual right coordinate; `None` for a monocular observation (no depth).
     pub u_right: Option<f64>,

@@ -13,8 +13,11 @@ use super::retract;
 /// One relative-pose measurement: `t_ij` = T_iw * T_jw⁻¹, the pose of camera j seen from i.
 #[derive(Clone, Copy, Debug)]
 pub struct PoseGraphEdge {
+    /// Index of camera i in `PoseGraph::poses`.
     pub i: usize,
+    /// Index of camera j.
     pub j: usize,
+    /// The measured pose of j seen from i.
     pub t_ij: Se3,
     /// Information weight (ORB-SLAM: identity for every edge).
     pub weight: f64,
@@ -23,16 +26,22 @@ pub struct PoseGraphEdge {
 /// Poses (world-to-camera), which of them stay fixed, and the edges.
 #[derive(Clone, Debug, Default)]
 pub struct PoseGraph {
+    /// World-to-camera poses.
     pub poses: Vec<Se3>,
+    /// Per pose: held fixed.
     pub fixed: Vec<bool>,
+    /// The relative-pose measurements.
     pub edges: Vec<PoseGraphEdge>,
 }
 
 /// What the optimiser did.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoseGraphReport {
+    /// Sum of weighted squared errors before.
     pub initial_cost: f64,
+    /// The same after.
     pub final_cost: f64,
+    /// Gauss-Newton iterations run.
     pub iterations: usize,
 }
 

@@ -14,6 +14,7 @@ use crate::data::KfId;
 /// When the vocabulary is (re)trained.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct DatabaseParams {
+    /// How the vocabulary is trained.
     pub vocabulary: VocabularyParams,
     /// Keyframes needed for the first training (ORB-SLAM also detects no loop before its map
     /// holds 10 keyframes).
@@ -45,6 +46,7 @@ pub struct KeyFrameDatabase {
 }
 
 impl KeyFrameDatabase {
+    /// An empty database; the vocabulary is trained once enough keyframes arrive.
     pub fn new() -> Self {
         Self::default()
     }
@@ -58,6 +60,7 @@ impl KeyFrameDatabase {
         }
     }
 
+    /// The vocabulary, once trained or given.
     pub fn vocabulary(&self) -> Option<&Vocabulary> {
         self.vocabulary.as_ref()
     }
@@ -117,14 +120,17 @@ impl KeyFrameDatabase {
         }
     }
 
+    /// The bag-of-words vector of keyframe `kf`, if it is in the database.
     pub fn bow(&self, kf: KfId) -> Option<&BowVector> {
         self.bows.get(&kf)
     }
 
+    /// Keyframes in the database.
     pub fn len(&self) -> usize {
         self.bows.len()
     }
 
+    /// No keyframe in the database.
     pub fn is_empty(&self) -> bool {
         self.bows.is_empty()
     }

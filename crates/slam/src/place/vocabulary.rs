@@ -19,10 +19,12 @@ pub type WordId = u32;
 pub struct BowVector(pub Vec<(WordId, f32)>);
 
 impl BowVector {
+    /// No word.
     pub fn is_empty(&self) -> bool {
         self.0.is_empty()
     }
 
+    /// Number of words.
     pub fn len(&self) -> usize {
         self.0.len()
     }

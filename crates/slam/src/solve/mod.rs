@@ -18,10 +18,15 @@ use stillpoint_geometry::{PinholeCamera, Se3, Vec3, umeyama};
 /// A 2D-3D correspondence, with the camera-frame point when the keypoint has depth.
 #[derive(Clone, Copy, Debug)]
 pub struct Correspondence {
+    /// The map point in the world.
     pub world: Vec3,
+    /// The same point in the camera's frame, from the keypoint's depth (`None` without).
     pub camera: Option<Vec3>,
+    /// Observed undistorted column, pixels.
     pub u: f64,
+    /// Observed undistorted row, pixels.
     pub v: f64,
+    /// Inverse variance of the keypoint's level.
     pub inv_sigma2: f64,
 }
 
@@ -34,6 +39,7 @@ pub struct RansacParams {
     pub chi2: f64,
     /// Stop early once this many inliers are found.
     pub enough_inliers: usize,
+    /// Seed of the hypothesis sampler (runs are reproducible).
     pub seed: u64,
 }
 

@@ -9,18 +9,24 @@ use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3, umeyama};
 /// that observe them.
 #[derive(Clone, Copy, Debug)]
 pub struct RigidPair {
+    /// The map point in camera 1's frame.
     pub p1: Vec3,
+    /// The matched map point in camera 2's frame.
     pub p2: Vec3,
+    /// Its keypoint in image 1, undistorted pixels.
     pub px1: Vec2,
+    /// Its keypoint in image 2.
     pub px2: Vec2,
     /// Inverse keypoint variance (octave scale squared) in image 1 and 2.
     pub inv_sigma2_1: f64,
+    /// Inverse keypoint variance in image 2 (see `inv_sigma2_1`).
     pub inv_sigma2_2: f64,
 }
 
 /// RANSAC parameters (ORB-SLAM `Sim3Solver::SetRansacParameters(0.99, 20, 300)`).
 #[derive(Clone, Copy, Debug)]
 pub struct RigidRansacParams {
+    /// Hypotheses tried at most.
     pub iterations: usize,
     /// A hypothesis needs this many inliers.
     pub min_inliers: usize,
@@ -29,6 +35,7 @@ pub struct RigidRansacParams {
     pub chi2: f64,
     /// Stop once a hypothesis is this likely to be the best (RANSAC's confidence).
     pub probability: f64,
+    /// Seed of the sampler (runs are reproducible).
     pub seed: u64,
 }
 

@@ -60,13 +60,16 @@ impl Default for TwoViewParams {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum TwoViewModel {
+    /// A plane (or a rotation): the homography.
     Homography,
+    /// A general scene: the fundamental matrix.
     Fundamental,
 }
 
 /// An accepted reconstruction.
 #[derive(Clone, Debug)]
 pub struct TwoView {
+    /// Which model gave the motion.
     pub model: TwoViewModel,
     /// Second camera from the first (`X2 = T21 X1`), translation of unit length.
     pub pose21: Se3,
@@ -87,18 +90,29 @@ pub enum TwoViewRejection {
     /// The model's inliers did not triangulate well enough: `good` of `inliers` points, too few
     /// (`min_triangulated` and 90 % of the inliers are needed).
     TooFewTriangulated {
+        /// The model tried.
         model: TwoViewModel,
+        /// Points triangulated well.
         good: usize,
+        /// The model's inliers.
         inliers: usize,
     },
     /// Two motion hypotheses explain the points about as well.
     Ambiguous {
+        /// The model tried.
         model: TwoViewModel,
+        /// Points explained by the best hypothesis.
         best: usize,
+        /// By the second best.
         second: usize,
     },
     /// The views are too close to each other for the points' depths.
-    LowParallax { model: TwoViewModel, degrees: f64 },
+    LowParallax {
+        /// The model tried.
+        model: TwoViewModel,
+        /// The parallax measured, degrees.
+        degrees: f64,
+    },
 }
 
 impl std::fmt::Display for TwoViewRejection {

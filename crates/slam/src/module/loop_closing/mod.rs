@@ -53,6 +53,7 @@ pub struct LoopSettings {
     pub match_ratio: f32,
     /// RANSAC iterations and inliers needed (ORB-SLAM `Sim3Solver`: 300, 20).
     pub ransac_iterations: usize,
+    /// Inliers a RANSAC hypothesis needs.
     pub ransac_min_inliers: usize,
     /// Inliers needed after guided matching and refinement (ORB-SLAM `OptimizeSim3`: 20).
     pub min_refined_inliers: usize,
@@ -63,7 +64,9 @@ pub struct LoopSettings {
     /// (`SearchBySim3`: 7.5), projection of the loop group's points (`SearchByProjection`:
     /// 10), fusion into the corrected keyframes (`Fuse`: 4).
     pub guided_radius: f64,
+    /// Radius of the projection of the loop group's points (`SearchByProjection`: 10).
     pub projection_radius: f64,
+    /// Radius of the fusion into the corrected keyframes (`Fuse`: 4).
     pub fuse_radius: f64,
     /// The keyframes moved with the current one onto the loop: its best covisible ones, at most
     /// this many (ours; ORB-SLAM takes them all, which on a map whose keyframes all see the same
@@ -118,22 +121,33 @@ impl Default for LoopSettings {
 /// One closed loop.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct LoopEvent {
+    /// The keyframe that closed the loop.
     pub keyframe: KfId,
+    /// Index of its frame.
     pub frame_index: usize,
+    /// Time of its frame, seconds.
     pub timestamp: f64,
+    /// The keyframe it was matched to.
     pub loop_keyframe: KfId,
+    /// Index of that keyframe's frame.
     pub loop_frame_index: usize,
+    /// Time of that keyframe's frame, seconds.
     pub loop_timestamp: f64,
     /// RANSAC inliers, inliers after refinement, matches with the loop group.
     pub ransac_inliers: usize,
+    /// Inliers after guided matching and refinement.
     pub refined_inliers: usize,
+    /// Matches with the loop keyframe's covisible group.
     pub loop_matches: usize,
     /// How far the keyframe moved (m, degrees): the drift the loop removed there.
     pub correction_m: f64,
+    /// How far the keyframe turned, degrees.
     pub correction_deg: f64,
     /// Keyframes in the essential graph and its edges.
     pub graph_keyframes: usize,
+    /// Edges of the essential graph.
     pub graph_edges: usize,
+    /// Time of the correction (fusion and pose graph), ms.
     pub correction_ms: f64,
 }
 
@@ -152,8 +166,11 @@ pub struct LoopStats {
     /// Candidates that passed the consistency test and were tried by verification, and how
     /// many of them it rejected.
     pub tried_candidates: usize,
+    /// Of those, the ones verification rejected.
     pub rejected_candidates: usize,
+    /// Words in the vocabulary at the end.
     pub vocabulary_words: usize,
+    /// The loops closed, in order.
     pub loops: Vec<LoopEvent>,
 }
 
@@ -161,6 +178,7 @@ pub struct LoopStats {
 /// its last frame with its reference keyframe.
 #[derive(Clone, Debug, Default)]
 pub struct MapCorrection {
+    /// Keyframe -> (world-to-camera pose before, after).
     pub poses: BTreeMap<KfId, (Se3, Se3)>,
 }
 
@@ -192,6 +210,7 @@ pub struct LoopCloser {
 }
 
 impl LoopCloser {
+    /// A loop closer with an empty keyframe database (the vocabulary is trained online).
     pub fn new(s: SlamSettings) -> Self {
         Self {
             scales: s.scale_factors(),
@@ -212,6 +231,7 @@ impl LoopCloser {
         c
     }
 
+    /// What it did so far.
     pub fn stats(&self) -> &LoopStats {
         &self.stats
     }
@@ -329,6 +349,8 @@ pub struct LoopThread {
 }
 
 impl LoopThread {
+    /// Start the thread: keyframes arrive from local mapping on `keyframes`; a correction holds
+    /// `mapping_busy` so that local mapping waits between keyframes.
     pub fn spawn(
         closer: LoopCloser,
         map: Arc<Mutex<Map>>,

@@ -1,0 +1,524 @@
+//! Precision and recall of the dynamic-keypoint decision against the ground-truth masks of a
+//! synthetic sequence (`stillpoint synth --masks`), for the paper (geometry + NHBC/ATA +
+//! algorithm 3) and variants of it, our depth-aware culling for RGB-D (`ours_depth`, when the
+//! sequence has depth), with the per-keypoint motion evidence (`ours_depth+kp`), our defaults
+//! (`ours`: the front-end's whole per-frame decision, `frontend::DynamicFrontEnd` with the given
+//! dynamic settings: depth-aware culling, per-keypoint evidence, unknown objects, box memory,
+//! and for RGB-D the seated-part 3D motion test; keypoints it keeps as track-only count as not
+//! culled), a person-box-only baseline (Crowd-SLAM: cull everything in person boxes) and a
+//! detection-free baseline (epipolar outliers only, dilated to a radius). Also times the
+//! geometry module per frame, as a ratio to ORB extraction of the same frames.
+//!
+//! Ground truth, three ways (all reported; [`stillpoint_eval::keypoints`]): strict, occlusion
+//! (`support_*`) and clear. Frame 0 has no previous frame and is skipped by every method.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use serde::Serialize;
+use stillpoint_detect::{DetectInput, DetectSettings, GtDetectorParams, open_detector};
+use stillpoint_dynamic::{
+    BoxState, CullParams, DynamicSettings, MotionModel, apply_keypoint_motion, cull_frame,
+    cull_frame_with_motion, cull_with, in_dynamic_box, judge_boxes, keypoint_motion,
+    motion_consistency_pyramids, near_outliers,
+};
+use stillpoint_eval::keypoints::{
+    Counts, clear_truth, fast_test_moving, mask_frames, strict_truth, support_truth,
+};
+use stillpoint_eval::{mean, median};
+use stillpoint_features::{LkPyramid, OrbExtractor, OrbParams};
+use stillpoint_frontend::{DynamicFrontEnd, FilterInput, FrontEndSettings, KeypointFilter};
+use stillpoint_image::{Gray8, read_gray};
+
+use crate::BenchError;
+
+/// The rows of the report: the paper (algorithms 1 and 3 as published) and variants of it, our
+/// depth-aware culling alone and with the per-keypoint evidence, our defaults (`ours`: depth,
+/// per-keypoint evidence, unknown objects), and the two baselines.
+pub const METHODS: [&str; 9] = [
+    "paper",
+    "paper+unknown",
+    "paper_no_protect",
+    "paper_ata_own_points",
+    "ours_depth",
+    "ours_depth+kp",
+    "ours",
+    "person_boxes",
+    "outliers_only",
+];
+
+/// What is measured, on which sequence.
+#[derive(Clone, Debug)]
+pub struct KeypointOptions {
+    /// A synthetic sequence written with masks (rgb.txt, rgb/, mask/, boxes.jsonl).
+    pub dataset: PathBuf,
+    /// Boxes from: gt (boxes.jsonl), yolox (the ONNX model), none.
+    pub detector: String,
+    /// YOLOX ONNX model for the yolox detector (else the default search).
+    pub model: Option<PathBuf>,
+    /// Radius in pixels of the detection-free baseline's dilation around outliers.
+    pub radius: f32,
+    /// A keypoint is truly dynamic (strict truth) with a moving mask pixel this close.
+    pub gt_radius: usize,
+    /// Our dynamic settings (`ours`, `ours_depth`, `ours_depth+kp`); the paper's rows take the
+    /// same with the paper's judgement (no sub-pixel person rule) and culling (no unknown
+    /// objects).
+    pub settings: DynamicSettings,
+    /// The front-end's seated-part 3D motion test in `ours` (when the camera can be read).
+    pub seated_motion: bool,
+    /// Use the sequence's depth (else ours_depth culls by the paper's rule).
+    pub use_depth: bool,
+    /// Use at most this many frames (0: all).
+    pub max_frames: usize,
+    /// Write one CSV line per keypoint inside a dynamic box (frame, x, y, octave, truth,
+    /// support truth, depth-aware decision, residual, forward-backward error, model, seated).
+    pub dump_keypoints: Option<PathBuf>,
+}
+
+/// One frame judged.
+#[derive(Serialize)]
+pub struct FrameReport {
+    /// The frame's index.
+    pub frame: usize,
+    /// ORB keypoints judged.
+    pub keypoints: usize,
+    /// Of those, truly dynamic (strict).
+    pub truly_dynamic: usize,
+    /// The motion model the geometry module fitted.
+    pub model: MotionModel,
+    /// Corners the geometry module tracked from.
+    pub corners: usize,
+    /// Corners LK lost.
+    pub lk_failed: usize,
+    /// Tracks rejected at the border.
+    pub border_rejected: usize,
+    /// Tracks rejected by the patch check.
+    pub patch_rejected: usize,
+    /// Tracks kept.
+    pub tracked: usize,
+    /// Of those, geometric outliers.
+    pub outliers: usize,
+    /// The geometry module's time, ms.
+    pub geometry_ms: f64,
+    /// Strict counts per method ([`METHODS`] order).
+    pub counts: Vec<Counts>,
+    /// The dynamic boxes of ours_depth, with their object depth (not in the JSON).
+    #[serde(skip)]
+    pub dynamic_boxes: Vec<BoxState>,
+}
+
+/// One method over the sequence.
+#[derive(Serialize)]
+pub struct MethodReport {
+    /// The method ([`METHODS`]).
+    pub method: &'static str,
+    /// Against the strict ground truth.
+    pub counts: Counts,
+    /// Strict precision.
+    pub precision: Option<f64>,
+    /// Strict recall.
+    pub recall: Option<f64>,
+    /// The same against the occlusion ground truth.
+    pub support_counts: Counts,
+    /// Occlusion precision.
+    pub support_precision: Option<f64>,
+    /// Occlusion recall.
+    pub support_recall: Option<f64>,
+    /// The same on the keypoints whose FAST circle does not straddle a moving silhouette.
+    pub clear_counts: Counts,
+    /// Clear precision.
+    pub clear_precision: Option<f64>,
+    /// Clear recall.
+    pub clear_recall: Option<f64>,
+}
+
+/// The whole measurement.
+#[derive(Serialize)]
+pub struct KeypointReport {
+    /// The sequence folder.
+    pub dataset: String,
+    /// The detector's name.
+    pub detector: String,
+    /// Frames judged.
+    pub frames: usize,
+    /// Frames that had a depth map (ours_depth is ours on the others).
+    pub depth_frames: usize,
+    /// Keypoints judged.
+    pub keypoints: usize,
+    /// Of those, the ones whose FAST circle straddles a moving silhouette (not scored by the
+    /// clear metric).
+    pub straddling: usize,
+    /// Per method ([`METHODS`] order).
+    pub methods: Vec<MethodReport>,
+    /// Frames per motion model.
+    pub models: Vec<(MotionModel, usize)>,
+    /// The geometry module's mean time per frame, ms.
+    pub geometry_ms_mean: f64,
+    /// Its median, ms.
+    pub geometry_ms_median: f64,
+    /// Its stages' mean times (corners, LK, checks, model), ms.
+    pub geometry_stage_ms_mean: [f64; 4],
+    /// ORB extraction's mean time per frame, ms.
+    pub orb_ms_mean: f64,
+    /// Geometry over ORB.
+    pub geometry_over_orb: f64,
+    /// Our culling step ([`cull_frame_with_motion`]: depth-aware culling, unknown objects,
+    /// per-keypoint evidence), mean milliseconds per frame.
+    pub culling_ms_mean: f64,
+    /// Per frame.
+    pub per_frame: Vec<FrameReport>,
+}
+
+fn detect_err(context: String) -> impl FnOnce(stillpoint_detect::DetectError) -> BenchError {
+    move |source| BenchError::Detect { context, source }
+}
+
+/// Judge every frame by every method and count against the masks.
+pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
+    let frames = mask_frames(&o.dataset)?;
+    let n = if o.max_frames > 0 {
+        o.max_frames.min(frames.len())
+    } else {
+        frames.len()
+    };
+    let boxes = o.dataset.join("boxes.jsonl");
+    let detect_settings = DetectSettings {
+        model: o.model.clone(),
+        ..DetectSettings::default()
+    };
+    let mut detector = open_detector(
+        &o.detector,
+        &detect_settings,
+        boxes.exists().then_some(boxes.as_path()),
+        GtDetectorParams::default(),
+    )
+    .map_err(detect_err(format!("detector {:?}", o.detector)))?;
+    let settings = o.settings.clone();
+    // The paper's judgement for every method but ours_depth.
+    let paper_judge = stillpoint_dynamic::JudgeParams {
+        person_subpixel_px: None,
+        ..settings.judge.clone()
+    };
+    // Frames, depth (with the sequence's depth factor) and their association as `run` reads them.
+    let sequence = stillpoint_datasets::open(&o.dataset, None, None).map_err(|source| {
+        BenchError::Dataset {
+            context: format!("{}", o.dataset.display()),
+            source,
+        }
+    })?;
+    let mut depth_frames = 0usize;
+    // The paper has no unknown-object rule; ours_depth and ours_depth+kp measure without it.
+    let paper_cull = CullParams {
+        unknown_objects: false,
+        ..settings.cull.clone()
+    };
+    let no_protect = CullParams {
+        static_box_protects: false,
+        unknown_box_protects: false,
+        ..paper_cull.clone()
+    };
+    let unknown = CullParams {
+        unknown_objects: true,
+        ..settings.cull.clone()
+    };
+    let depth_only = DynamicSettings {
+        cull: paper_cull.clone(),
+        ..settings.clone()
+    };
+    // `ours` is the front-end's per-frame decision, exactly as `stillpoint run` makes it: its
+    // own detector (same source), the bench's dynamic settings, the sequence's camera for the
+    // seated-part 3D motion test.
+    // Without a readable camera the seated-part test stays off (the front-end's own rule).
+    let camera = match stillpoint_datasets::open(&o.dataset, None, None) {
+        Ok(seq) => Some(seq.settings().camera),
+        Err(e) => {
+            tracing::warn!(
+                "{}: no camera, so no seated-part 3D test in `ours`: {e}",
+                o.dataset.display()
+            );
+            None
+        }
+    };
+    let mut front_end_settings = FrontEndSettings {
+        dynamic: settings.clone(),
+        ..FrontEndSettings::default()
+    };
+    front_end_settings.seated_motion.camera = camera;
+    front_end_settings.seated_motion.enabled &= o.seated_motion;
+    let mut front_end = DynamicFrontEnd::new(
+        open_detector(
+            &o.detector,
+            &detect_settings,
+            boxes.exists().then_some(boxes.as_path()),
+            GtDetectorParams::default(),
+        )
+        .map_err(detect_err(format!("detector {:?} (front-end)", o.detector)))?,
+        front_end_settings,
+    );
+    let mut orb = OrbExtractor::new(OrbParams::default());
+    let scales = orb.scale_factors().to_vec();
+
+    let mut totals = [Counts::default(); METHODS.len()];
+    let mut support_totals = [Counts::default(); METHODS.len()];
+    let mut clear_totals = [Counts::default(); METHODS.len()];
+    let mut straddling = 0usize;
+    let mut last_pyr = LkPyramid::default();
+    let mut dump = match &o.dump_keypoints {
+        Some(path) => Some(std::io::BufWriter::new(
+            std::fs::File::create(path).map_err(crate::io_error(format!(
+                "{}: cannot create",
+                path.display()
+            )))?,
+        )),
+        None => None,
+    };
+    let dump_error = || {
+        crate::io_error(format!(
+            "writing {}",
+            o.dump_keypoints.clone().unwrap_or_default().display()
+        ))
+    };
+    if let Some(w) = dump.as_mut() {
+        writeln!(
+            w,
+            "frame,x,y,octave,truth,support,removed,residual,fb,model,seated"
+        )
+        .map_err(dump_error())?;
+    }
+    let mut per_frame = Vec::new();
+    let (mut geometry_ms, mut orb_ms) = (Vec::new(), Vec::new());
+    let mut ours_ms = Vec::new();
+    let mut stages = [0.0f64; 4];
+    let mut models: Vec<(MotionModel, usize)> = Vec::new();
+    let mut prev: Option<Gray8> = None;
+    for (index, (t, mask_path)) in frames.iter().take(n).enumerate() {
+        let frame = sequence
+            .frame(index)
+            .map_err(|source| BenchError::Dataset {
+                context: format!("frame {index}"),
+                source,
+            })?;
+        let gray = frame.gray;
+        let rgb = frame
+            .rgb
+            .ok_or_else(|| BenchError::Invalid(format!("frame {index}: no colour image")))?;
+        let depth = if o.use_depth { frame.depth } else { None };
+        // Each frame's pyramid is built once and serves as the next frame's previous one.
+        let prev_pyr =
+            std::mem::replace(&mut last_pyr, LkPyramid::new(&gray, &settings.geometry.lk));
+        let cur_pyr = &last_pyr;
+        let input = FilterInput {
+            index,
+            timestamp: *t,
+            gray: &gray,
+            rgb: Some(&rgb),
+            depth: depth.as_ref(),
+        };
+        let Some(prev_gray) = prev.replace(gray.clone()) else {
+            // The front-end sees frame 0 too (its previous gray, pyramid, depth, box memory).
+            front_end.judge(&input, &[]);
+            continue;
+        };
+        let mask = read_gray(mask_path).map_err(|source| BenchError::Image {
+            context: format!("frame {index}: ground-truth mask (synth --masks)"),
+            source,
+        })?;
+        if (mask.width, mask.height) != (gray.width, gray.height) {
+            return Err(BenchError::Invalid(format!(
+                "{}: mask size differs from the image",
+                mask_path.display()
+            )));
+        }
+        let clock = std::time::Instant::now();
+        let features = orb.extract(&gray);
+        orb_ms.push(clock.elapsed().as_secs_f64() * 1e3);
+        let kps: Vec<[f32; 2]> = features.keypoints.iter().map(|k| [k.x, k.y]).collect();
+        let truth = strict_truth(&mask, &kps, o.gt_radius);
+        // The FAST test of each keypoint: how many of its 17 pixels are moving.
+        let fast_moving = fast_test_moving(&mask, &features.keypoints, &scales);
+        // Occlusion ground truth: a corner whose FAST circle touches the mover is formed by it.
+        let support = support_truth(&fast_moving);
+        // Clear ground truth: corners whose circle straddles a moving silhouette are not scored.
+        let clear = clear_truth(&fast_moving);
+        straddling += clear.iter().filter(|c| c.is_none()).count();
+
+        let check =
+            motion_consistency_pyramids(&prev_gray, &gray, &prev_pyr, cur_pyr, &settings.geometry);
+        geometry_ms.push(check.timings.total_ms());
+        let tm = check.timings;
+        for (s, v) in stages
+            .iter_mut()
+            .zip([tm.corners_ms, tm.lk_ms, tm.checks_ms, tm.model_ms])
+        {
+            *s += v;
+        }
+        match models.iter_mut().find(|(m, _)| *m == check.model) {
+            Some((_, c)) => *c += 1,
+            None => models.push((check.model, 1)),
+        }
+        let dets = detector
+            .detect(&DetectInput {
+                index,
+                timestamp: *t,
+                rgb: &rgb,
+            })
+            .map_err(detect_err(format!("frame {index}: detector")))?;
+        let states = judge_boxes(&dets, &check.points, &paper_judge);
+        depth_frames += usize::from(depth.is_some());
+        // Our judgement, once: culling fills in each state's depth, so `ours` gets a fresh copy.
+        let our_judgement = judge_boxes(&dets, &check.points, &settings.judge);
+        let mut depth_states = our_judgement.clone();
+        let person = settings.judge.person_class;
+        let own_judge = stillpoint_dynamic::JudgeParams {
+            ata_ignores_person_points: true,
+            ..paper_judge.clone()
+        };
+        let own_states = judge_boxes(&dets, &check.points, &own_judge);
+        let depth_removed = cull_frame(
+            &kps,
+            &mut depth_states,
+            &check.points,
+            depth.as_ref(),
+            &depth_only,
+        );
+        let candidates = in_dynamic_box(&kps, &depth_states);
+        let motion = keypoint_motion(
+            &prev_pyr,
+            cur_pyr,
+            &kps,
+            &candidates,
+            &check,
+            &settings.keypoint_motion,
+        );
+        let kp_removed = apply_keypoint_motion(
+            &kps,
+            &depth_removed,
+            &depth_states,
+            &motion,
+            &settings.keypoint_motion,
+        );
+        if let Some(w) = dump.as_mut() {
+            for (i, k) in features.keypoints.iter().enumerate() {
+                if !candidates[i] {
+                    continue;
+                }
+                let seated = depth_states.iter().any(|s| {
+                    s.is_dynamic()
+                        && s.part != stillpoint_dynamic::BoxPart::Whole
+                        && s.bbox.contains_strict(k.x, k.y)
+                });
+                let (r, fb) = motion[i].map_or((f32::NAN, f32::NAN), |m| (m.residual, m.fb_error));
+                writeln!(
+                    w,
+                    "{index},{:.2},{:.2},{},{},{},{},{r:.4},{fb:.4},{:?},{}",
+                    k.x,
+                    k.y,
+                    k.octave,
+                    u8::from(truth[i]),
+                    u8::from(support[i]),
+                    u8::from(depth_removed[i]),
+                    check.model,
+                    u8::from(seated)
+                )
+                .map_err(dump_error())?;
+            }
+        }
+        let mut our_states = our_judgement;
+        let ours_clock = std::time::Instant::now();
+        // Timed alone: the culling step that `ours` runs before the seated-part test.
+        cull_frame_with_motion(
+            &kps,
+            &mut our_states,
+            &check,
+            depth.as_ref(),
+            Some((&prev_pyr, cur_pyr)),
+            &settings,
+        );
+        ours_ms.push(ours_clock.elapsed().as_secs_f64() * 1e3);
+        // Track-only keypoints (`no_new_points`) are not in `dynamic`: they count as kept.
+        let ours = front_end.judge(&input, &kps).dynamic;
+        let predictions = [
+            cull_with(&kps, &states, &check.points, &paper_cull),
+            cull_with(&kps, &states, &check.points, &unknown),
+            cull_with(&kps, &states, &check.points, &no_protect),
+            cull_with(&kps, &own_states, &check.points, &paper_cull),
+            depth_removed,
+            kp_removed,
+            ours,
+            kps.iter()
+                .map(|&[x, y]| {
+                    dets.iter()
+                        .any(|d| d.class_id == person && d.bbox.contains_strict(x, y))
+                })
+                .collect(),
+            near_outliers(&kps, &check.points, o.radius, 1),
+        ];
+        let mut counts = [Counts::default(); METHODS.len()];
+        for ((c, total), p) in counts.iter_mut().zip(&mut totals).zip(&predictions) {
+            c.add(p, &truth);
+            total.add(p, &truth);
+        }
+        for (total, p) in support_totals.iter_mut().zip(&predictions) {
+            total.add(p, &support);
+        }
+        for (total, p) in clear_totals.iter_mut().zip(&predictions) {
+            total.add_known(p, &clear);
+        }
+        let report = FrameReport {
+            frame: index,
+            keypoints: kps.len(),
+            truly_dynamic: truth.iter().filter(|&&d| d).count(),
+            model: check.model,
+            corners: check.corners,
+            lk_failed: check.lk_failed,
+            border_rejected: check.border_rejected,
+            patch_rejected: check.patch_rejected,
+            tracked: check.points.len(),
+            outliers: check.outliers(),
+            geometry_ms: check.timings.total_ms(),
+            counts: counts.to_vec(),
+            dynamic_boxes: depth_states
+                .into_iter()
+                .filter(|b| b.is_dynamic())
+                .collect(),
+        };
+        tracing::debug!(frame = index, ms = report.geometry_ms, "geometry");
+        per_frame.push(report);
+    }
+    if let Some(w) = dump.as_mut() {
+        w.flush().map_err(dump_error())?;
+    }
+    let judged = per_frame.len().max(1) as f64;
+    Ok(KeypointReport {
+        dataset: o.dataset.display().to_string(),
+        detector: detector.name().to_string(),
+        frames: per_frame.len(),
+        depth_frames,
+        keypoints: per_frame.iter().map(|f| f.keypoints).sum(),
+        straddling,
+        methods: METHODS
+            .iter()
+            .zip(totals.iter().zip(support_totals.iter().zip(&clear_totals)))
+            .map(|(&method, (c, (sc, cc)))| MethodReport {
+                method,
+                counts: *c,
+                precision: c.precision(),
+                recall: c.recall(),
+                support_counts: *sc,
+                support_precision: sc.precision(),
+                support_recall: sc.recall(),
+                clear_counts: *cc,
+                clear_precision: cc.precision(),
+                clear_recall: cc.recall(),
+            })
+            .collect(),
+        models,
+        geometry_ms_mean: mean(&geometry_ms),
+        geometry_ms_median: median(&geometry_ms),
+        geometry_stage_ms_mean: stages.map(|s| s / judged),
+        orb_ms_mean: mean(&orb_ms),
+        geometry_over_orb: mean(&geometry_ms) / mean(&orb_ms).max(1e-9),
+        culling_ms_mean: mean(&ours_ms),
+        per_frame,
+    })
+}

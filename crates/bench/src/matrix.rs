@@ -1,0 +1,262 @@
+//! SLAM accuracy over synthetic presets x seeds x front-end modes (off, perfect boxes, YOLOX),
+//! with the share of map points that lie on movers. Sequences are generated in-process (with
+//! per-pixel masks, so map points on movers can be counted) into the output folder, then each
+//! run goes through [`stillpoint_run::run_sequence`], `jobs` at a time.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+use serde::Serialize;
+use stillpoint_run::{RunOptions, run_sequence};
+use stillpoint_synth::{Noise, Preset, SynthConfig, WriteOptions};
+
+use crate::BenchError;
+
+/// The front-end modes a matrix knows: off (no front-end), gt (perfect boxes), yolox, none
+/// (front-end without a detector).
+pub const MODES: [&str; 4] = ["off", "gt", "yolox", "none"];
+
+/// What the matrix generates and runs.
+#[derive(Clone, Debug)]
+pub struct MatrixOptions {
+    /// Presets, in table order.
+    pub presets: Vec<Preset>,
+    /// Seeds of each preset.
+    pub seeds: Vec<u64>,
+    /// Front-end modes ([`MODES`]).
+    pub modes: Vec<String>,
+    /// Frames per sequence.
+    pub frames: usize,
+    /// Sensor noise of the generated sequences.
+    pub noise: Noise,
+    /// Folder of photos and person cut-outs for the generator.
+    pub textures: Option<PathBuf>,
+    /// Where the sequences and trajectories go (kept; a sequence already there is reused).
+    pub out: PathBuf,
+    /// YOLOX ONNX model for the yolox mode (else the default search).
+    pub model: Option<PathBuf>,
+    /// Runs at a time.
+    pub jobs: usize,
+    /// Local mapping in its own thread (sequential otherwise, so that tables are reproducible).
+    pub threaded: bool,
+    /// Set to stop the runs early.
+    pub stop: Option<&'static AtomicBool>,
+}
+
+/// One run of the matrix.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    /// The preset's name.
+    pub preset: String,
+    /// The scene's seed.
+    pub seed: u64,
+    /// The front-end mode.
+    pub mode: String,
+    /// ATE RMSE, cm.
+    pub ate_cm: Option<f64>,
+    /// Frames with a pose.
+    pub tracked: usize,
+    /// Frames run.
+    pub frames: usize,
+    /// Ground-truth frames before the first pose.
+    pub first_tracked: Option<usize>,
+    /// Map points at the end.
+    pub map_points: usize,
+    /// Of those, observed on a moving object.
+    pub map_points_on_movers: Option<usize>,
+    /// Why the run failed (its error chain).
+    pub error: Option<String>,
+}
+
+impl Row {
+    /// Share of the map on movers (0..1).
+    pub fn movers_share(&self) -> Option<f64> {
+        self.map_points_on_movers
+            .map(|m| m as f64 / self.map_points.max(1) as f64)
+    }
+}
+
+fn generate(o: &MatrixOptions, preset: Preset, seed: u64, dir: &Path) -> Result<(), BenchError> {
+    if dir.join("groundtruth.txt").is_file() && dir.join("mask").is_dir() {
+        return Ok(());
+    }
+    let cfg = SynthConfig {
+        preset,
+        frames: o.frames,
+        seed,
+        noise: o.noise,
+        textures: o.textures.clone(),
+        ..SynthConfig::default()
+    };
+    let opts = WriteOptions {
+        stereo: false,
+        masks: true,
+    };
+    stillpoint_synth::write_sequence(&cfg, opts, dir).map_err(|source| BenchError::Synth {
+        context: format!(
+            "writing {} seed {seed} into {}",
+            preset.name(),
+            dir.display()
+        ),
+        source,
+    })?;
+    Ok(())
+}
+
+fn run_one(
+    o: &MatrixOptions,
+    (preset, seed, dir, mode): &(String, u64, PathBuf, String),
+    out: PathBuf,
+) -> Result<Row, BenchError> {
+    let s = run_sequence(
+        &RunOptions {
+            out: Some(out),
+            detector: (mode != "off").then(|| mode.to_string()),
+            sequential: !o.threaded,
+            model: o.model.clone(),
+            stop: o.stop,
+            ..RunOptions::new(dir.to_path_buf())
+        },
+        &mut |_| {},
+    )?;
+    let ate = s.accuracy().map(|a| a.0.stats.rmse * 100.0);
+    let first_tracked = s
+        .ground_truth
+        .as_ref()
+        .and_then(|gt| stillpoint_eval::accuracy::frames_before_first_pose(gt, &s.trajectory));
+    Ok(Row {
+        preset: preset.clone(),
+        seed: *seed,
+        mode: mode.to_string(),
+        ate_cm: ate,
+        tracked: s.tracked,
+        frames: s.frames,
+        first_tracked,
+        map_points: s.map_points,
+        map_points_on_movers: s.moving_map_points,
+        error: None,
+    })
+}
+
+/// Generate the sequences (or reuse those in `out`), run every preset x seed x mode, `jobs` at a
+/// time, and return the rows in that order. A run that fails is a row with its `error`.
+pub fn run_matrix(o: &MatrixOptions) -> Result<Vec<Row>, BenchError> {
+    for m in &o.modes {
+        if !MODES.contains(&m.as_str()) {
+            return Err(BenchError::Invalid(format!(
+                "--modes: unknown mode {m:?} (off, gt, yolox, none)"
+            )));
+        }
+    }
+    if o.frames == 0 || o.jobs == 0 {
+        return Err(BenchError::Invalid(
+            "--frames and --jobs must be at least 1".into(),
+        ));
+    }
+    std::fs::create_dir_all(&o.out)
+        .map_err(crate::io_error(format!("creating {}", o.out.display())))?;
+    let mut jobs = Vec::new();
+    for p in &o.presets {
+        for &seed in &o.seeds {
+            let dir = o.out.join(format!("{}_s{seed}", p.name()));
+            tracing::info!("generating {}", dir.display());
+            generate(o, *p, seed, &dir)?;
+            for m in &o.modes {
+                jobs.push((p.name().to_string(), seed, dir.clone(), m.clone()));
+            }
+        }
+    }
+    let next = AtomicUsize::new(0);
+    let rows = Mutex::new(Vec::new());
+    std::thread::scope(|sc| {
+        for _ in 0..o.jobs.min(jobs.len()) {
+            sc.spawn(|| {
+                loop {
+                    let k = next.fetch_add(1, Ordering::SeqCst);
+                    let Some(job) = jobs.get(k) else {
+                        break;
+                    };
+                    let (preset, seed, _, mode) = job;
+                    let out = o.out.join(format!("{preset}_s{seed}_{mode}.txt"));
+                    tracing::info!("[{}/{}] {preset} seed {seed} {mode}", k + 1, jobs.len());
+                    let row = run_one(o, job, out).unwrap_or_else(|e| Row {
+                        preset: preset.clone(),
+                        seed: *seed,
+                        mode: mode.clone(),
+                        ate_cm: None,
+                        tracked: 0,
+                        frames: o.frames,
+                        first_tracked: None,
+                        map_points: 0,
+                        map_points_on_movers: None,
+                        error: Some(crate::error_chain(&e)),
+                    });
+                    if let Ok(mut r) = rows.lock() {
+                        r.push((k, row));
+                    }
+                }
+            });
+        }
+    });
+    let mut rows = rows.into_inner().unwrap_or_default();
+    rows.sort_by_key(|(k, _)| *k);
+    Ok(rows.into_iter().map(|(_, r)| r).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(map_points: usize, movers: Option<usize>) -> Row {
+        Row {
+            preset: "static".into(),
+            seed: 0,
+            mode: "gt".into(),
+            ate_cm: Some(1.0),
+            tracked: 10,
+            frames: 10,
+            first_tracked: Some(0),
+            map_points,
+            map_points_on_movers: movers,
+            error: None,
+        }
+    }
+
+    #[test]
+    fn the_share_on_movers_survives_an_empty_map() {
+        assert_eq!(row(200, Some(5)).movers_share(), Some(0.025));
+        assert_eq!(row(0, Some(0)).movers_share(), Some(0.0));
+        assert_eq!(row(200, None).movers_share(), None);
+    }
+
+    #[test]
+    fn unknown_modes_and_zero_jobs_are_refused_before_anything_is_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("m");
+        let o = MatrixOptions {
+            presets: vec![Preset::Static],
+            seeds: vec![0],
+            modes: vec!["off".into(), "maybe".into()],
+            frames: 10,
+            noise: Noise::None,
+            textures: None,
+            out: out.clone(),
+            model: None,
+            jobs: 1,
+            threaded: false,
+            stop: None,
+        };
+        let err = run_matrix(&o).unwrap_err().to_string();
+        assert!(err.contains("unknown mode \"maybe\""), "{err}");
+        let err = run_matrix(&MatrixOptions {
+            modes: vec!["off".into()],
+            jobs: 0,
+            ..o
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("must be at least 1"), "{err}");
+        assert!(!out.exists());
+    }
+}

@@ -1,0 +1,276 @@
+//! stillpoint-run: one run of a sequence with its outputs, as `stillpoint run` makes it.
+//!
+//! [`run_sequence`] takes [`RunOptions`] (a dataset folder or a ROS recording, the detector or
+//! none, the settings layers) and does what lies around [`stillpoint_pipeline::Pipeline`]:
+//! it opens the sequence, lays the settings files and `section.key=value` overrides over the
+//! dataset's settings ([`settings_layers`]), opens the detector and the dynamic front-end,
+//! feeds the frames (in order, or replayed at their timestamps as a live camera delivers them,
+//! dropping what arrives while busy), writes the trajectory line by line as it goes under an
+//! exclusive lock on the file, rewrites it through the refined keyframes at the end with the
+//! keyframe trajectory beside it, and returns a [`RunSummary`] (counts, timings, ground truth,
+//! map points and keypoints on movers when the sequence has masks, loop closing, real-time
+//! latency). A stop flag set from another thread or a signal handler ends the run early with
+//! its files complete.
+//!
+//! ```no_run
+//! use stillpoint_run::{RunOptions, run_sequence};
+//! let options = RunOptions {
+//!     detector: Some("gt".into()),
+//!     out: Some("trajectory.txt".into()),
+//!     ..RunOptions::new("walking_xyz".into())
+//! };
+//! let summary = run_sequence(&options, &mut |_| {})?;
+//! println!("{} of {} frames tracked", summary.tracked, summary.frames);
+//! if let Some((ate, _)) = summary.accuracy() {
+//!     println!("ATE {:.3} m", ate.stats.rmse);
+//! }
+//! # Ok::<(), stillpoint_run::RunError>(())
+//! ```
+
+#![deny(missing_docs)]
+
+mod output;
+mod replay;
+mod session;
+
+pub use output::keyframe_path;
+pub use replay::RealtimeReport;
+pub use session::{Event, run_sequence, settings_layers};
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+
+use stillpoint_datasets::mcap::McapTopics;
+use stillpoint_datasets::{DatasetError, DatasetKind, Sensor};
+use stillpoint_detect::DetectError;
+use stillpoint_pipeline::{PipelineError, SettingsError};
+use stillpoint_slam::module::loop_closing::LoopStats;
+use stillpoint_trajectory::{
+    Alignment, AteOptions, AteResult, RpeResult, Trajectory, TrajectoryError,
+};
+
+/// How one run is set up.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// Sequence folder (TUM/Bonn layout, a `stillpoint synth` output, ...), or a ROS recording
+    /// when [`Overrides::recording`] is given.
+    pub dataset: PathBuf,
+    /// Dataset kind; detected when `None`.
+    pub kind: Option<DatasetKind>,
+    /// ORB-SLAM YAML or stillpoint TOML dataset settings; the dataset's own when `None`.
+    pub settings: Option<PathBuf>,
+    /// Per-frame trajectory (TUM), written as the run goes; the keyframe trajectory goes beside
+    /// it ([`keyframe_path`]). `None` writes nothing.
+    pub out: Option<PathBuf>,
+    /// The front-end's detector (`yolox`, `gt`, `none`); `None` = dynamic front-end off.
+    pub detector: Option<String>,
+    /// Local mapping inline after each keyframe (deterministic) instead of in its own thread.
+    pub sequential: bool,
+    /// Only the first N frames (`Some(0)` is an error).
+    pub frames: Option<usize>,
+    /// The paper's culling only (algorithm 3; none of our culling rules).
+    pub paper_cull: bool,
+    /// YOLOX ONNX file; `None` takes the settings' model or searches the default places.
+    pub model: Option<PathBuf>,
+    /// Settings changed from their defaults.
+    pub overrides: Overrides,
+    /// Replay at the frames' timestamps and drop the frames that arrive while busy.
+    pub realtime: bool,
+    /// Set (from another thread or a signal handler) to stop taking frames; the map and the
+    /// files are still finished.
+    pub stop: Option<&'static AtomicBool>,
+}
+
+impl RunOptions {
+    /// A run of `dataset` with everything else off or default: no front-end, threaded local
+    /// mapping, every frame, no output file.
+    pub fn new(dataset: PathBuf) -> Self {
+        Self {
+            dataset,
+            kind: None,
+            settings: None,
+            out: None,
+            detector: None,
+            sequential: false,
+            frames: None,
+            paper_cull: false,
+            model: None,
+            overrides: Overrides::default(),
+            realtime: false,
+            stop: None,
+        }
+    }
+}
+
+/// What changes besides the dataset and the front-end's mode.
+#[derive(Clone, Debug, Default)]
+pub struct Overrides {
+    /// A stillpoint settings file (`--config`).
+    pub config: Option<PathBuf>,
+    /// `section.key=value` overrides (`--set`), applied after the file.
+    pub sets: Vec<String>,
+    /// Loop closing off (`--no-loop-closing`).
+    pub no_loop_closing: bool,
+    /// A DBoW2 text vocabulary instead of the one trained online.
+    pub vocabulary: Option<PathBuf>,
+    /// `dataset` is a ROS recording read from these topics (`--bag`).
+    pub recording: Option<McapTopics>,
+}
+
+/// What a run produced.
+pub struct RunSummary {
+    /// The sequence's name.
+    pub name: String,
+    /// What the SLAM ran on (monocular trajectories have an arbitrary scale).
+    pub sensor: Sensor,
+    /// Frames asked for (all, or `RunOptions::frames`).
+    pub frames: usize,
+    /// Frames with a pose.
+    pub tracked: usize,
+    /// Keyframes in the map at the end.
+    pub keyframes: usize,
+    /// Map points in the map at the end.
+    pub map_points: usize,
+    /// Times tracking was lost and came back in the same map.
+    pub relocalisations: usize,
+    /// Times a new map was started.
+    pub new_maps: usize,
+    /// Keypoints the front-end culled, per frame processed.
+    pub culled_per_frame: Vec<usize>,
+    /// The per-frame trajectory (frames following their refined keyframes).
+    pub trajectory: Trajectory,
+    /// The keyframes' poses.
+    pub keyframe_trajectory: Trajectory,
+    /// The sequence's ground truth, when it has one that could be read.
+    pub ground_truth: Option<Trajectory>,
+    /// stage name -> per-frame (or per-keyframe) times in ms.
+    pub timings: Vec<(&'static str, Vec<f64>)>,
+    /// What detected: name, backend and input size (`yolox-tract 640x480`), or `off`.
+    pub detector: String,
+    /// With the generator's per-pixel masks (`mask/` of a `stillpoint synth --masks` sequence):
+    /// keypoints handed to tracking that lie on moving objects, per frame.
+    pub moving_kept_per_frame: Option<Vec<usize>>,
+    /// ... and map points at the end with at least one keyframe observation on a moving object.
+    pub moving_map_points: Option<usize>,
+    /// Loop closing's statistics (`None` when it is off).
+    pub loops: Option<LoopStats>,
+    /// With `realtime`: what the replay at camera rate processed, dropped and how late.
+    pub realtime: Option<RealtimeReport>,
+    /// Why no frame could be tracked, when none was (features, depth, initialisation).
+    pub untracked_reason: Option<String>,
+}
+
+impl RunSummary {
+    /// mean / median / p90 of the keypoints the front-end culled per frame.
+    pub fn culled_stats(&self) -> (f64, f64, f64) {
+        let culled: Vec<f64> = self.culled_per_frame.iter().map(|&c| c as f64).collect();
+        stillpoint_eval::stats(&culled)
+    }
+
+    /// How the trajectory is aligned to the ground truth (Sim(3) for monocular, else SE(3)).
+    pub fn alignment(&self) -> Alignment {
+        stillpoint_eval::alignment(self.sensor)
+    }
+
+    /// ATE and translational RPE over 1 s against the ground truth, when there is one
+    /// ([`stillpoint_eval::accuracy`]).
+    pub fn accuracy(&self) -> Option<(AteResult, Option<RpeResult>)> {
+        let gt = self.ground_truth.as_ref()?;
+        stillpoint_eval::accuracy(gt, &self.trajectory, self.sensor)
+    }
+
+    /// ATE of the keyframe trajectory against the ground truth (SE(3)-aligned), when there is
+    /// one and a keyframe associates.
+    pub fn keyframe_ate(&self) -> Option<AteResult> {
+        let gt = self.ground_truth.as_ref()?;
+        let options = AteOptions {
+            align: Alignment::Se3,
+            ..Default::default()
+        };
+        stillpoint_trajectory::ate(gt, &self.keyframe_trajectory, &options).ok()
+    }
+
+    /// mean / median / p90 of the keypoints kept on moving objects per frame, when the sequence
+    /// has masks.
+    pub fn moving_kept_stats(&self) -> Option<(f64, f64, f64)> {
+        let v: Vec<f64> = self
+            .moving_kept_per_frame
+            .as_ref()?
+            .iter()
+            .map(|&c| c as f64)
+            .collect();
+        Some(stillpoint_eval::stats(&v))
+    }
+}
+
+/// Why a run could not start or finish. Each names what it was doing; the cause is its source.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The sequence or recording cannot be opened.
+    #[error("opening {}", .path.display())]
+    Open {
+        /// The dataset folder or recording.
+        path: PathBuf,
+        /// What the reader said.
+        source: DatasetError,
+    },
+    /// A settings file or override is wrong.
+    #[error(transparent)]
+    Settings(#[from] SettingsError),
+    /// A file cannot be opened, locked or created.
+    #[error("{context}")]
+    Io {
+        /// What was being done (`opening FILE`).
+        context: String,
+        /// Why it failed.
+        source: std::io::Error,
+    },
+    /// The vocabulary file is not a DBoW2 text vocabulary.
+    #[error("{}: {msg}", .path.display())]
+    Vocabulary {
+        /// The file.
+        path: PathBuf,
+        /// What the reader said.
+        msg: String,
+    },
+    /// The detector cannot be opened or started.
+    #[error("{context}")]
+    Detector {
+        /// What was being done.
+        context: String,
+        /// What the detector said.
+        source: DetectError,
+    },
+    /// Nothing to run: no frames, or another run writes the same trajectory.
+    #[error("{0}")]
+    Refused(String),
+    /// Writing the trajectory failed.
+    #[error("{context}")]
+    Trajectory {
+        /// What was being written.
+        context: String,
+        /// Why it failed.
+        source: TrajectoryError,
+    },
+    /// Tracking or stopping the pipeline failed.
+    #[error("{context}")]
+    Pipeline {
+        /// The dataset, or what was being stopped.
+        context: String,
+        /// What the pipeline said.
+        source: PipelineError,
+    },
+}
+
+/// An error and its causes, `: `-separated (as anyhow's `{:#}`): how a failed run is logged or
+/// recorded in a table row.
+pub fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        s.push_str(": ");
+        s.push_str(&c.to_string());
+        cause = c.source();
+    }
+    s
+}

@@ -1,0 +1,392 @@
+//! The run itself: settings, detector and front-end, the frame loop, the files, the summary.
+
+use std::path::Path;
+use std::sync::atomic::Ordering;
+use std::time::Instant;
+
+use stillpoint_datasets::{Sensor, Sequence};
+use stillpoint_detect::GtDetectorParams;
+use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
+use stillpoint_pipeline::{FrameResult, FrameTimings, Layered, Pipeline, SettingsTree};
+use stillpoint_trajectory::TumWriter;
+
+use crate::output::{keyframe_path, lock_output};
+use crate::replay::{RealtimeReport, ReplayCamera};
+use crate::{Overrides, RunError, RunOptions, RunSummary};
+
+/// What a run reports as it goes, for a progress display.
+pub enum Event<'a> {
+    /// Frame `index` of `frames` is next (also for a frame that turns out unreadable).
+    Next {
+        /// The frame's position in the sequence.
+        index: usize,
+        /// Frames the run will take at most.
+        frames: usize,
+    },
+    /// What tracking made of a frame, and the keyframes in the map after it.
+    Tracked {
+        /// The frame's result.
+        result: &'a FrameResult,
+        /// Keyframes in the map.
+        keyframes: usize,
+    },
+    /// No more frames: the map and the files are being finished.
+    Finishing,
+}
+
+/// The run's settings tree and where each value came from: the dataset's settings and the
+/// crates' defaults, the paper-cull preset, the `[detect]` table of a TOML `settings_file`, the
+/// overrides' `config` file, then their `sets`.
+pub fn settings_layers(
+    ds: &stillpoint_datasets::Settings,
+    settings_file: Option<&Path>,
+    paper_cull_preset: bool,
+    overrides: &Overrides,
+) -> Result<Layered, RunError> {
+    let mut base = SettingsTree::from_dataset(ds);
+    if paper_cull_preset {
+        paper_cull(&mut base.front_end);
+    }
+    let mut files: Vec<(&Path, bool)> = Vec::new();
+    if let Some(p) = settings_file.filter(|p| p.extension().is_some_and(|e| e == "toml")) {
+        files.push((p, true));
+    }
+    if let Some(p) = overrides.config.as_deref() {
+        files.push((p, false));
+    }
+    Ok(base.layered_with(files, &overrides.sets)?)
+}
+
+/// Algorithm 3 over the paper's box verdicts: none of our rules between them and the keypoints
+/// (`--set` may still turn one back on).
+fn paper_cull(s: &mut FrontEndSettings) {
+    s.dynamic.depth.enabled = false;
+    s.dynamic.cull.unknown_objects = false;
+    s.dynamic.keypoint_motion.enabled = false;
+    s.seated_motion.enabled = false;
+    s.dynamic.world.enabled = false;
+    s.dynamic.objects.enabled = false;
+}
+
+/// Open the run's sequence: a dataset folder, or a recording's topics.
+fn open_sequence(o: &RunOptions) -> Result<Box<dyn Sequence>, RunError> {
+    let settings = o.settings.as_deref();
+    let seq = match &o.overrides.recording {
+        Some(topics) => stillpoint_datasets::mcap::open(&o.dataset, topics, settings),
+        None => stillpoint_datasets::open(&o.dataset, o.kind, settings),
+    };
+    seq.map_err(|source| RunError::Open {
+        path: o.dataset.clone(),
+        source,
+    })
+}
+
+/// A DBoW2 text vocabulary (ORB-SLAM's ORBvoc.txt).
+fn read_vocabulary(p: &Path) -> Result<stillpoint_slam::place::Vocabulary, RunError> {
+    let f = std::fs::File::open(p).map_err(|source| RunError::Io {
+        context: format!("opening {}", p.display()),
+        source,
+    })?;
+    let v = stillpoint_slam::place::Vocabulary::from_dbow2_text(std::io::BufReader::new(f))
+        .map_err(|msg| RunError::Vocabulary {
+            path: p.to_path_buf(),
+            msg,
+        })?;
+    tracing::info!("{}: {} words", p.display(), v.words());
+    Ok(v)
+}
+
+/// Run SLAM over a sequence. Frames that cannot be read are logged and skipped. `progress`
+/// hears of each frame ([`Event`]).
+pub fn run_sequence(
+    o: &RunOptions,
+    progress: &mut dyn FnMut(Event),
+) -> Result<RunSummary, RunError> {
+    let seq = open_sequence(o)?;
+    let ds = seq.settings().clone();
+    let tree = settings_layers(&ds, o.settings.as_deref(), o.paper_cull, &o.overrides)?.tree;
+    let mut pipeline_settings = tree.pipeline();
+    pipeline_settings.slam.local_mapping_thread = !o.sequential;
+    pipeline_settings.slam.loop_closing.enabled &= !o.overrides.no_loop_closing;
+    let vocabulary = o
+        .overrides
+        .vocabulary
+        .as_deref()
+        .map(read_vocabulary)
+        .transpose()?;
+    // What ran: the detector's name, backend and input size (`yolox-tract 640x480`).
+    let mut detector_desc = "off".to_string();
+    let front = match &o.detector {
+        None => None,
+        Some(name) => {
+            let boxes = seq.boxes();
+            let mut detect = tree.detect.clone();
+            if o.model.is_some() {
+                detect.model = o.model.clone();
+            }
+            let detector = stillpoint_detect::open_detector(
+                name,
+                &detect,
+                boxes.as_deref(),
+                GtDetectorParams::default(),
+            )
+            .map_err(|source| RunError::Detector {
+                context: format!("opening the {name} detector"),
+                source,
+            })?;
+            detector_desc = match detector.input_size() {
+                Some((h, w)) => format!("{} {w}x{h}", detector.name()),
+                None => detector.name().to_string(),
+            };
+            let front = DynamicFrontEnd::new(detector, tree.front_end.clone());
+            if tree.front_end.detector_in_background || o.realtime {
+                Some(
+                    front
+                        .detect_in_background()
+                        .map_err(|source| RunError::Detector {
+                            context: format!("starting the {name} detector's thread"),
+                            source,
+                        })?,
+                )
+            } else {
+                Some(front)
+            }
+        }
+    };
+    let detector_name = detector_desc;
+    if o.frames == Some(0) {
+        return Err(RunError::Refused(
+            "--frames 0: nothing to run (give at least 1, or leave it out for every frame)".into(),
+        ));
+    }
+    let n = o.frames.map_or(seq.len(), |f| f.min(seq.len()));
+    if n == 0 {
+        return Err(RunError::Refused(format!(
+            "{}: the sequence has no frames",
+            o.dataset.display()
+        )));
+    }
+    let _lock = o.out.as_deref().map(lock_output).transpose()?;
+    let mut writer = match &o.out {
+        Some(p) => Some(TumWriter::create(p).map_err(|source| RunError::Trajectory {
+            context: format!("creating {}", p.display()),
+            source,
+        })?),
+        None => None,
+    };
+    let mut camera = if o.realtime {
+        Some(ReplayCamera::start(open_sequence(o)?, n))
+    } else {
+        None
+    };
+    let mut realtime = RealtimeReport::default();
+    let pipeline_settings_init = (
+        pipeline_settings.slam.init_min_keypoints,
+        pipeline_settings.slam.init_min_with_depth,
+        pipeline_settings.slam.init_min_cells_with_depth,
+    );
+    let mut pipeline = Pipeline::new(pipeline_settings, front, vocabulary);
+    let mut times: Vec<FrameTimings> = Vec::with_capacity(n);
+    let mut written: Option<f64> = None;
+    let mut culled = Vec::with_capacity(n);
+    let (mut tracked, mut relocs, mut new_maps) = (0, 0, 0);
+    let has_masks = o.dataset.join("mask").is_dir();
+    let mut moving_kept = Vec::new();
+    let mut depth_scale_checked = false;
+    // For a run that tracks nothing: what the frames offered.
+    let (mut frames_read, mut frames_with_depth, mut most_keypoints) = (0usize, 0usize, 0usize);
+    let mut next_index = 0;
+    loop {
+        if o.stop.is_some_and(|s| s.load(Ordering::SeqCst)) {
+            tracing::warn!("interrupted: finishing the map and the trajectory files");
+            break;
+        }
+        let (i, loaded, arrival) = match camera.as_mut() {
+            Some(c) => match c.next() {
+                Some(f) => f,
+                None => break,
+            },
+            None if next_index < n => {
+                next_index += 1;
+                (next_index - 1, seq.frame(next_index - 1), Instant::now())
+            }
+            None => break,
+        };
+        progress(Event::Next {
+            index: i,
+            frames: n,
+        });
+        let frame = match loaded {
+            Ok(f) => f,
+            Err(e) => {
+                tracing::warn!("frame {i}: skipped: {e}");
+                continue;
+            }
+        };
+        let started = Instant::now();
+        frames_read += 1;
+        frames_with_depth += usize::from(frame.depth.is_some() || frame.right.is_some());
+        if let (false, Some(depth)) = (depth_scale_checked, &frame.depth) {
+            // The first frame with depth: a wrong factor scales the whole trajectory silently.
+            depth_scale_checked = true;
+            let factor = seq.settings().depth_factor;
+            if let Some(w) = stillpoint_datasets::depth_scale_warning(depth, factor) {
+                tracing::warn!("frame {i}: {w}");
+            }
+        }
+        let r = pipeline
+            .track(&frame)
+            .map_err(|source| RunError::Pipeline {
+                context: format!("{}", o.dataset.display()),
+                source,
+            })?;
+        if camera.is_some() {
+            realtime.frames_processed += 1;
+            realtime.processing_ms.push(ms_since(started));
+            realtime.latency_ms.push(ms_since(arrival));
+        }
+        let n_culled = r.culled();
+        most_keypoints = most_keypoints.max(r.keypoints.len() - n_culled);
+        culled.push(n_culled);
+        if has_masks {
+            let mask = stillpoint_eval::movers::moving_mask(&o.dataset, frame.timestamp);
+            moving_kept.push(mask.map_or(0, |m| {
+                stillpoint_eval::movers::moving_keypoints_kept(&m, &r.keypoints, &r.dynamic)
+            }));
+        }
+        tracing::debug!(
+            frame = i,
+            state = ?r.state,
+            keypoints = r.keypoints.len() - n_culled,
+            culled = n_culled,
+            inliers = r.inliers,
+            keyframe = r.new_keyframe,
+            "tracked"
+        );
+        relocs += r.relocalised as usize;
+        new_maps += r.new_map as usize;
+        if let Some(p) = r.pose_wc {
+            tracked += 1;
+            if written.is_none_or(|l| frame.timestamp > l) {
+                written = Some(frame.timestamp);
+                if let Some(w) = writer.as_mut() {
+                    w.write(frame.timestamp, &p)
+                        .map_err(|source| RunError::Trajectory {
+                            context: format!("writing frame {i}"),
+                            source,
+                        })?;
+                }
+            }
+        }
+        progress(Event::Tracked {
+            result: &r,
+            keyframes: pipeline.system().keyframe_count(),
+        });
+        times.push(r.timings);
+    }
+    progress(Event::Finishing);
+    let fin = pipeline.finish().map_err(|source| RunError::Pipeline {
+        context: "local mapping".into(),
+        source,
+    })?;
+    // The file written as we went (tracking's poses: what a crash leaves) is replaced by the
+    // frames following their keyframes as bundle adjustment and loop closing left them.
+    if let Some(p) = &o.out {
+        stillpoint_trajectory::write_tum(p, &fin.trajectory).map_err(|source| {
+            RunError::Trajectory {
+                context: format!("rewriting {}", p.display()),
+                source,
+            }
+        })?;
+        if fin.loop_closed {
+            tracing::info!("loop closed: trajectory rebuilt through the keyframes");
+        }
+    }
+    if let Some(p) = &o.out {
+        let kp = keyframe_path(p);
+        stillpoint_trajectory::write_tum(&kp, &fin.keyframe_trajectory).map_err(|source| {
+            RunError::Trajectory {
+                context: format!("writing {}", kp.display()),
+                source,
+            }
+        })?;
+    }
+    let ground_truth = seq.ground_truth().and_then(|p| {
+        stillpoint_eval::read_ground_truth(seq.as_ref(), &p)
+            .map_err(|e| tracing::warn!("ground truth unreadable: {}", crate::error_chain(&e)))
+            .ok()
+    });
+    let moving_map_points = has_masks.then(|| {
+        fin.system.map().lock().map_or(0, |map| {
+            stillpoint_eval::movers::moving_map_points(&map, |t| {
+                stillpoint_eval::movers::moving_mask(&o.dataset, t)
+            })
+        })
+    });
+    if let Some(c) = &camera {
+        realtime.frames_dropped = c.dropped;
+    }
+    let pick = |f: fn(&FrameTimings) -> f64| times.iter().map(f).collect::<Vec<f64>>();
+    let mut timings = vec![];
+    if o.detector.is_some() {
+        timings.push(("semantic", pick(|t| t.semantic_ms)));
+        timings.push(("geometry", pick(|t| t.geometry_ms)));
+    }
+    timings.push(("orb", pick(|t| t.orb_ms)));
+    timings.push(("tracking", pick(|t| t.tracking_ms)));
+    let loops = fin.loops;
+    timings.push(("local mapping (per keyframe)", fin.mapping_ms));
+    if let Some(l) = &loops {
+        timings.push(("loop detection (per keyframe)", l.detection_ms.clone()));
+        timings.push(("loop correction", l.correction_ms.clone()));
+        timings.push(("global BA after a loop", l.global_ba_ms.clone()));
+        timings.push(("vocabulary training", l.training_ms.clone()));
+    }
+    Ok(RunSummary {
+        name: seq.name(),
+        sensor: ds.sensor,
+        frames: n,
+        tracked,
+        keyframes: fin.keyframes,
+        map_points: fin.map_points,
+        relocalisations: relocs,
+        new_maps,
+        culled_per_frame: culled,
+        trajectory: fin.trajectory,
+        keyframe_trajectory: fin.keyframe_trajectory,
+        ground_truth,
+        timings,
+        detector: detector_name,
+        moving_kept_per_frame: has_masks.then_some(moving_kept),
+        moving_map_points,
+        loops,
+        realtime: camera.is_some().then_some(realtime),
+        untracked_reason: (tracked == 0).then(|| {
+            let init = &pipeline_settings_init;
+            if frames_read == 0 {
+                "no frame could be read".to_string()
+            } else if ds.sensor != Sensor::Mono && frames_with_depth == 0 {
+                format!(
+                    "none of the {frames_read} frames had depth (an RGB-D map starts from depth: \
+                     check depth.txt and the depth images)"
+                )
+            } else if most_keypoints < init.0 {
+                format!(
+                    "the most keypoints a frame kept was {most_keypoints}; a map starts with \
+                     {} (slam.init_min_keypoints; plain or dark images, or the front-end culled them)",
+                    init.0
+                )
+            } else {
+                format!(
+                    "the map never started: up to {most_keypoints} keypoints a frame, but fewer than \
+                     {} with depth, or spread over fewer than {} of the 16 image cells",
+                    init.1, init.2
+                )
+            }
+        }),
+    })
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
