@@ -10,6 +10,7 @@ use crate::error::{DatasetError, io_err};
 use crate::settings::{OrbSettings, Sensor, Settings};
 use std::path::Path;
 use stillpoint_geometry::{PinholeCamera, RadTan, RectifyingView, StereoRectification};
+use yaml_rust2::parser::{Event, Parser};
 use yaml_rust2::{Yaml, YamlLoader};
 
 fn settings_err(path: &Path, msg: impl Into<String>) -> DatasetError {
@@ -205,9 +206,34 @@ pub fn read_orbslam_yaml(path: &Path) -> Result<Settings, DatasetError> {
     parse_orbslam_yaml(text.strip_prefix('\u{feff}').unwrap_or(&text), path)
 }
 
+/// YAML aliases (`*name`) are refused: the loader copies the anchored node at each one, so a
+/// few lines of nested aliases made 10^9 nodes and the process was killed for its memory.
+/// Settings files have no use for them (ORB-SLAM's files have none).
+fn refuse_aliases(text: &str, path: &Path) -> Result<(), DatasetError> {
+    let mut parser = Parser::new_from_str(text);
+    // Syntax errors are left to the loader, which names them.
+    while let Ok((event, mark)) = parser.next_token() {
+        match event {
+            Event::StreamEnd => break,
+            Event::Alias(_) => {
+                return Err(settings_err(
+                    path,
+                    format!(
+                        "line {}: YAML aliases (*name) are not read in settings files; write the value out",
+                        mark.line()
+                    ),
+                ));
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// Parse the text of an ORB-SLAM settings file; `path` names it in messages.
 pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetError> {
     let fixed = opencv_to_yaml(text);
+    refuse_aliases(&fixed, path)?;
     let docs = YamlLoader::load_from_str(&fixed)
         .map_err(|e| settings_err(path, format!("line {}: {}", e.marker().line(), e.info())))?;
     let root = docs.into_iter().next().unwrap_or(Yaml::Null);

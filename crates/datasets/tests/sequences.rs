@@ -368,3 +368,26 @@ proptest! {
         let _ = parse_settings_toml(&text, "r.toml".as_ref());
     }
 }
+
+#[test]
+fn yaml_aliases_are_refused_before_they_are_expanded() {
+    // Nine levels of ten aliases each: 10^9 nodes once expanded (the process was killed).
+    let mut text = String::from(
+        "%YAML:1.0\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\n\
+         Camera.width: 640\nCamera.height: 480\na0: &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]\n",
+    );
+    for i in 1..9 {
+        let p = format!("*a{}", i - 1);
+        text.push_str(&format!("a{i}: &a{i} [{}]\n", vec![p; 10].join(", ")));
+    }
+    let e = parse_orbslam_yaml(&text, "bomb.yaml".as_ref())
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with("bomb.yaml: line 9: YAML aliases"), "{e}");
+    // A single alias is refused the same way.
+    let one = "%YAML:1.0\nCamera.fx: &f 500\nCamera.fy: *f\n";
+    let e = parse_orbslam_yaml(one, "one.yaml".as_ref())
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with("one.yaml: line 3: YAML aliases"), "{e}");
+}
