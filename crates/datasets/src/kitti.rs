@@ -187,6 +187,7 @@ fn settings_from_calib(
         Field::Cx => format!("{kl}[2] (cx)"),
         Field::Cy => format!("{kl}[6] (cy)"),
         Field::Bf => format!("{kr}[3] (-fx x baseline)"),
+        Field::Size => format!("{}: image size", first.display()),
         other => format!("{other:?}"),
     };
     check_values(&s, key).map_err(|m| layout_err(&calib_path, m))?;

@@ -391,3 +391,39 @@ fn yaml_aliases_are_refused_before_they_are_expanded() {
         .to_string();
     assert!(e.starts_with("one.yaml: line 3: YAML aliases"), "{e}");
 }
+
+#[test]
+fn tiny_numbers_are_shown_short_and_huge_cameras_are_refused() {
+    let base = "%YAML:1.0\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\n\
+                Camera.width: 640\nCamera.height: 480\n";
+    // 1e-300 was printed with its 300 zeros.
+    let e = parse_orbslam_yaml(
+        &base.replace("Camera.fx: 500", "Camera.fx: 1e-300"),
+        "tiny.yaml".as_ref(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("Camera.fx = 1e-300: a focal length"), "{e}");
+    // ~80 bytes a pixel: 12000x12000 would take ~11 GB.
+    let e = parse_orbslam_yaml(
+        &base
+            .replace("Camera.width: 640", "Camera.width: 12000")
+            .replace("Camera.height: 480", "Camera.height: 12000"),
+        "huge.yaml".as_ref(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.starts_with("huge.yaml: line 6: Camera.width = 12000x12000: images of 1 to 16384"),
+        "{e}"
+    );
+    let toml = "sensor = \"mono\"\n[camera]\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n\
+                width = 100000\nheight = 480\n";
+    let e = parse_settings_toml(toml, "wide.toml".as_ref())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with("wide.toml: line 7: camera.width = 100000x480"),
+        "{e}"
+    );
+}
