@@ -4,7 +4,9 @@
 
 use crate::error::{DatasetError, io_err, layout_err, parse_err};
 use crate::lists::data_lines;
-use crate::sequence::{GroundTruthFormat, Sequence, check_index, check_size, dir_name};
+use crate::sequence::{
+    GroundTruthFormat, Sequence, check_header, check_index, check_size, dir_name,
+};
 use crate::{Frame, Sensor, Settings};
 use std::path::{Path, PathBuf};
 use stillpoint_geometry::{PinholeCamera, RadTan};
@@ -201,10 +203,12 @@ impl Sequence for EurocSequence {
     fn frame(&self, i: usize) -> Result<Frame, DatasetError> {
         check_index(i, self.left.len())?;
         let (t, p) = &self.left[i];
+        check_header(p, &self.settings)?;
         let gray = read_gray(p)?;
         check_size(p, gray.width, gray.height, &self.settings)?;
         let right = match &self.right {
             Some(r) => {
+                check_header(&r[i], &self.settings)?;
                 let img = read_gray(&r[i])?;
                 check_size(&r[i], img.width, img.height, &self.settings)?;
                 Some(img)

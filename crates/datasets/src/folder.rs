@@ -1,7 +1,10 @@
 //! A plain folder of images (monocular), sorted by file name, at the settings' frame rate.
 
 use crate::error::{DatasetError, io_err, layout_err};
-use crate::sequence::{Sequence, check_index, check_size, dir_name, is_image};
+use crate::sequence::{
+    Sequence, check_header, check_index, check_size, dir_name, header_size, is_image,
+};
+use crate::settings_file::{Field, check_values};
 use crate::{Frame, Sensor, Settings};
 use std::path::{Path, PathBuf};
 use stillpoint_geometry::PinholeCamera;
@@ -35,16 +38,28 @@ impl FolderSequence {
                 crate::read_settings_toml(&dir.join("settings.toml"))?
             }
             None => {
-                let img = read_rgb(&images[0])?;
-                let (w, h) = (img.width as f64, img.height as f64);
+                let (width, height) = match header_size(&images[0]) {
+                    Some(size) => size,
+                    None => {
+                        let img = read_rgb(&images[0])?;
+                        (img.width, img.height)
+                    }
+                };
+                let (w, h) = (width as f64, height as f64);
                 tracing::warn!(
                     "{}: no settings; guessing fx = fy = {w}, centred principal point",
                     dir.display()
                 );
-                Settings::with_camera(
+                let s = Settings::with_camera(
                     Sensor::Mono,
-                    PinholeCamera::new(w, w, w / 2.0, h / 2.0, img.width as u32, img.height as u32),
-                )
+                    PinholeCamera::new(w, w, w / 2.0, h / 2.0, width as u32, height as u32),
+                );
+                let key = |field: Field| match field {
+                    Field::Size => format!("{}: image size", images[0].display()),
+                    other => format!("{other:?} (guessed from the image size)"),
+                };
+                check_values(&s, key).map_err(|m| layout_err(dir, m))?;
+                s
             }
         };
         settings.sensor = Sensor::Mono;
@@ -71,6 +86,7 @@ impl Sequence for FolderSequence {
     }
     fn frame(&self, i: usize) -> Result<Frame, DatasetError> {
         check_index(i, self.images.len())?;
+        check_header(&self.images[i], &self.settings)?;
         let rgb = read_rgb(&self.images[i])?;
         check_size(&self.images[i], rgb.width, rgb.height, &self.settings)?;
         Ok(Frame {

@@ -3,7 +3,10 @@
 
 use crate::error::{DatasetError, io_err, layout_err, parse_err};
 use crate::lists::{data_lines, read_times};
-use crate::sequence::{GroundTruthFormat, Sequence, check_index, check_size, dir_name, is_image};
+use crate::sequence::{
+    GroundTruthFormat, Sequence, check_header, check_index, check_size, dir_name, header_size,
+    is_image,
+};
 use crate::settings_file::{Field, check_values};
 use crate::{Frame, Sensor, Settings};
 use std::path::{Path, PathBuf};
@@ -168,8 +171,14 @@ fn settings_from_calib(
     let get = |k: &str| calib.iter().find(|(n, _)| n == k).map(|(_, m)| *m);
     let (kl, kr) = if colour { ("P2", "P3") } else { ("P0", "P1") };
     let p = get(kl).ok_or_else(|| layout_err(&calib_path, format!("no {kl} line")))?;
-    let img = read_gray(first)?;
-    let camera = PinholeCamera::new(p[0], p[5], p[2], p[6], img.width as u32, img.height as u32);
+    let (width, height) = match header_size(first) {
+        Some(size) => size,
+        None => {
+            let img = read_gray(first)?;
+            (img.width, img.height)
+        }
+    };
+    let camera = PinholeCamera::new(p[0], p[5], p[2], p[6], width as u32, height as u32);
     let mut s = Settings::with_camera(if stereo { Sensor::Stereo } else { Sensor::Mono }, camera);
     // P_r[3] = -fx * baseline (relative to P_l[3] for the colour pair).
     s.bf = get(kr).map(|pr| -(pr[3] - p[3]));
@@ -187,6 +196,7 @@ fn settings_from_calib(
         Field::Cx => format!("{kl}[2] (cx)"),
         Field::Cy => format!("{kl}[6] (cy)"),
         Field::Bf => format!("{kr}[3] (-fx x baseline)"),
+        Field::Size => format!("{}: image size", first.display()),
         other => format!("{other:?}"),
     };
     check_values(&s, key).map_err(|m| layout_err(&calib_path, m))?;
@@ -203,14 +213,17 @@ impl Sequence for KittiSequence {
     fn frame(&self, i: usize) -> Result<Frame, DatasetError> {
         check_index(i, self.left.len())?;
         let (gray, rgb) = if self.colour {
+            check_header(&self.left[i], &self.settings)?;
             let rgb = read_rgb(&self.left[i])?;
             (rgb_to_gray(&rgb), Some(rgb))
         } else {
+            check_header(&self.left[i], &self.settings)?;
             (read_gray(&self.left[i])?, None)
         };
         check_size(&self.left[i], gray.width, gray.height, &self.settings)?;
         let right = match &self.right {
             Some(r) => {
+                check_header(&r[i], &self.settings)?;
                 let img = read_gray(&r[i])?;
                 check_size(&r[i], img.width, img.height, &self.settings)?;
                 Some(img)

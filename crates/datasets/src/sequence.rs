@@ -172,6 +172,26 @@ pub(crate) fn check_index(i: usize, len: usize) -> Result<(), DatasetError> {
 }
 
 /// An image whose size differs from the camera's is an error naming the file.
+/// An image's size from its file header, without decoding the pixels; `None` when the header
+/// cannot be read (the decoder then says why).
+pub(crate) fn header_size(path: &Path) -> Option<(usize, usize)> {
+    let mut reader = image::ImageReader::open(path).ok()?.with_guessed_format().ok()?;
+    // Only the header is read; the decoder's memory limit would refuse to even size a huge one.
+    reader.no_limits();
+    let (w, h) = reader.into_dimensions().ok()?;
+    Some((w as usize, h as usize))
+}
+
+/// [`check_size`] from the file's header, before the image is decoded: a small file can declare
+/// a huge image (a 445 KB PNG of 12000x12000 took 850 MB to decode, only to be told it was the
+/// wrong size).
+pub(crate) fn check_header(path: &Path, s: &Settings) -> Result<(), DatasetError> {
+    match header_size(path) {
+        Some((w, h)) => check_size(path, w, h, s),
+        None => Ok(()),
+    }
+}
+
 pub(crate) fn check_size(
     path: &Path,
     w: usize,

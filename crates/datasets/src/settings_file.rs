@@ -11,6 +11,7 @@ use crate::settings::{Sensor, Settings};
 use std::path::Path;
 use stillpoint_features::OrbParams;
 use stillpoint_geometry::{PinholeCamera, RadTan, RectifyingView, StereoRectification};
+use yaml_rust2::parser::{Event, Parser};
 use yaml_rust2::{Yaml, YamlLoader};
 
 fn settings_err(path: &Path, msg: impl Into<String>) -> DatasetError {
@@ -206,9 +207,34 @@ pub fn read_orbslam_yaml(path: &Path) -> Result<Settings, DatasetError> {
     parse_orbslam_yaml(text.strip_prefix('\u{feff}').unwrap_or(&text), path)
 }
 
+/// YAML aliases (`*name`) are refused: the loader copies the anchored node at each one, so a
+/// few lines of nested aliases made 10^9 nodes and the process was killed for its memory.
+/// Settings files have no use for them (ORB-SLAM's files have none).
+fn refuse_aliases(text: &str, path: &Path) -> Result<(), DatasetError> {
+    let mut parser = Parser::new_from_str(text);
+    // Syntax errors are left to the loader, which names them.
+    while let Ok((event, mark)) = parser.next_token() {
+        match event {
+            Event::StreamEnd => break,
+            Event::Alias(_) => {
+                return Err(settings_err(
+                    path,
+                    format!(
+                        "line {}: YAML aliases (*name) are not read in settings files; write the value out",
+                        mark.line()
+                    ),
+                ));
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// Parse the text of an ORB-SLAM settings file; `path` names it in messages.
 pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetError> {
     let fixed = opencv_to_yaml(text);
+    refuse_aliases(&fixed, path)?;
     let docs = YamlLoader::load_from_str(&fixed)
         .map_err(|e| settings_err(path, format!("line {}: {}", e.marker().line(), e.info())))?;
     let root = docs.into_iter().next().unwrap_or(Yaml::Null);
@@ -363,6 +389,7 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
             Field::NLevels => &["ORBextractor.nLevels"],
             // not an ORB-SLAM key: only stillpoint's own settings set it
             Field::NoiseThFactor => &["orb.noise_th_factor"],
+            Field::Size => &["Camera.width", "Camera1.width"],
         };
         let found = keys.iter().find(|k| d.line_of(k) > 0).unwrap_or(&keys[0]);
         match d.line_of(found) {
@@ -389,6 +416,24 @@ pub(crate) enum Field {
     NFeatures,
     NLevels,
     NoiseThFactor,
+    /// The image size (width x height).
+    Size,
+}
+
+/// Largest image side the settings may give, pixels.
+pub(crate) const MAX_CAMERA_SIDE: u64 = 16384;
+/// Most pixels an image may have: a frame costs ~80 bytes a pixel (pyramid, features, depth),
+/// so 40 million is ~3 GB; 8K video has 33 million.
+pub(crate) const MAX_CAMERA_PIXELS: u64 = 40_000_000;
+
+/// A number for a message: 1e-300 as `1e-300`, not 300 digits.
+fn shown<T: std::fmt::Display + std::fmt::LowerExp + Copy + Into<f64>>(v: T) -> String {
+    let m = v.into().abs();
+    if m == 0.0 || !m.is_finite() || (1e-4..1e15).contains(&m) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
 }
 
 /// Value ranges that parse but make nonsense (a focal length of 1e-300 px gave identity poses
@@ -399,7 +444,10 @@ pub(crate) fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Resul
     let bad = |field: Field, why: &str| Err(format!("{} {why}", key(field)));
     for (field, f) in [(Field::Fx, c.fx), (Field::Fy, c.fy)] {
         if !(f.is_finite() && (1.0..=1e6).contains(&f)) {
-            return bad(field, &format!("= {f}: a focal length is 1 to 10^6 pixels"));
+            return bad(
+                field,
+                &format!("= {}: a focal length is 1 to 10^6 pixels", shown(f)),
+            );
         }
     }
     for (field, v) in [(Field::Cx, c.cx), (Field::Cy, c.cy)] {
@@ -407,10 +455,21 @@ pub(crate) fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Resul
             return bad(field, &format!("= {v}: must be a finite number"));
         }
     }
+    let (w, h) = (c.width as u64, c.height as u64);
+    if w == 0 || h == 0 || w.max(h) > MAX_CAMERA_SIDE || w * h > MAX_CAMERA_PIXELS {
+        return bad(
+            Field::Size,
+            &format!(
+                "= {w}x{h}: images of 1 to {MAX_CAMERA_SIDE} pixels a side and at most {} \
+                 million pixels (each pixel costs ~80 bytes of memory)",
+                MAX_CAMERA_PIXELS / 1_000_000
+            ),
+        );
+    }
     if !(s.fps.is_finite() && s.fps > 0.0) {
         return bad(
             Field::Fps,
-            &format!("= {}: frames per second must be positive", s.fps),
+            &format!("= {}: frames per second must be positive", shown(s.fps)),
         );
     }
     if s.sensor == Sensor::Rgbd && !(s.depth_factor.is_finite() && s.depth_factor > 0.0) {
@@ -418,7 +477,7 @@ pub(crate) fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Resul
             Field::DepthFactor,
             &format!(
                 "= {}: depth units per metre must be positive (TUM: 5000)",
-                s.depth_factor
+                shown(s.depth_factor)
             ),
         );
     }
@@ -428,13 +487,13 @@ pub(crate) fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Resul
     {
         return bad(
             Field::Bf,
-            &format!("= {bf}: baseline x focal length must be positive"),
+            &format!("= {}: baseline x focal length must be positive", shown(bf)),
         );
     }
     if !(s.th_depth.is_finite() && s.th_depth > 0.0) {
         return bad(
             Field::ThDepth,
-            &format!("= {}: must be positive", s.th_depth),
+            &format!("= {}: must be positive", shown(s.th_depth)),
         );
     }
     let o = &s.orb;
@@ -443,7 +502,7 @@ pub(crate) fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Resul
             Field::ScaleFactor,
             &format!(
                 "= {}: the pyramid's scale must be over 1 (ORB-SLAM: 1.2)",
-                o.scale_factor
+                shown(o.scale_factor)
             ),
         );
     }
@@ -464,7 +523,7 @@ pub(crate) fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Resul
             Field::NoiseThFactor,
             &format!(
                 "= {}: a factor of the image noise, 0 or more (default 2)",
-                o.noise_th_factor
+                shown(o.noise_th_factor)
             ),
         );
     }
@@ -520,6 +579,7 @@ pub fn parse_settings_toml(text: &str, path: &Path) -> Result<Settings, DatasetE
             Field::NFeatures => ("orb", "n_features"),
             Field::NLevels => ("orb", "n_levels"),
             Field::NoiseThFactor => ("orb", "noise_th_factor"),
+            Field::Size => ("camera", "width"),
         };
         let dotted = if table.is_empty() {
             name.to_string()

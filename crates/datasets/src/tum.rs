@@ -3,7 +3,7 @@
 
 use crate::error::{DatasetError, layout_err};
 use crate::lists::{RgbdEntry, associate_nearest, read_associations, read_stamped_list};
-use crate::sequence::{Sequence, check_index, check_size, dir_name};
+use crate::sequence::{Sequence, check_header, check_index, check_size, dir_name};
 use crate::{Frame, Sensor, Settings};
 use std::path::{Path, PathBuf};
 use stillpoint_geometry::{PinholeCamera, RadTan};
@@ -161,10 +161,12 @@ impl Sequence for TumSequence {
     fn frame(&self, i: usize) -> Result<Frame, DatasetError> {
         check_index(i, self.frames.len())?;
         let (t, rgb_path, depth_path) = &self.frames[i];
+        check_header(rgb_path, &self.settings)?;
         let rgb = read_rgb(rgb_path)?;
         check_size(rgb_path, rgb.width, rgb.height, &self.settings)?;
         let depth = match depth_path {
             Some(p) => {
+                check_header(p, &self.settings)?;
                 let d = read_depth_metres(p, self.settings.depth_factor as f32)?;
                 check_size(p, d.width, d.height, &self.settings)?;
                 Some(d)

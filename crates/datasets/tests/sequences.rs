@@ -368,3 +368,121 @@ proptest! {
         let _ = parse_settings_toml(&text, "r.toml".as_ref());
     }
 }
+
+#[test]
+fn yaml_aliases_are_refused_before_they_are_expanded() {
+    // Nine levels of ten aliases each: 10^9 nodes once expanded (the process was killed).
+    let mut text = String::from(
+        "%YAML:1.0\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\n\
+         Camera.width: 640\nCamera.height: 480\na0: &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]\n",
+    );
+    for i in 1..9 {
+        let p = format!("*a{}", i - 1);
+        text.push_str(&format!("a{i}: &a{i} [{}]\n", vec![p; 10].join(", ")));
+    }
+    let e = parse_orbslam_yaml(&text, "bomb.yaml".as_ref())
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with("bomb.yaml: line 9: YAML aliases"), "{e}");
+    // A single alias is refused the same way.
+    let one = "%YAML:1.0\nCamera.fx: &f 500\nCamera.fy: *f\n";
+    let e = parse_orbslam_yaml(one, "one.yaml".as_ref())
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with("one.yaml: line 3: YAML aliases"), "{e}");
+}
+
+#[test]
+fn tiny_numbers_are_shown_short_and_huge_cameras_are_refused() {
+    let base = "%YAML:1.0\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\n\
+                Camera.width: 640\nCamera.height: 480\n";
+    // 1e-300 was printed with its 300 zeros.
+    let e = parse_orbslam_yaml(
+        &base.replace("Camera.fx: 500", "Camera.fx: 1e-300"),
+        "tiny.yaml".as_ref(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("Camera.fx = 1e-300: a focal length"), "{e}");
+    // ~80 bytes a pixel: 12000x12000 would take ~11 GB.
+    let e = parse_orbslam_yaml(
+        &base
+            .replace("Camera.width: 640", "Camera.width: 12000")
+            .replace("Camera.height: 480", "Camera.height: 12000"),
+        "huge.yaml".as_ref(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.starts_with("huge.yaml: line 6: Camera.width = 12000x12000: images of 1 to 16384"),
+        "{e}"
+    );
+    let toml = "sensor = \"mono\"\n[camera]\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n\
+                width = 100000\nheight = 480\n";
+    let e = parse_settings_toml(toml, "wide.toml".as_ref())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with("wide.toml: line 7: camera.width = 100000x480"),
+        "{e}"
+    );
+}
+
+/// A PNG of only its header: signature, IHDR of `width` x `height` RGB, an empty IDAT, IEND.
+fn png_header_only(width: u32, height: u32) -> Vec<u8> {
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut c = 0xffff_ffffu32;
+        for &b in bytes {
+            c ^= b as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 {
+                    0xedb8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
+    }
+    let chunk = |kind: &[u8], data: &[u8]| {
+        let mut out = (data.len() as u32).to_be_bytes().to_vec();
+        let body = [kind, data].concat();
+        out.extend(&body);
+        out.extend(crc32(&body).to_be_bytes());
+        out
+    };
+    let mut ihdr = width.to_be_bytes().to_vec();
+    ihdr.extend(height.to_be_bytes());
+    ihdr.extend([8, 2, 0, 0, 0]);
+    [
+        b"\x89PNG\r\n\x1a\n".to_vec(),
+        chunk(b"IHDR", &ihdr),
+        // An empty zlib stream: the pixels are missing.
+        chunk(b"IDAT", &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01]),
+        chunk(b"IEND", &[]),
+    ]
+    .concat()
+}
+
+#[test]
+fn an_image_of_another_size_is_told_from_its_header_before_it_is_decoded() {
+    let d = tempfile::tempdir().unwrap();
+    tum_dir(d.path(), 3);
+    // 100000 x 100000 RGB is 30 GB decoded; the file is 65 bytes.
+    std::fs::write(
+        d.path().join("rgb/0.png"),
+        png_header_only(100_000, 100_000),
+    )
+    .unwrap();
+    let e = open(d.path(), None, None).err().unwrap().to_string();
+    assert!(
+        e.contains("rgb/0.png: image is 100000x100000 but the settings say 32x24"),
+        "{e}"
+    );
+    // The same for a later frame, and for depth.
+    tum_dir(d.path(), 3);
+    std::fs::write(d.path().join("depth/2.png"), png_header_only(50_000, 9)).unwrap();
+    let seq = open(d.path(), None, None).unwrap();
+    let e = seq.frame(2).unwrap_err().to_string();
+    assert!(e.contains("depth/2.png: image is 50000x9"), "{e}");
+}

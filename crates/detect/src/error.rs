@@ -41,6 +41,31 @@ pub enum DetectError {
         /// What does not fit.
         msg: String,
     },
+    /// The model declares something this program does not run: a size past the caps, a
+    /// convolution or pooling window of 0, more than one input, ... (checked before any engine
+    /// sees the file, see `backend::guard`).
+    #[error("{path}: model refused: {msg}")]
+    ModelRefused {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong, and where in the graph.
+        msg: String,
+    },
+    /// The inference engine panicked on this model; the panic was caught and the model is not
+    /// used further.
+    #[error(
+        "{path}: {backend} failed on this model while {stage} (internal error: {msg}); the model cannot be used"
+    )]
+    EnginePanicked {
+        /// The file.
+        path: PathBuf,
+        /// The engine's name.
+        backend: &'static str,
+        /// What it was doing (loading, running the first frame, ...).
+        stage: &'static str,
+        /// The panic's message and place.
+        msg: String,
+    },
     /// The inference backend failed at run time.
     #[error("{backend}: inference failed: {msg}")]
     Inference {

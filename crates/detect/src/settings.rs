@@ -105,9 +105,11 @@ impl DetectSettings {
             )));
         }
         let (h, w) = self.fallback_input_size;
-        if h == 0 || w == 0 || h % 32 != 0 || w % 32 != 0 {
+        let side = crate::backend::guard::MAX_INPUT_SIDE;
+        if h == 0 || w == 0 || h % 32 != 0 || w % 32 != 0 || h > side || w > side {
             return Err(crate::DetectError::BadInput(format!(
-                "detect settings: fallback input size {h}x{w} must be positive multiples of 32"
+                "detect settings: fallback input size {h}x{w} must be positive multiples of 32, \
+                 at most {side}"
             )));
         }
         Ok(())

@@ -1,101 +1,14 @@
 //! Self-contained checks of model loading: tiny ONNX files are written to a temp dir with
 //! tract-onnx's protobuf types, so no model download is needed.
 
-use prost::Message;
+mod common;
+
+use common::constant_model;
 use std::path::{Path, PathBuf};
 use stillpoint_detect::{
     Backend, DetectError, DetectInput, DetectSettings, Detector, YoloxDetector, yolox,
 };
 use stillpoint_image::Rgb8;
-use tract_onnx::pb;
-
-const FLOAT: i32 = 1;
-
-fn value_info(name: &str, dims: &[i64]) -> pb::ValueInfoProto {
-    use pb::tensor_shape_proto::{Dimension, dimension::Value};
-    pb::ValueInfoProto {
-        name: name.into(),
-        r#type: Some(pb::TypeProto {
-            denotation: String::new(),
-            value: Some(pb::type_proto::Value::TensorType(pb::type_proto::Tensor {
-                elem_type: FLOAT,
-                shape: Some(pb::TensorShapeProto {
-                    dim: dims
-                        .iter()
-                        .map(|&d| Dimension {
-                            denotation: String::new(),
-                            value: Some(Value::DimValue(d)),
-                        })
-                        .collect(),
-                }),
-            })),
-        }),
-        doc_string: String::new(),
-    }
-}
-
-fn tensor(name: &str, dims: &[i64], data: Vec<f32>) -> pb::TensorProto {
-    pb::TensorProto {
-        name: name.into(),
-        dims: dims.to_vec(),
-        data_type: FLOAT,
-        float_data: data,
-        ..Default::default()
-    }
-}
-
-fn node(
-    op: &str,
-    inputs: &[&str],
-    output: &str,
-    attribute: Vec<pb::AttributeProto>,
-) -> pb::NodeProto {
-    pb::NodeProto {
-        op_type: op.into(),
-        input: inputs.iter().map(|s| s.to_string()).collect(),
-        output: vec![output.into()],
-        name: output.into(),
-        attribute,
-        ..Default::default()
-    }
-}
-
-/// A model with input `[1, 3, size, size]` whose output is the constant `output`
-/// (`dims` shaped), made to depend on the input: `mean(images) * 0 + output`.
-fn constant_model(size: i64, dims: &[i64], output: Vec<f32>) -> Vec<u8> {
-    let keepdims = pb::AttributeProto {
-        name: "keepdims".into(),
-        r#type: pb::attribute_proto::AttributeType::Int as i32,
-        i: 0,
-        ..Default::default()
-    };
-    let graph = pb::GraphProto {
-        name: "tiny".into(),
-        node: vec![
-            node("ReduceMean", &["images"], "mean", vec![keepdims]),
-            node("Mul", &["mean", "zero"], "nothing", vec![]),
-            node("Add", &["nothing", "planted"], "output", vec![]),
-        ],
-        initializer: vec![
-            tensor("zero", &[], vec![0.0]),
-            tensor("planted", dims, output),
-        ],
-        input: vec![value_info("images", &[1, 3, size, size])],
-        output: vec![value_info("output", dims)],
-        ..Default::default()
-    };
-    pb::ModelProto {
-        ir_version: 7,
-        opset_import: vec![pb::OperatorSetIdProto {
-            domain: String::new(),
-            version: 11,
-        }],
-        producer_name: "stillpoint-detect tests".into(),
-        graph: Some(graph),
-        ..Default::default()
-    }
-    .encode_to_vec()
-}
 
 /// A 64x64 YOLOX-shaped model (84 anchors, 1 class) with one confident anchor at the
 /// stride-16 cell (gx 2, gy 1): box centre (40, 20), size 32x16 in network pixels.

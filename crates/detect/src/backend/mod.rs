@@ -1,6 +1,7 @@
 //! Inference engines behind one small interface: a fixed-size `[1, 3, H, W]` float input in,
 //! one float output (with its shape) out. YOLOX pre/post-processing lives in [`crate::yolox`].
 
+pub mod guard;
 pub mod tract;
 
 #[cfg(feature = "ort")]
@@ -57,6 +58,16 @@ pub(crate) fn choose_input_size(
             fallback
         }
     };
+    let side = guard::MAX_INPUT_SIDE;
+    if size.0 > side || size.1 > side || 3 * size.0 * size.1 > guard::MAX_INPUT_ELEMENTS {
+        return Err(DetectError::ModelRefused {
+            path: path.to_path_buf(),
+            msg: format!(
+                "input size {}x{} is larger than the {side}x{side} this program runs",
+                size.0, size.1
+            ),
+        });
+    }
     if size.0 < 32 || size.1 < 32 {
         return Err(shape_err(format!(
             "input size {}x{} is smaller than YOLOX's largest stride (32)",

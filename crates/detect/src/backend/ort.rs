@@ -2,7 +2,7 @@
 //! (`load-dynamic`: nothing is downloaded or linked at build time). Get the library with
 //! `scripts/setup-onnxruntime.sh`.
 
-use super::{InferenceBackend, check_model_file, choose_input_size};
+use super::{InferenceBackend, choose_input_size, guard};
 use crate::{DetectError, yolox};
 use ort::session::Session;
 use ort::session::builder::GraphOptimizationLevel;
@@ -65,7 +65,9 @@ impl OrtBackend {
         fallback_size: (usize, usize),
         dylib: &Path,
     ) -> Result<Self, DetectError> {
-        check_model_file(path)?;
+        // The same checks as tract's: ONNX Runtime refuses most bad models itself, but not a
+        // huge declared size.
+        guard::read_checked(path)?;
         let env = environment(dylib)?;
         let not_onnx = |msg: String| DetectError::NotOnnx {
             path: path.to_path_buf(),
@@ -75,14 +77,16 @@ impl OrtBackend {
             path: path.to_path_buf(),
             msg,
         };
-        let session = Session::builder(&env)
-            .and_then(|b| Ok(b.with_optimization_level(GraphOptimizationLevel::All)?))
-            .and_then(|b| Ok(b.with_intra_threads(threads)?))
-            .and_then(|b| Ok(b.with_inter_threads(1)?))
-            // No spinning: the tracking thread shares the cores and must not be starved.
-            .and_then(|b| Ok(b.with_intra_op_spinning(false)?))
-            .and_then(|mut b| b.commit_from_file(path))
-            .map_err(|e| not_onnx(e.to_string()))?;
+        let session = guard::guarded(path, "ort", "loading it", || {
+            Session::builder(&env)
+                .and_then(|b| Ok(b.with_optimization_level(GraphOptimizationLevel::All)?))
+                .and_then(|b| Ok(b.with_intra_threads(threads)?))
+                .and_then(|b| Ok(b.with_inter_threads(1)?))
+                // No spinning: the tracking thread shares the cores and must not be starved.
+                .and_then(|b| Ok(b.with_intra_op_spinning(false)?))
+                .and_then(|mut b| b.commit_from_file(path))
+                .map_err(|e| not_onnx(e.to_string()))
+        })?;
         if session.inputs().len() != 1 || session.outputs().is_empty() {
             return Err(not_onnx(format!(
                 "graph has {} inputs and {} outputs, expected 1 image input and an output",
@@ -125,10 +129,13 @@ impl InferenceBackend for OrtBackend {
             backend: "ort",
             msg: format!("{path}: {e}"),
         };
-        let tensor = TensorRef::from_array_view(([1usize, 3, h, w], input)).map_err(fail)?;
-        let outputs = self.session.run(ort::inputs![tensor]).map_err(fail)?;
-        let (shape, values) = outputs[0].try_extract_tensor::<f32>().map_err(fail)?;
-        let dims = shape.iter().map(|&d| d.max(0) as usize).collect();
-        Ok((dims, values.to_vec()))
+        let session = &mut self.session;
+        guard::guarded(&self.path, "ort", "running it on a frame", || {
+            let tensor = TensorRef::from_array_view(([1usize, 3, h, w], input)).map_err(fail)?;
+            let outputs = session.run(ort::inputs![tensor]).map_err(fail)?;
+            let (shape, values) = outputs[0].try_extract_tensor::<f32>().map_err(fail)?;
+            let dims = shape.iter().map(|&d| d.max(0) as usize).collect();
+            Ok((dims, values.to_vec()))
+        })
     }
 }
