@@ -88,6 +88,17 @@ pub fn detect_kind(dir: &Path) -> Result<DatasetKind, DatasetError> {
                 "a ROS recording, not a sequence folder: give it as --bag FILE --rgb-topic TOPIC",
             ));
         }
+        if dir.extension().is_some_and(|e| {
+            let e = e.to_ascii_lowercase();
+            ["mp4", "mov", "m4v", "mkv", "avi", "webm"]
+                .iter()
+                .any(|v| e == *v)
+        }) {
+            return Err(layout_err(
+                dir,
+                "a video file, not a sequence folder: give it as --video FILE",
+            ));
+        }
         return Err(layout_err(dir, "not a directory"));
     }
     if dir.join("mav0").is_dir() || dir.join("cam0/data.csv").is_file() {
