@@ -18,11 +18,19 @@ use stillpoint_trajectory::{Alignment, AteOptions, RpeOptions, Trajectory, TumWr
 #[derive(clap::Args)]
 pub struct Args {
     /// Sequence folder (TUM/Bonn layout, a `stillpoint synth` output, ...).
-    #[arg(long, required_unless_present = "bag", conflicts_with = "bag")]
+    #[arg(long, required_unless_present_any = ["bag", "video", "camera"], conflicts_with_all = ["bag", "video", "camera"])]
     pub dataset: Option<PathBuf>,
-    /// A ROS 2 recording (`.mcap`, or the `ros2 bag` folder holding one) to run on instead of a
-    /// folder: colour from `--rgb-topic`, depth from `--depth-topic` (monocular without), the
-    /// camera from `--settings` or the recording's CameraInfo.
+    /// A video file (H.264 in MP4) to run on, monocular: the camera from `--settings`, else a
+    /// pinhole with a 60° horizontal field of view (a warning says so).
+    #[arg(long, conflicts_with_all = ["bag", "camera", "kind"])]
+    pub video: Option<PathBuf>,
+    /// A live V4L2 camera (`/dev/video0`, MJPEG or YUYV), monocular: the trajectory is written
+    /// as it goes; stop with Ctrl-C. Needs a build with the `camera` feature.
+    #[arg(long, conflicts_with_all = ["bag", "kind", "realtime"])]
+    pub camera: Option<PathBuf>,
+    /// A ROS recording to run on instead of a folder: ROS 2 (`.mcap`, or the `ros2 bag` folder
+    /// holding one) or ROS 1 (`.bag`); colour from `--rgb-topic`, depth from `--depth-topic`
+    /// (monocular without), the camera from `--settings` or the recording's CameraInfo.
     #[arg(long, requires = "rgb_topic", conflicts_with = "kind")]
     pub bag: Option<PathBuf>,
     /// The recording's colour images (sensor_msgs Image or CompressedImage), e.g.
@@ -143,6 +151,17 @@ pub struct Overrides {
     pub vocabulary: Option<PathBuf>,
     /// `dataset` is a ROS recording read from these topics (`--bag`).
     pub recording: Option<McapTopics>,
+    /// `dataset` is a video file (`--video`) or a camera device (`--camera`).
+    pub media: Option<Media>,
+}
+
+/// Inputs that are neither a dataset folder nor a recording.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Media {
+    /// A video file.
+    Video,
+    /// A live camera.
+    Camera,
 }
 
 /// What a run produced.
@@ -174,6 +193,8 @@ pub struct RunSummary {
     pub realtime: Option<RealtimeReport>,
     /// Why no frame could be tracked, when none was (features, depth, initialisation).
     pub untracked_reason: Option<String>,
+    /// The source ended before its last frame (a cut or corrupt video, a camera gone): why.
+    pub ended: Option<String>,
 }
 
 /// A replay at camera rate (`run --realtime`).
@@ -319,9 +340,11 @@ fn paper_cull(s: &mut FrontEndSettings) {
 /// Open the run's sequence: a dataset folder, or a recording's topics (`--bag`).
 fn open_sequence(o: &RunOptions) -> anyhow::Result<Box<dyn Sequence>> {
     let settings = o.settings.as_deref();
-    let seq = match &o.overrides.recording {
-        Some(topics) => stillpoint_datasets::mcap::open(&o.dataset, topics, settings),
-        None => stillpoint_datasets::open(&o.dataset, o.kind, settings),
+    let seq = match (&o.overrides.recording, o.overrides.media) {
+        (Some(topics), _) => stillpoint_datasets::open_recording(&o.dataset, topics, settings),
+        (None, Some(Media::Video)) => stillpoint_datasets::open_video(&o.dataset, settings),
+        (None, Some(Media::Camera)) => stillpoint_datasets::open_camera(&o.dataset, settings),
+        (None, None) => stillpoint_datasets::open(&o.dataset, o.kind, settings),
     };
     seq.with_context(|| format!("opening {}", o.dataset.display()))
 }
@@ -390,8 +413,14 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         Some(p) => Some(TumWriter::create(p).with_context(|| format!("creating {}", p.display()))?),
         None => None,
     };
+    // A live source has no known end (len usize::MAX): frames are counted as they come.
+    let live = seq.len() == usize::MAX;
     let bar = if o.progress {
-        let b = indicatif::ProgressBar::new(n as u64);
+        let b = if live {
+            indicatif::ProgressBar::no_length()
+        } else {
+            indicatif::ProgressBar::new(n as u64)
+        };
         b.set_style(
             indicatif::ProgressStyle::with_template(
                 "{spinner} {bar:40} {pos}/{len} frames {elapsed} ({eta} left) {msg}",
@@ -414,9 +443,9 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         pipeline_settings.slam.init_min_cells_with_depth,
     );
     let mut pipeline = Pipeline::new(pipeline_settings, front, vocabulary);
-    let mut times: Vec<FrameTimings> = Vec::with_capacity(n);
+    let mut times: Vec<FrameTimings> = Vec::with_capacity(n.min(1 << 16));
     let mut written: Option<f64> = None;
-    let mut culled = Vec::with_capacity(n);
+    let mut culled = Vec::with_capacity(n.min(1 << 16));
     let (mut tracked, mut relocs, mut new_maps) = (0, 0, 0);
     let has_masks = o.dataset.join("mask").is_dir();
     let mut moving_kept = Vec::new();
@@ -424,6 +453,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     // For a run that tracks nothing: what the frames offered.
     let (mut frames_read, mut frames_with_depth, mut most_keypoints) = (0usize, 0usize, 0usize);
     let mut next_index = 0;
+    let mut ended = None;
     loop {
         if crate::interrupted() {
             tracing::warn!("interrupted: finishing the map and the trajectory files");
@@ -443,6 +473,11 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         bar.set_position(i as u64 + 1);
         let frame = match loaded {
             Ok(f) => f,
+            // The source gives nothing after this: keep what was tracked and say why.
+            Err(e @ DatasetError::Ended { .. }) => {
+                ended = Some(e.to_string());
+                break;
+            }
             Err(e) => {
                 tracing::warn!("frame {i}: skipped: {e}");
                 continue;
@@ -552,7 +587,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
     Ok(RunSummary {
         name: seq.name(),
         sensor: ds.sensor,
-        frames: n,
+        frames: if live { frames_read } else { n },
         tracked,
         keyframes: fin.keyframes,
         map_points: fin.map_points,
@@ -568,6 +603,7 @@ pub fn run_sequence(o: &RunOptions) -> anyhow::Result<RunSummary> {
         moving_map_points,
         loops,
         realtime: camera.is_some().then_some(realtime),
+        ended,
         untracked_reason: (tracked == 0).then(|| {
             let init = &pipeline_settings_init;
             if frames_read == 0 {
@@ -953,8 +989,17 @@ pub fn print_culled_row(s: &RunSummary) {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let kind = parse_kind(args.kind.as_deref())?;
     // clap requires one of them.
-    let Some(dataset) = args.dataset.clone().or(args.bag.clone()) else {
-        bail!("give --dataset DIR or --bag FILE");
+    let Some(dataset) = (args.dataset.clone())
+        .or(args.bag.clone())
+        .or(args.video.clone())
+        .or(args.camera.clone())
+    else {
+        bail!("give --dataset DIR, --bag FILE, --video FILE or --camera DEVICE");
+    };
+    let media = match (&args.video, &args.camera) {
+        (Some(_), _) => Some(Media::Video),
+        (None, Some(_)) => Some(Media::Camera),
+        _ => None,
     };
     let recording = args.rgb_topic.clone().map(|rgb| McapTopics {
         rgb,
@@ -979,6 +1024,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             no_loop_closing: args.no_loop_closing,
             vocabulary: args.vocabulary.clone(),
             recording,
+            media,
         },
     };
     let s = run_sequence(&o)?;
@@ -991,6 +1037,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("{}", summary_json(&s));
     } else {
         print_summary(&s);
+    }
+    if let Some(why) = &s.ended {
+        bail!(
+            "{why} ({} of the {} frames before it tracked; the trajectory and keyframe files are complete)",
+            s.tracked,
+            s.culled_per_frame.len()
+        );
     }
     if s.tracked == 0 {
         match &s.untracked_reason {
