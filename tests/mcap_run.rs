@@ -7,41 +7,12 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 
 use stillpoint_datasets::mcap::{DepthEncoding, McapTopics, RecordingWriter};
-use stillpoint_synth::{Preset, SynthConfig, WriteOptions};
 
 mod common;
-use common::stillpoint;
+use common::{stillpoint, synth_in_millimetres};
 
 const RGB: &str = "/camera/color/image_raw";
 const DEPTH: &str = "/camera/aligned_depth_to_color/image_raw";
-
-/// A synthetic static sequence whose depth PNGs hold millimetres (factor 1000), as a 16UC1
-/// recording does, so the folder and the recording hold the same depth values.
-fn synth_in_millimetres(dir: &Path, frames: usize) {
-    let cfg = SynthConfig {
-        preset: Preset::Static,
-        frames,
-        ..Default::default()
-    };
-    let opts = WriteOptions {
-        stereo: false,
-        masks: false,
-    };
-    stillpoint_synth::write_sequence(&cfg, opts, dir).unwrap();
-    let settings_file = dir.join("settings.toml");
-    let mut settings = stillpoint_datasets::read_settings_toml(&settings_file).unwrap();
-    let factor = settings.depth_factor;
-    for e in std::fs::read_dir(dir.join("depth")).unwrap() {
-        let p = e.unwrap().path();
-        let mut raw = stillpoint_image::read_depth16(&p).unwrap();
-        for v in &mut raw.data {
-            *v = (f64::from(*v) * 1000.0 / factor).round() as u16;
-        }
-        stillpoint_image::write_depth16(&p, &raw).unwrap();
-    }
-    settings.depth_factor = 1000.0;
-    stillpoint_datasets::write_settings_toml(&settings_file, &settings).unwrap();
-}
 
 /// The folder's frames as a ROS 2 recording.
 fn write_recording(seq_dir: &Path, out: &Path) {

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// An MCAP recording (or the `ros2 bag` folder holding one).
+    /// A ROS recording: MCAP (or the `ros2 bag` folder holding one) or a ROS 1 `.bag`.
     pub file: PathBuf,
     /// Print JSON on stdout instead of the table.
     #[arg(long)]

@@ -9,17 +9,27 @@ use anyhow::bail;
 use stillpoint_datasets::DatasetKind;
 use stillpoint_datasets::mcap::McapTopics;
 use stillpoint_eval::stats;
-use stillpoint_run::{Event, Overrides, RealtimeReport, RunOptions, RunSummary, run_sequence};
+use stillpoint_run::{
+    Event, Media, Overrides, RealtimeReport, RunOptions, RunSummary, run_sequence,
+};
 use stillpoint_trajectory::Alignment;
 
 #[derive(clap::Args)]
 pub struct Args {
     /// Sequence folder (TUM/Bonn layout, a `stillpoint synth` output, ...).
-    #[arg(long, required_unless_present = "bag", conflicts_with = "bag")]
+    #[arg(long, required_unless_present_any = ["bag", "video", "camera"], conflicts_with_all = ["bag", "video", "camera"])]
     pub dataset: Option<PathBuf>,
-    /// A ROS 2 recording (`.mcap`, or the `ros2 bag` folder holding one) to run on instead of a
-    /// folder: colour from `--rgb-topic`, depth from `--depth-topic` (monocular without), the
-    /// camera from `--settings` or the recording's CameraInfo.
+    /// A video file (H.264 in MP4) to run on, monocular: the camera from `--settings`, else a
+    /// pinhole with a 60° horizontal field of view (a warning says so).
+    #[arg(long, conflicts_with_all = ["bag", "camera", "kind"])]
+    pub video: Option<PathBuf>,
+    /// A live V4L2 camera (`/dev/video0`, MJPEG or YUYV), monocular: the trajectory is written
+    /// as it goes; stop with Ctrl-C. Needs a build with the `camera` feature.
+    #[arg(long, conflicts_with_all = ["bag", "kind", "realtime"])]
+    pub camera: Option<PathBuf>,
+    /// A ROS recording to run on instead of a folder: ROS 2 (`.mcap`, or the `ros2 bag` folder
+    /// holding one) or ROS 1 (`.bag`); colour from `--rgb-topic`, depth from `--depth-topic`
+    /// (monocular without), the camera from `--settings` or the recording's CameraInfo.
     #[arg(long, requires = "rgb_topic", conflicts_with = "kind")]
     pub bag: Option<PathBuf>,
     /// The recording's colour images (sensor_msgs Image or CompressedImage), e.g.
@@ -118,7 +128,12 @@ impl ProgressBar {
         match event {
             Event::Next { index, frames } => {
                 let bar = self.bar.get_or_insert_with(|| {
-                    let b = indicatif::ProgressBar::new(frames as u64);
+                    // A live source has no known length (usize::MAX frames).
+                    let b = if frames == usize::MAX {
+                        indicatif::ProgressBar::no_length()
+                    } else {
+                        indicatif::ProgressBar::new(frames as u64)
+                    };
                     b.set_style(
                         indicatif::ProgressStyle::with_template(
                             "{spinner} {bar:40} {pos}/{len} frames {elapsed} ({eta} left) {msg}",
@@ -310,8 +325,17 @@ pub fn print_culled_row(s: &RunSummary) {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let kind = parse_kind(args.kind.as_deref())?;
     // clap requires one of them.
-    let Some(dataset) = args.dataset.clone().or(args.bag.clone()) else {
-        bail!("give --dataset DIR or --bag FILE");
+    let Some(dataset) = (args.dataset.clone())
+        .or(args.bag.clone())
+        .or(args.video.clone())
+        .or(args.camera.clone())
+    else {
+        bail!("give --dataset DIR, --bag FILE, --video FILE or --camera DEVICE");
+    };
+    let media = match (&args.video, &args.camera) {
+        (Some(_), _) => Some(Media::Video),
+        (None, Some(_)) => Some(Media::Camera),
+        _ => None,
     };
     let recording = args.rgb_topic.clone().map(|rgb| McapTopics {
         rgb,
@@ -335,6 +359,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             no_loop_closing: args.no_loop_closing,
             vocabulary: args.vocabulary.clone(),
             recording,
+            media,
         },
         stop: Some(crate::interrupt_flag()),
     };
@@ -349,6 +374,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("{}", summary_json(&s));
     } else {
         print_summary(&s);
+    }
+    if let Some(why) = &s.ended {
+        bail!(
+            "{why} ({} of the {} frames before it tracked; the trajectory and keyframe files are complete)",
+            s.tracked,
+            s.culled_per_frame.len()
+        );
     }
     if s.tracked == 0 {
         match &s.untracked_reason {

@@ -3,6 +3,7 @@
 
 use std::path::Path;
 use std::process::{Command, Output};
+use stillpoint_synth::{Preset, SynthConfig, WriteOptions};
 
 /// The `stillpoint` binary under test.
 pub fn stillpoint() -> Command {
@@ -37,4 +38,72 @@ pub fn synth_static(dir: &Path, frames: usize, seed: u64) {
         "{}",
         String::from_utf8_lossy(&st.stderr)
     );
+}
+
+/// A synthetic static sequence whose depth PNGs hold millimetres (factor 1000), as a 16UC1
+/// recording does, so the folder and the recording hold the same depth values.
+pub fn synth_in_millimetres(dir: &Path, frames: usize) {
+    let cfg = SynthConfig {
+        preset: Preset::Static,
+        frames,
+        ..Default::default()
+    };
+    let opts = WriteOptions {
+        stereo: false,
+        masks: false,
+    };
+    stillpoint_synth::write_sequence(&cfg, opts, dir).unwrap();
+    let settings_file = dir.join("settings.toml");
+    let mut settings = stillpoint_datasets::read_settings_toml(&settings_file).unwrap();
+    let factor = settings.depth_factor;
+    for e in std::fs::read_dir(dir.join("depth")).unwrap() {
+        let p = e.unwrap().path();
+        let mut raw = stillpoint_image::read_depth16(&p).unwrap();
+        for v in &mut raw.data {
+            *v = (f64::from(*v) * 1000.0 / factor).round() as u16;
+        }
+        stillpoint_image::write_depth16(&p, &raw).unwrap();
+    }
+    settings.depth_factor = 1000.0;
+    stillpoint_datasets::write_settings_toml(&settings_file, &settings).unwrap();
+}
+
+/// Two TUM trajectory files hold the same stamps and poses (to 1e-9).
+pub fn assert_same_trajectory(a: &Path, b: &Path) {
+    let (ta, tb) = (
+        stillpoint_trajectory::read_tum(a).unwrap(),
+        stillpoint_trajectory::read_tum(b).unwrap(),
+    );
+    assert_eq!(ta.len(), tb.len());
+    for (i, ((sa, pa), (sb, pb))) in ta
+        .stamps
+        .iter()
+        .zip(&ta.poses)
+        .zip(tb.stamps.iter().zip(&tb.poses))
+        .enumerate()
+    {
+        assert_eq!(sa, sb, "pose {i}: stamps");
+        let d = pa.inverse() * pb;
+        assert!(
+            d.translation.vector.norm() < 1e-9 && d.rotation.angle() < 1e-9,
+            "pose {i}: {pa:?} vs {pb:?}"
+        );
+    }
+}
+
+/// The one error line of a failed command (`error: ...`), with no panic.
+pub fn error_line(out: &Output) -> String {
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!out.status.success(), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let errors: Vec<&str> = stderr.lines().filter(|l| l.starts_with("error")).collect();
+    assert_eq!(errors.len(), 1, "{stderr}");
+    errors[0].to_string()
+}
+
+/// The JSON summary of a command that succeeded.
+pub fn ok_json(out: &Output) -> serde_json::Value {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {stderr}"))
 }

@@ -68,6 +68,17 @@ pub enum DatasetError {
         /// What is wrong.
         msg: String,
     },
+    /// The source can give this frame and none after it: a video cut short or corrupt at this
+    /// sample, a camera unplugged or stopped. A run stops here and keeps what it tracked.
+    #[error("{path}: {at}: {msg}")]
+    Ended {
+        /// The file or device.
+        path: String,
+        /// Where: the sample and its byte, or the frame.
+        at: String,
+        /// What happened.
+        msg: String,
+    },
     /// A frame index past the end.
     #[error("frame {index} is out of range: the sequence has {len} frames")]
     OutOfRange {

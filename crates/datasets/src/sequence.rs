@@ -88,6 +88,17 @@ pub fn detect_kind(dir: &Path) -> Result<DatasetKind, DatasetError> {
                 "a ROS recording, not a sequence folder: give it as --bag FILE --rgb-topic TOPIC",
             ));
         }
+        if dir.extension().is_some_and(|e| {
+            let e = e.to_ascii_lowercase();
+            ["mp4", "mov", "m4v", "mkv", "avi", "webm"]
+                .iter()
+                .any(|v| e == *v)
+        }) {
+            return Err(layout_err(
+                dir,
+                "a video file, not a sequence folder: give it as --video FILE",
+            ));
+        }
         return Err(layout_err(dir, "not a directory"));
     }
     if dir.join("mav0").is_dir() || dir.join("cam0/data.csv").is_file() {
@@ -175,7 +186,10 @@ pub(crate) fn check_index(i: usize, len: usize) -> Result<(), DatasetError> {
 /// An image's size from its file header, without decoding the pixels; `None` when the header
 /// cannot be read (the decoder then says why).
 pub(crate) fn header_size(path: &Path) -> Option<(usize, usize)> {
-    let mut reader = image::ImageReader::open(path).ok()?.with_guessed_format().ok()?;
+    let mut reader = image::ImageReader::open(path)
+        .ok()?
+        .with_guessed_format()
+        .ok()?;
     // Only the header is read; the decoder's memory limit would refuse to even size a huge one.
     reader.no_limits();
     let (w, h) = reader.into_dimensions().ok()?;

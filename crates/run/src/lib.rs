@@ -115,6 +115,17 @@ pub struct Overrides {
     pub vocabulary: Option<PathBuf>,
     /// `dataset` is a ROS recording read from these topics (`--bag`).
     pub recording: Option<McapTopics>,
+    /// `dataset` is a video file (`--video`) or a camera device (`--camera`).
+    pub media: Option<Media>,
+}
+
+/// Inputs that are neither a dataset folder nor a recording.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Media {
+    /// A video file.
+    Video,
+    /// A live camera.
+    Camera,
 }
 
 /// What a run produced.
@@ -158,6 +169,8 @@ pub struct RunSummary {
     pub realtime: Option<RealtimeReport>,
     /// Why no frame could be tracked, when none was (features, depth, initialisation).
     pub untracked_reason: Option<String>,
+    /// The source ended before its last frame (a cut or corrupt video, a camera gone): why.
+    pub ended: Option<String>,
 }
 
 impl RunSummary {

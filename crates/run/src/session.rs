@@ -12,7 +12,7 @@ use stillpoint_trajectory::TumWriter;
 
 use crate::output::{keyframe_path, lock_output};
 use crate::replay::{RealtimeReport, ReplayCamera};
-use crate::{Overrides, RunError, RunOptions, RunSummary};
+use crate::{Media, Overrides, RunError, RunOptions, RunSummary};
 
 /// What a run reports as it goes, for a progress display.
 pub enum Event<'a> {
@@ -68,12 +68,14 @@ fn paper_cull(s: &mut FrontEndSettings) {
     s.dynamic.objects.enabled = false;
 }
 
-/// Open the run's sequence: a dataset folder, or a recording's topics.
+/// Open the run's sequence: a dataset folder, a recording's topics, a video or a camera.
 fn open_sequence(o: &RunOptions) -> Result<Box<dyn Sequence>, RunError> {
     let settings = o.settings.as_deref();
-    let seq = match &o.overrides.recording {
-        Some(topics) => stillpoint_datasets::mcap::open(&o.dataset, topics, settings),
-        None => stillpoint_datasets::open(&o.dataset, o.kind, settings),
+    let seq = match (&o.overrides.recording, o.overrides.media) {
+        (Some(topics), _) => stillpoint_datasets::open_recording(&o.dataset, topics, settings),
+        (None, Some(Media::Video)) => stillpoint_datasets::open_video(&o.dataset, settings),
+        (None, Some(Media::Camera)) => stillpoint_datasets::open_camera(&o.dataset, settings),
+        (None, None) => stillpoint_datasets::open(&o.dataset, o.kind, settings),
     };
     seq.map_err(|source| RunError::Open {
         path: o.dataset.clone(),
@@ -186,9 +188,11 @@ pub fn run_sequence(
         pipeline_settings.slam.init_min_cells_with_depth,
     );
     let mut pipeline = Pipeline::new(pipeline_settings, front, vocabulary);
-    let mut times: Vec<FrameTimings> = Vec::with_capacity(n);
+    // A live source has no known end (len usize::MAX): frames are counted as they come.
+    let live = seq.len() == usize::MAX;
+    let mut times: Vec<FrameTimings> = Vec::with_capacity(n.min(1 << 16));
     let mut written: Option<f64> = None;
-    let mut culled = Vec::with_capacity(n);
+    let mut culled = Vec::with_capacity(n.min(1 << 16));
     let (mut tracked, mut relocs, mut new_maps) = (0, 0, 0);
     let has_masks = o.dataset.join("mask").is_dir();
     let mut moving_kept = Vec::new();
@@ -196,6 +200,7 @@ pub fn run_sequence(
     // For a run that tracks nothing: what the frames offered.
     let (mut frames_read, mut frames_with_depth, mut most_keypoints) = (0usize, 0usize, 0usize);
     let mut next_index = 0;
+    let mut ended = None;
     loop {
         if o.stop.is_some_and(|s| s.load(Ordering::SeqCst)) {
             tracing::warn!("interrupted: finishing the map and the trajectory files");
@@ -218,6 +223,11 @@ pub fn run_sequence(
         });
         let frame = match loaded {
             Ok(f) => f,
+            // The source gives nothing after this: keep what was tracked and say why.
+            Err(e @ stillpoint_datasets::DatasetError::Ended { .. }) => {
+                ended = Some(e.to_string());
+                break;
+            }
             Err(e) => {
                 tracing::warn!("frame {i}: skipped: {e}");
                 continue;
@@ -345,7 +355,7 @@ pub fn run_sequence(
     Ok(RunSummary {
         name: seq.name(),
         sensor: ds.sensor,
-        frames: n,
+        frames: if live { frames_read } else { n },
         tracked,
         keyframes: fin.keyframes,
         map_points: fin.map_points,
@@ -361,6 +371,7 @@ pub fn run_sequence(
         moving_map_points,
         loops,
         realtime: camera.is_some().then_some(realtime),
+        ended,
         untracked_reason: (tracked == 0).then(|| {
             let init = &pipeline_settings_init;
             if frames_read == 0 {

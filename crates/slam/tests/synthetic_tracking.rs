@@ -215,7 +215,7 @@ fn rebuilt_error_after_keyframes_moved(settle_keyframes: usize) -> f64 {
         let map = sys.map();
         let mut m = map.lock().unwrap();
         for k in m.keyframes.values_mut() {
-            k.pose_cw = k.pose_cw * by;
+            k.pose_cw *= by;
         }
     };
     for i in 0..60 {

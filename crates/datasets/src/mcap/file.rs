@@ -145,21 +145,12 @@ impl Scan {
     }
 }
 
-/// A ROS 1 bag starts so.
-const ROSBAG_MAGIC: &[u8] = b"#ROSBAG";
-
-/// The error for a ROS 1 `.bag`.
-pub fn ros1_bag_error(path: &Path) -> DatasetError {
-    recording_err(
-        path,
-        "byte 0",
-        "a ROS 1 .bag; it is not supported yet: convert it with `mcap convert in.bag out.mcap` \
-         (or rosbags-convert) and give the .mcap",
-    )
-}
-
-/// Walk `path` once; `wanted` picks the channels whose messages are listed.
+/// Walk `path` once; `wanted` picks the channels whose messages are listed. A ROS 1 bag is
+/// walked by [`crate::rosbag::scan`] into the same findings.
 pub fn scan(path: &Path, wanted: &dyn Fn(&ChannelInfo) -> bool) -> Result<Scan, DatasetError> {
+    if crate::rosbag::is_bag(path) {
+        return crate::rosbag::scan(path, wanted);
+    }
     let file = File::open(path).map_err(io_err(path))?;
     let len = file.metadata().map_err(io_err(path))?.len();
     let mut r = BufReader::with_capacity(1 << 20, file);
@@ -244,9 +235,6 @@ fn check_magic(r: &mut impl Read, path: &Path, len: u64) -> Result<(), DatasetEr
             "byte 0",
             format!("{len} bytes: not an MCAP file"),
         ));
-    }
-    if magic.starts_with(ROSBAG_MAGIC) {
-        return Err(ros1_bag_error(path));
     }
     if &magic != MAGIC {
         return Err(recording_err(
@@ -354,26 +342,47 @@ impl Walker<'_> {
     }
 
     fn message(&mut self, header: &MessageHeader, data: &[u8], at: Location) {
-        let channel = self.scan.channels.get(&header.channel_id);
-        let stamp = channel
-            .and_then(|c| Some((c.message_type()?, c.wire()?)))
-            .and_then(|(_, wire)| MessageReader::new(data, wire).ok()?.stamp().ok())
-            .unwrap_or_else(|| log_time_seconds(header.log_time));
-        let m = MessageRef {
-            channel: header.channel_id,
-            stamp,
+        record_message(
+            &mut self.scan,
+            self.wanted,
+            header.channel_id,
+            header.log_time,
+            data,
             at,
-        };
-        let s = self.scan.stats.entry(header.channel_id).or_default();
-        s.count += 1;
-        s.first.get_or_insert(m);
-        s.stamps = Some(match s.stamps {
-            Some((a, b)) => (a.min(stamp), b.max(stamp)),
-            None => (stamp, stamp),
-        });
-        if channel.is_some_and(|c| (self.wanted)(c)) {
-            self.scan.messages.push(m);
-        }
+        );
+    }
+}
+
+/// Count a message of `channel` (logged at `log_time` ns) in the channel's stats, and list it
+/// when `wanted` picks the channel. Its stamp is `header.stamp` for the camera messages.
+pub(crate) fn record_message(
+    scan: &mut Scan,
+    wanted: &dyn Fn(&ChannelInfo) -> bool,
+    channel_id: u16,
+    log_time: u64,
+    data: &[u8],
+    at: Location,
+) {
+    let channel = scan.channels.get(&channel_id);
+    let stamp = channel
+        .and_then(|c| Some((c.message_type()?, c.wire()?)))
+        .and_then(|(_, wire)| MessageReader::new(data, wire).ok()?.stamp().ok())
+        .unwrap_or_else(|| log_time_seconds(log_time));
+    let m = MessageRef {
+        channel: channel_id,
+        stamp,
+        at,
+    };
+    let listed = channel.is_some_and(wanted);
+    let s = scan.stats.entry(channel_id).or_default();
+    s.count += 1;
+    s.first.get_or_insert(m);
+    s.stamps = Some(match s.stamps {
+        Some((a, b)) => (a.min(stamp), b.max(stamp)),
+        None => (stamp, stamp),
+    });
+    if listed {
+        scan.messages.push(m);
     }
 }
 
@@ -477,6 +486,8 @@ pub struct MessageSource {
     path: PathBuf,
     /// Channels whose messages the chunk cache keeps.
     channels: Vec<u16>,
+    /// A ROS 1 bag ([`crate::rosbag`]), not MCAP.
+    bag: bool,
     /// The last chunks read, newest last: offset, and messages of `channels` by ordinal.
     chunks: Mutex<Vec<(u64, ChunkMessages)>>,
 }
@@ -487,6 +498,7 @@ impl MessageSource {
         Self {
             path: path.to_path_buf(),
             channels,
+            bag: crate::rosbag::is_bag(path),
             chunks: Mutex::new(Vec::new()),
         }
     }
@@ -529,6 +541,9 @@ impl MessageSource {
     /// The messages of our channels in the chunk record at `offset`.
     fn read_chunk(&self, offset: u64) -> Result<ChunkMessages, DatasetError> {
         let path = &self.path;
+        if self.bag {
+            return crate::rosbag::read_chunk(path, offset, &self.channels);
+        }
         let mut f = File::open(path).map_err(io_err(path))?;
         f.seek(SeekFrom::Start(offset)).map_err(io_err(path))?;
         let mut head = [0u8; RECORD_HEADER as usize];

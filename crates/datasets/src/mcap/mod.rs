@@ -1,6 +1,6 @@
-//! ROS recordings in MCAP (what `ros2 bag record` writes by default since Iron): a colour
-//! topic and an optional depth topic as a [`Sequence`], the camera from a settings file or the
-//! recording's `CameraInfo`.
+//! ROS recordings in MCAP (what `ros2 bag record` writes by default since Iron) and ROS 1 bags
+//! (walked by [`crate::rosbag`] into the same listing): a colour topic and an optional depth
+//! topic as a [`Sequence`], the camera from a settings file or the recording's `CameraInfo`.
 //!
 //! Messages are ROS 2 CDR (or ROS 1, as `mcap convert` leaves a `.bag`): `sensor_msgs/Image`
 //! (`rgb8`, `bgr8`, `rgba8`, `bgra8`, `mono8`; depth `16UC1` in millimetres, `32FC1` in metres,

@@ -1,0 +1,180 @@
+//! ROS 1 bags: frames written with `BagWriter` (format 2.0, chunks uncompressed, bz2 or lz4)
+//! read back the same through the recording opener, with the camera of their CameraInfo;
+//! truncated and corrupted bags are one error naming the file and the byte, never a panic.
+
+use std::path::Path;
+use stillpoint_datasets::mcap::{DepthEncoding, McapTopics, inspect};
+use stillpoint_datasets::rosbag::write::{BagCompression, BagWriter};
+use stillpoint_datasets::{DatasetError, Frame, Sensor, Sequence};
+use stillpoint_geometry::PinholeCamera;
+use stillpoint_image::{DepthMetres, ImageBuf, Rgb8, rgb_to_gray};
+
+const W: usize = 32;
+const H: usize = 24;
+
+fn topics() -> McapTopics {
+    McapTopics {
+        rgb: "/camera/rgb/image_raw".into(),
+        depth: Some("/camera/depth/image_raw".into()),
+        camera_info: None,
+    }
+}
+
+fn camera() -> PinholeCamera {
+    let mut c = PinholeCamera::new(30.5, 31.0, 15.5, 11.25, W as u32, H as u32);
+    c.distortion.k1 = 0.01;
+    c
+}
+
+/// Frame i: a colour pattern and depth in whole millimetres, at 30 Hz from a Unix time.
+fn frame(i: usize) -> Frame {
+    let rgb: Rgb8 = ImageBuf::from_vec(
+        W,
+        H,
+        (0..W * H)
+            .map(|p| [(p + i) as u8, (p * 3) as u8, (i * 7) as u8])
+            .collect(),
+    )
+    .unwrap();
+    let depth: DepthMetres = ImageBuf::from_vec(
+        W,
+        H,
+        (0..W * H)
+            .map(|p| {
+                if p % 11 == 0 {
+                    0.0
+                } else {
+                    (500 + p + i) as f32 / 1000.0
+                }
+            })
+            .collect(),
+    )
+    .unwrap();
+    Frame {
+        index: i,
+        timestamp: 1_700_000_000.0 + i as f64 / 30.0,
+        gray: rgb_to_gray(&rgb),
+        rgb: Some(rgb),
+        depth: Some(depth),
+        right: None,
+    }
+}
+
+fn write(path: &Path, compression: BagCompression, depth: DepthEncoding, n: usize) {
+    let mut w = BagWriter::create(path, &topics(), depth, &camera(), compression).unwrap();
+    for i in 0..n {
+        w.write_frame(&frame(i)).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+fn open(path: &Path, topics: &McapTopics) -> Result<Box<dyn Sequence>, DatasetError> {
+    stillpoint_datasets::open_recording(path, topics, None)
+}
+
+#[test]
+fn frames_read_back_equal_whatever_the_compression() {
+    let dir = tempfile::tempdir().unwrap();
+    for c in [
+        BagCompression::None,
+        BagCompression::Bz2,
+        BagCompression::Lz4,
+    ] {
+        let path = dir.path().join(format!("{c:?}.bag"));
+        write(&path, c, DepthEncoding::Millimetres16, 9);
+        let seq = open(&path, &topics()).unwrap();
+        assert_eq!(seq.len(), 9, "{c:?}");
+        let s = seq.settings();
+        assert_eq!(s.camera, camera(), "{c:?}: the camera of CameraInfo");
+        assert_eq!(
+            (s.sensor, s.depth_factor, s.fps),
+            (Sensor::Rgbd, 1000.0, 30.0)
+        );
+        // Out of order on purpose: chunks are found again by offset.
+        for i in [5, 0, 8, 6, 1] {
+            let (got, want) = (seq.frame(i).unwrap(), frame(i));
+            assert_eq!(got.timestamp, want.timestamp, "{c:?} frame {i}");
+            assert_eq!(got.rgb, want.rgb, "{c:?} frame {i}");
+            assert_eq!(got.depth, want.depth, "{c:?} frame {i}");
+        }
+        let info = inspect(&path).unwrap();
+        let name = format!("{c:?}").to_lowercase();
+        assert_eq!(info.compression, vec![name], "{c:?}");
+        assert_eq!(info.messages, 27);
+        let rgb = info
+            .topics
+            .iter()
+            .find(|t| t.topic == topics().rgb)
+            .unwrap();
+        assert_eq!(
+            (rgb.ty.as_str(), rgb.width, rgb.image_encoding.as_deref()),
+            ("sensor_msgs/Image", Some(W as u32), Some("rgb8"))
+        );
+    }
+}
+
+#[test]
+fn metres_depth_and_monocular() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("f32.bag");
+    write(&path, BagCompression::Lz4, DepthEncoding::Metres32, 4);
+    let seq = open(&path, &topics()).unwrap();
+    assert_eq!(seq.settings().depth_factor, 1.0);
+    assert_eq!(seq.frame(2).unwrap().depth, frame(2).depth);
+    let mono = McapTopics {
+        depth: None,
+        ..topics()
+    };
+    let seq = open(&path, &mono).unwrap();
+    assert_eq!(seq.settings().sensor, Sensor::Mono);
+    assert!(seq.frame(3).unwrap().depth.is_none());
+}
+
+#[test]
+fn truncated_and_corrupted_bags_are_errors_naming_the_byte_not_panics() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("rec.bag");
+    write(&path, BagCompression::Bz2, DepthEncoding::Millimetres16, 6);
+    let bytes = std::fs::read(&path).unwrap();
+    let cut = dir.path().join("cut.bag");
+    for at in [bytes.len() / 2, 4200, 20, bytes.len() - 30] {
+        std::fs::write(&cut, &bytes[..at]).unwrap();
+        let e = open(&cut, &topics()).err().unwrap().to_string();
+        assert!(
+            e.starts_with(&format!("{}: byte ", cut.display())),
+            "{at}: {e}"
+        );
+        assert!(!e.contains('\n'), "one line: {e}");
+        assert!(e.contains("truncated"), "{at}: {e}");
+    }
+    // Bytes of the second chunk's compressed data flipped: its byte is named.
+    let mut bad = bytes.clone();
+    let second_chunk = bytes
+        .windows(15)
+        .enumerate()
+        .filter(|(_, w)| *w == b"compression=bz2")
+        .map(|(i, _)| i)
+        .nth(1)
+        .unwrap();
+    for b in &mut bad[second_chunk + 120..second_chunk + 160] {
+        *b ^= 0x5a;
+    }
+    std::fs::write(&cut, &bad).unwrap();
+    let e = open(&cut, &topics()).err().unwrap().to_string();
+    assert!(e.starts_with(&format!("{}: byte ", cut.display())), "{e}");
+    assert!(e.contains("bz2"), "{e}");
+    // Anything at all: no panic.
+    for step in [1usize, 7, 97] {
+        let mut bad = bytes.clone();
+        for i in (13..bad.len()).step_by(step * 131) {
+            bad[i] = bad[i].wrapping_add(77);
+        }
+        std::fs::write(&cut, &bad).unwrap();
+        if let Ok(seq) = open(&cut, &topics()) {
+            for f in 0..seq.len() {
+                let _ = seq.frame(f);
+            }
+        }
+        let _ = inspect(&cut);
+    }
+}

@@ -1,0 +1,124 @@
+//! Cross-crate: `stillpoint run --bag rec.bag` on a ROS 1 bag. A synthetic RGB-D sequence is
+//! written as a folder and as a bz2-chunked bag (sensor_msgs/Image rgb8 and 16UC1, CameraInfo):
+//! both runs give the same trajectory. `stillpoint info` lists the bag; a truncated bag and a
+//! wrong topic are one clear error line.
+
+use std::path::Path;
+
+use stillpoint_datasets::mcap::{DepthEncoding, McapTopics};
+use stillpoint_datasets::rosbag::write::{BagCompression, BagWriter};
+
+mod common;
+use common::{assert_same_trajectory, error_line, ok_json, stillpoint, synth_in_millimetres};
+
+const RGB: &str = "/camera/rgb/image_color";
+const DEPTH: &str = "/camera/depth_registered/image_raw";
+
+/// The folder's frames as a ROS 1 bag.
+fn write_bag(seq_dir: &Path, out: &Path, compression: BagCompression) {
+    let seq = stillpoint_datasets::open(seq_dir, None, None).unwrap();
+    let topics = McapTopics {
+        rgb: RGB.into(),
+        depth: Some(DEPTH.into()),
+        camera_info: None,
+    };
+    let camera = seq.settings().camera;
+    let mut w = BagWriter::create(
+        out,
+        &topics,
+        DepthEncoding::Millimetres16,
+        &camera,
+        compression,
+    )
+    .unwrap();
+    for i in 0..seq.len() {
+        w.write_frame(&seq.frame(i).unwrap()).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+fn run(source: &[&str], traj: &Path) -> std::process::Output {
+    stillpoint()
+        .args(["run", "--detector", "none", "--sequential", "--json"])
+        .args(source)
+        .arg("--out")
+        .arg(traj)
+        .output()
+        .unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn a_ros1_bag_runs_as_its_folder_does() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth_in_millimetres(&seq, 40);
+    let bag = tmp.path().join("rec.bag");
+    write_bag(&seq, &bag, BagCompression::Bz2);
+
+    let (a, b) = (tmp.path().join("folder.txt"), tmp.path().join("bag.txt"));
+    let folder = ok_json(&run(&["--dataset", s(&seq)], &a));
+    // The camera comes from the bag's CameraInfo (no --settings).
+    let recording = ok_json(&run(
+        &["--bag", s(&bag), "--rgb-topic", RGB, "--depth-topic", DEPTH],
+        &b,
+    ));
+    assert_eq!(recording["sequence"], "rec");
+    assert_eq!(recording["sensor"], folder["sensor"]);
+    assert_eq!(recording["frames"], 40);
+    assert!(folder["tracked"].as_u64().unwrap() >= 35, "{folder}");
+    for k in ["tracked", "keyframes", "map_points"] {
+        assert_eq!(recording[k], folder[k], "{k}");
+    }
+    assert_same_trajectory(&a, &b);
+
+    // `info` names the topics, the ROS 1 types, the counts and the first images.
+    let info = ok_json(
+        &stillpoint()
+            .args(["info", "--json"])
+            .arg(&bag)
+            .output()
+            .unwrap(),
+    );
+    assert_eq!(info["compression"], serde_json::json!(["bz2"]));
+    let topics = info["topics"].as_array().unwrap();
+    let depth = topics.iter().find(|t| t["topic"] == DEPTH).unwrap();
+    assert_eq!(depth["type"], "sensor_msgs/Image");
+    assert_eq!(depth["encoding"], "ros1");
+    assert_eq!(depth["messages"], 40);
+    assert_eq!(depth["image_encoding"], "16UC1");
+    let info_topic = topics
+        .iter()
+        .find(|t| t["topic"] == "/camera/rgb/camera_info")
+        .unwrap();
+    assert_eq!(info_topic["type"], "sensor_msgs/CameraInfo");
+    let text = stillpoint().arg("info").arg(&bag).output().unwrap();
+    let text = String::from_utf8(text.stdout).unwrap();
+    assert!(text.contains("640x480 rgb8"), "{text}");
+
+    // A wrong topic lists the topics there are.
+    let e = error_line(&run(
+        &["--bag", s(&bag), "--rgb-topic", "/camera/color/image_raw"],
+        &tmp.path().join("wrong.txt"),
+    ));
+    assert!(
+        e.contains("no such topic; topics in the file: /camera/depth_registered/image_raw (sensor_msgs/Image)"),
+        "{e}"
+    );
+
+    // Cut in the middle: one error naming the file and the byte.
+    let bytes = std::fs::read(&bag).unwrap();
+    let cut = tmp.path().join("cut.bag");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let e = error_line(&run(
+        &["--bag", s(&cut), "--rgb-topic", RGB],
+        &tmp.path().join("cut.txt"),
+    ));
+    assert!(e.contains(&format!("{}: byte ", cut.display())), "{e}");
+    assert!(e.contains("truncated"), "{e}");
+    let e = error_line(&stillpoint().arg("info").arg(&cut).output().unwrap());
+    assert!(e.contains("truncated"), "{e}");
+}
