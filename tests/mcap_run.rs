@@ -20,6 +20,7 @@ fn write_recording(seq_dir: &Path, out: &Path) {
     let topics = McapTopics {
         rgb: RGB.into(),
         depth: Some(DEPTH.into()),
+        right: None,
         camera_info: None,
     };
     let camera = seq.settings().camera;

@@ -29,7 +29,8 @@ pub struct Args {
     pub camera: Option<PathBuf>,
     /// A ROS recording to run on instead of a folder: ROS 2 (`.mcap`, or the `ros2 bag` folder
     /// holding one) or ROS 1 (`.bag`); colour from `--rgb-topic`, depth from `--depth-topic`
-    /// (monocular without), the camera from `--settings` or the recording's CameraInfo.
+    /// or a stereo pair's right images from `--right-topic` (monocular without), the camera
+    /// from `--settings` or the recording's CameraInfo.
     #[arg(long, requires = "rgb_topic", conflicts_with = "kind")]
     pub bag: Option<PathBuf>,
     /// The recording's colour images (sensor_msgs Image or CompressedImage), e.g.
@@ -40,6 +41,11 @@ pub struct Args {
     /// /camera/aligned_depth_to_color/image_raw.
     #[arg(long, requires = "bag")]
     pub depth_topic: Option<String>,
+    /// The right images of a rectified stereo pair whose left images are --rgb-topic, e.g.
+    /// /stereo/right/image_rect; without --settings the baseline comes from the right
+    /// CameraInfo's projection (P[3] = -fx * baseline, as stereo_image_proc publishes it).
+    #[arg(long, requires = "bag", conflicts_with = "depth_topic")]
+    pub right_topic: Option<String>,
     /// The colour camera's CameraInfo topic; by default camera_info beside --rgb-topic.
     #[arg(long, requires = "bag")]
     pub camera_info_topic: Option<String>,
@@ -340,6 +346,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let recording = args.rgb_topic.clone().map(|rgb| McapTopics {
         rgb,
         depth: args.depth_topic.clone(),
+        right: args.right_topic.clone(),
         camera_info: args.camera_info_topic.clone(),
     });
     let o = RunOptions {

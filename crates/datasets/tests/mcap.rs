@@ -20,6 +20,7 @@ fn topics() -> McapTopics {
     McapTopics {
         rgb: "/camera/color/image_raw".into(),
         depth: Some("/camera/depth/image_raw".into()),
+        right: None,
         camera_info: None,
     }
 }
@@ -359,4 +360,74 @@ fn inspect_lists_topics_counts_and_first_images() {
     assert!((info.topics[1].rate_hz.unwrap() - 30.0).abs() < 1e-3);
     let table = info.table();
     assert!(table.contains("32x24 16UC1"), "{table}");
+}
+
+/// A rectified stereo pair: left colour and right `mono8` images read back as stereo frames,
+/// the camera from the left CameraInfo's P and `bf` from the right one's `P[3]`; a wrong right
+/// topic names the flag, and a right camera with no baseline says to pass --settings.
+#[test]
+fn a_stereo_pair_reads_back_with_the_baseline_of_the_right_camera_info() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("stereo.mcap");
+    let topics = McapTopics {
+        rgb: "/stereo/left/image_rect_color".into(),
+        right: Some("/stereo/right/image_rect".into()),
+        ..Default::default()
+    };
+    let cam = PinholeCamera::new(30.5, 30.5, 15.5, 11.25, W as u32, H as u32);
+    let stereo = |i: usize| {
+        let mut f = frame(i);
+        f.depth = None;
+        let right = f.gray.data.iter().map(|v| v.wrapping_add(9)).collect();
+        f.right = Some(ImageBuf::from_vec(W, H, right).unwrap());
+        f
+    };
+    let write = |bf: f64| {
+        let file = std::io::BufWriter::new(std::fs::File::create(&path).unwrap());
+        let options = mcap::WriteOptions::new();
+        let name = path.display().to_string();
+        let w = RecordingWriter::new(file, options, &name, &topics, DepthEncoding::Metres32, &cam);
+        let mut w = w.unwrap().with_stereo_bf(bf);
+        for i in 0..4 {
+            w.write_frame(&stereo(i)).unwrap();
+        }
+        w.finish().unwrap();
+    };
+    write(3.05);
+    let seq = open(&path, &topics).unwrap();
+    let s = seq.settings();
+    assert_eq!(
+        (s.sensor, s.camera, s.bf),
+        (Sensor::Stereo, cam, Some(3.05))
+    );
+    for i in [2, 0] {
+        let (got, want) = (seq.frame(i).unwrap(), stereo(i));
+        assert_eq!(got.gray, want.gray, "frame {i}");
+        assert_eq!(got.right, want.right, "frame {i}");
+        assert_eq!(got.depth, None);
+    }
+
+    let wrong = McapTopics {
+        right: Some("/stereo/right/image_raw".into()),
+        ..topics.clone()
+    };
+    let e = open(&path, &wrong).err().unwrap().to_string();
+    assert!(
+        e.starts_with(&format!(
+            "{}: --right-topic /stereo/right/image_raw: no such topic",
+            path.display()
+        )),
+        "{e}"
+    );
+
+    write(0.0);
+    let e = open(&path, &topics).err().unwrap().to_string();
+    assert!(
+        e.starts_with(&format!(
+            "{}: /stereo/right/camera_info message 0 (byte ",
+            path.display()
+        )),
+        "{e}"
+    );
+    assert!(e.contains("no baseline") && e.contains("--settings"), "{e}");
 }

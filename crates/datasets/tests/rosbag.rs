@@ -16,6 +16,7 @@ fn topics() -> McapTopics {
     McapTopics {
         rgb: "/camera/rgb/image_raw".into(),
         depth: Some("/camera/depth/image_raw".into()),
+        right: None,
         camera_info: None,
     }
 }

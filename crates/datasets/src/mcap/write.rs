@@ -43,15 +43,20 @@ fn definition(main: &str, deps: &[&str]) -> Vec<u8> {
     s.into_bytes()
 }
 
-/// Writes frames: colour as `rgb8` (or `mono8` without colour), depth, and the camera's
-/// `CameraInfo` with each frame, as a camera driver publishes them.
+/// Writes frames: colour as `rgb8` (or `mono8` without colour), depth, the right image of a
+/// stereo pair as `mono8`, and the cameras' `CameraInfo` with each frame, as a camera driver
+/// publishes them.
 pub struct RecordingWriter<W: Write + Seek> {
     out: ::mcap::Writer<W>,
     name: String,
     rgb: u16,
     depth: Option<(u16, DepthEncoding)>,
     info: u16,
+    /// The right image and camera info channels.
+    right: Option<(u16, u16)>,
     camera: PinholeCamera,
+    /// Stereo baseline times fx: the right camera info's `P[3]` is `-bf`.
+    bf: f64,
     sequence: u32,
 }
 
@@ -77,7 +82,9 @@ impl RecordingWriter<BufWriter<File>> {
 
 impl<W: Write + Seek> RecordingWriter<W> {
     /// Write to `w` with `options`; `name` names it in errors. The camera info goes to
-    /// [`McapTopics::camera_info_topic`], depth (when a topic is given) as `depth`.
+    /// [`McapTopics::camera_info_topic`], depth (when a topic is given) as `depth`, right
+    /// images (when a topic is given) with their camera info beside them
+    /// ([`McapTopics::right_camera_info_topic`]; the baseline from [`Self::with_stereo_bf`]).
     pub fn new(
         w: W,
         options: ::mcap::WriteOptions,
@@ -110,6 +117,13 @@ impl<W: Write + Seek> RecordingWriter<W> {
             Some(t) => Some((out.add_channel(image, t, "cdr", &none).map_err(err)?, depth)),
             None => None,
         };
+        let right = match (&topics.right, topics.right_camera_info_topic()) {
+            (Some(t), Some(i)) => Some((
+                out.add_channel(image, t, "cdr", &none).map_err(err)?,
+                out.add_channel(info, &i, "cdr", &none).map_err(err)?,
+            )),
+            _ => None,
+        };
         let info = out
             .add_channel(info, &topics.camera_info_topic(), "cdr", &none)
             .map_err(err)?;
@@ -119,9 +133,18 @@ impl<W: Write + Seek> RecordingWriter<W> {
             rgb,
             depth,
             info,
+            right,
             camera: *camera,
+            bf: 0.0,
             sequence: 0,
         })
+    }
+
+    /// The stereo pair's baseline times fx (pixel-metres), written as the right camera info's
+    /// `P[3] = -bf`.
+    pub fn with_stereo_bf(mut self, bf: f64) -> Self {
+        self.bf = bf;
+        self
     }
 
     /// Write one frame: colour, depth (when the frame and the writer have it), camera info.
@@ -155,7 +178,13 @@ impl<W: Write + Seek> RecordingWriter<W> {
             };
             self.put(channel, t, &msg)?;
         }
-        let info = camera_info_message(t, &self.camera);
+        if let (Some((image, info)), Some(r)) = (self.right, &frame.right) {
+            let msg = image_message(t, r.width, r.height, "mono8", 1, &r.data);
+            self.put(image, t, &msg)?;
+            let msg = camera_info_message(t, &self.camera, -self.bf);
+            self.put(info, t, &msg)?;
+        }
+        let info = camera_info_message(t, &self.camera, 0.0);
         self.put(self.info, t, &info)
     }
 
@@ -215,13 +244,14 @@ fn image_message(
     m.finish()
 }
 
-/// A `sensor_msgs/msg/CameraInfo` of `c` (plumb_bob).
-fn camera_info_message(stamp: f64, c: &PinholeCamera) -> Vec<u8> {
+/// A `sensor_msgs/msg/CameraInfo` of `c` (plumb_bob), `P[3]` = `tx` (`-fx * baseline` for a
+/// right camera).
+fn camera_info_message(stamp: f64, c: &PinholeCamera, tx: f64) -> Vec<u8> {
     let d = &c.distortion;
     let k = [c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0];
     let r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
     let p = [
-        c.fx, 0.0, c.cx, 0.0, 0.0, c.fy, c.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
+        c.fx, 0.0, c.cx, tx, 0.0, c.fy, c.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
     ];
     let mut m = CdrWriter::new();
     m.header(stamp, "camera").u32(c.height).u32(c.width);

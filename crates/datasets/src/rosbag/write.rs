@@ -159,7 +159,8 @@ struct ChunkInfo {
     counts: BTreeMap<u32, u32>,
 }
 
-/// Writes frames into a ROS 1 bag: colour, depth (when the topics have it) and camera info.
+/// Writes frames into a ROS 1 bag: colour, depth or right images (when the topics have them)
+/// and camera info.
 pub struct BagWriter {
     path: PathBuf,
     out: BufWriter<File>,
@@ -167,7 +168,11 @@ pub struct BagWriter {
     rgb: Connection,
     depth: Option<(Connection, DepthEncoding)>,
     info: Connection,
+    /// The right image and camera info connections.
+    right: Option<(Connection, Connection)>,
     camera: PinholeCamera,
+    /// Stereo baseline times fx: the right camera info's `P[3]` is `-bf`.
+    bf: f64,
     chunks: Vec<ChunkInfo>,
     /// Connections already written in a chunk.
     announced: Vec<u32>,
@@ -190,7 +195,8 @@ fn bag_header(index_pos: u64, conns: u32, chunks: u32) -> Vec<u8> {
 
 impl BagWriter {
     /// Create `path`: colour on `topics.rgb`, depth on `topics.depth` (as `depth`), camera info
-    /// on [`McapTopics::camera_info_topic`].
+    /// on [`McapTopics::camera_info_topic`]; right images (`mono8`) on `topics.right` with
+    /// their camera info beside them (the baseline from [`Self::with_stereo_bf`]).
     pub fn create(
         path: &Path,
         topics: &McapTopics,
@@ -207,13 +213,13 @@ impl BagWriter {
         let image = |id, t: &str| connection(id, t, "sensor_msgs/Image", IMAGE_MD5, &image_def);
         let rgb = image(0, &topics.rgb);
         let depth = topics.depth.as_deref().map(|t| (image(1, t), depth));
-        let info = connection(
-            2,
-            &topics.camera_info_topic(),
-            "sensor_msgs/CameraInfo",
-            CAMERA_INFO_MD5,
-            &info_def,
-        );
+        let info_conn =
+            |id, t: &str| connection(id, t, "sensor_msgs/CameraInfo", CAMERA_INFO_MD5, &info_def);
+        let info = info_conn(2, &topics.camera_info_topic());
+        let right = match (&topics.right, topics.right_camera_info_topic()) {
+            (Some(t), Some(i)) => Some((image(3, t), info_conn(4, &i))),
+            _ => None,
+        };
         Ok(Self {
             path: path.to_path_buf(),
             out,
@@ -221,11 +227,20 @@ impl BagWriter {
             rgb,
             depth,
             info,
+            right,
             camera: *camera,
+            bf: 0.0,
             chunks: Vec::new(),
             announced: Vec::new(),
             seq: 0,
         })
+    }
+
+    /// The stereo pair's baseline times fx (pixel-metres), written as the right camera info's
+    /// `P[3] = -bf`.
+    pub fn with_stereo_bf(mut self, bf: f64) -> Self {
+        self.bf = bf;
+        self
     }
 
     fn io(&self) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
@@ -276,7 +291,17 @@ impl BagWriter {
             }
             messages.push((c.id, m.0));
         }
-        messages.push((self.info.id, camera_info(seq, t, &self.camera)));
+        if let (Some((image, info)), Some(r)) = (&self.right, &frame.right) {
+            let mut m = Ros1Writer::default();
+            m.header(seq, t, "camera_right")
+                .u32(r.height as u32)
+                .u32(r.width as u32)
+                .string("mono8");
+            m.u8(0).u32(r.width as u32).bytes(&r.data);
+            messages.push((image.id, m.0));
+            messages.push((info.id, camera_info(seq, t, &self.camera, -self.bf)));
+        }
+        messages.push((self.info.id, camera_info(seq, t, &self.camera, 0.0)));
 
         // The chunk: connections met for the first time, then the messages.
         let mut body = Vec::new();
@@ -336,11 +361,14 @@ impl BagWriter {
     }
 
     fn connection(&self, id: u32) -> &Connection {
-        match &self.depth {
-            Some((c, _)) if c.id == id => c,
-            _ if id == self.rgb.id => &self.rgb,
-            _ => &self.info,
-        }
+        let depth = self.depth.iter().map(|(c, _)| c);
+        let right = self.right.iter().flat_map(|(i, c)| [i, c]);
+        [&self.rgb, &self.info]
+            .into_iter()
+            .chain(depth)
+            .chain(right)
+            .find(|c| c.id == id)
+            .unwrap_or(&self.info)
     }
 
     /// Write the index (connections, chunk infos) and the bag header that points to it.
@@ -410,13 +438,14 @@ fn millimetres(m: f32) -> u16 {
     }
 }
 
-/// A ROS 1 `sensor_msgs/CameraInfo` of `c` (plumb_bob).
-fn camera_info(seq: u32, stamp: f64, c: &PinholeCamera) -> Vec<u8> {
+/// A ROS 1 `sensor_msgs/CameraInfo` of `c` (plumb_bob), `P[3]` = `tx` (`-fx * baseline` for a
+/// right camera).
+fn camera_info(seq: u32, stamp: f64, c: &PinholeCamera, tx: f64) -> Vec<u8> {
     let d = &c.distortion;
     let k = [c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0];
     let r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
     let p = [
-        c.fx, 0.0, c.cx, 0.0, 0.0, c.fy, c.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
+        c.fx, 0.0, c.cx, tx, 0.0, c.fy, c.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
     ];
     let mut m = Ros1Writer::default();
     m.header(seq, stamp, "camera").u32(c.height).u32(c.width);
