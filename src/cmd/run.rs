@@ -237,7 +237,8 @@ pub fn summary_json(s: &RunSummary) -> serde_json::Value {
         "moving_keypoints_kept_per_frame": s.moving_kept_stats().map(|(m, med, p90)| {
             serde_json::json!({"mean": m, "median": med, "p90": p90})
         }),
-        "moving_map_points": s.moving_map_points,
+        "moving_map_points": s.moving_map_points.map(|m| m.lying),
+        "moving_map_points_seen": s.moving_map_points.map(|m| m.seen),
         "ate_keyframes": ate_keyframes.map(|a| serde_json::json!({"rmse": a.stats.rmse, "pairs": a.stats.count})),
         "loop_closing": loops_json(s),
         "realtime": s.realtime.as_ref().map(|r| realtime_json(r, acc.as_ref().map(|(a, _)| a.stats.rmse))),

@@ -63,8 +63,10 @@ pub struct Row {
     pub first_tracked: Option<usize>,
     /// Map points at the end.
     pub map_points: usize,
-    /// Of those, observed on a moving object.
+    /// Of those, lying on a moving object (made there, or seen there by most keyframes).
     pub map_points_on_movers: Option<usize>,
+    /// Of those, seen on a moving object by one keyframe or more.
+    pub map_points_seen_on_movers: Option<usize>,
     /// Why the run failed (its error chain).
     pub error: Option<String>,
 }
@@ -134,7 +136,8 @@ fn run_one(
         frames: s.frames,
         first_tracked,
         map_points: s.map_points,
-        map_points_on_movers: s.moving_map_points,
+        map_points_on_movers: s.moving_map_points.map(|m| m.lying),
+        map_points_seen_on_movers: s.moving_map_points.map(|m| m.seen),
         error: None,
     })
 }
@@ -190,6 +193,7 @@ pub fn run_matrix(o: &MatrixOptions) -> Result<Vec<Row>, BenchError> {
                         first_tracked: None,
                         map_points: 0,
                         map_points_on_movers: None,
+                        map_points_seen_on_movers: None,
                         error: Some(crate::error_chain(&e)),
                     });
                     if let Ok(mut r) = rows.lock() {
@@ -219,6 +223,7 @@ mod tests {
             first_tracked: Some(0),
             map_points,
             map_points_on_movers: movers,
+            map_points_seen_on_movers: movers,
             error: None,
         }
     }

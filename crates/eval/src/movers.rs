@@ -28,22 +28,40 @@ pub fn moving_keypoints_kept(mask: &Gray8, keypoints: &[[f32; 2]], dynamic: &[bo
         .count()
 }
 
-/// Good map points with at least one observation, by a good keyframe, on that keyframe's moving
-/// mask (`mask_at(timestamp)`; keyframes without a mask are skipped). Logs how many were created
-/// there (their first keyframe saw them on a mover).
-pub fn moving_map_points(map: &Map, mut mask_at: impl FnMut(f64) -> Option<Gray8>) -> usize {
+/// Good map points on moving objects, as the keyframes' masks tell.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MoversInMap {
+    /// Points that lie on a mover: made there (their first keyframe saw them on the mask) or
+    /// seen there by more than half of the keyframes with a mask that observe them. Their
+    /// position came from, or agrees with, the moving surface.
+    pub lying: usize,
+    /// Points with at least one keyframe observation on a mover (also a static point matched
+    /// once to a keypoint beside a foot, or at the mask's edge).
+    pub seen: usize,
+}
+
+/// Good map points on the moving masks of good keyframes (`mask_at(timestamp)`; keyframes
+/// without a mask are skipped): those lying on movers and those seen there at least once.
+pub fn moving_map_points(map: &Map, mut mask_at: impl FnMut(f64) -> Option<Gray8>) -> MoversInMap {
     let mut moving = BTreeSet::new();
     let mut created = BTreeSet::new();
+    // Per point: (observations on a mask, observations by keyframes with a mask).
+    let mut votes: std::collections::BTreeMap<_, (usize, usize)> = Default::default();
     for kf in map.keyframes.values().filter(|k| !k.bad) {
         let Some(mask) = mask_at(kf.timestamp) else {
             continue;
         };
         let before = created.len();
         for (i, mp) in kf.map_points.iter().enumerate() {
-            if let Some(mp) = mp
-                && on_mask(&mask, kf.points[i].x, kf.points[i].y)
-                && let Some(p) = map.points.get(mp).filter(|p| !p.bad)
-            {
+            let Some(mp) = mp else { continue };
+            if map.points.get(mp).is_none_or(|p| p.bad) {
+                continue;
+            }
+            let on = on_mask(&mask, kf.points[i].x, kf.points[i].y);
+            let v = votes.entry(*mp).or_insert((0, 0));
+            v.0 += usize::from(on);
+            v.1 += 1;
+            if on && let Some(p) = map.points.get(mp) {
                 moving.insert(*mp);
                 if p.first_kf == kf.id {
                     created.insert(*mp);
@@ -66,17 +84,19 @@ pub fn moving_map_points(map: &Map, mut mask_at: impl FnMut(f64) -> Option<Gray8
             );
         }
     }
+    let lying = votes
+        .iter()
+        .filter(|&(mp, &(on, all))| created.contains(mp) || 2 * on > all)
+        .count();
     tracing::info!(
-        "map points on moving objects: {} ({} created there), {} observations",
-        moving.len(),
+        "map points on moving objects: {lying} lying there ({} created there), {} seen there once or more",
         created.len(),
-        map.points
-            .values()
-            .filter(|p| !p.bad)
-            .map(|p| p.observations.len())
-            .sum::<usize>()
+        moving.len(),
     );
-    moving.len()
+    MoversInMap {
+        lying,
+        seen: moving.len(),
+    }
 }
 
 #[cfg(test)]
@@ -118,7 +138,10 @@ mod tests {
 
     #[test]
     fn an_empty_map_has_no_points_on_movers() {
-        assert_eq!(moving_map_points(&Map::new(), |_| Some(mask())), 0);
+        assert_eq!(
+            moving_map_points(&Map::new(), |_| Some(mask())),
+            MoversInMap::default()
+        );
     }
 
     #[test]
@@ -146,12 +169,21 @@ mod tests {
             let mp = map.add_point(Vec3::new(0.0, 0.0, 3.0), k0, i).unwrap();
             map.add_observation(mp, k1, i);
         }
-        assert_eq!(moving_map_points(&map, |_| Some(mask())), 2);
+        let both = |n| MoversInMap { lying: n, seen: n };
+        assert_eq!(moving_map_points(&map, |_| Some(mask())), both(2));
         // keyframes without a mask say nothing
-        assert_eq!(moving_map_points(&map, |_| None), 0);
+        assert_eq!(moving_map_points(&map, |_| None), both(0));
         // a bad point does not count
         let first = *map.points.keys().next().unwrap();
         map.points.get_mut(&first).unwrap().bad = true;
-        assert_eq!(moving_map_points(&map, |_| Some(mask())), 1);
+        assert_eq!(moving_map_points(&map, |_| Some(mask())), both(1));
+        // a static point seen on the mask by one keyframe of three (a keypoint beside a foot
+        // matched to it) is seen there, but does not lie there
+        let k2 = map.add_keyframe(&f).unwrap();
+        let static_point = map.add_point(Vec3::new(0.0, 0.0, 3.0), k0, 2).unwrap();
+        map.add_observation(static_point, k1, 2);
+        map.add_observation(static_point, k2, 0);
+        let m = moving_map_points(&map, |_| Some(mask()));
+        assert_eq!((m.lying, m.seen), (1, 2));
     }
 }

@@ -162,7 +162,7 @@ pub struct RunSummary {
     /// keypoints handed to tracking that lie on moving objects, per frame.
     pub moving_kept_per_frame: Option<Vec<usize>>,
     /// ... and map points at the end with at least one keyframe observation on a moving object.
-    pub moving_map_points: Option<usize>,
+    pub moving_map_points: Option<stillpoint_eval::movers::MoversInMap>,
     /// Loop closing's statistics (`None` when it is off).
     pub loops: Option<LoopStats>,
     /// With `realtime`: what the replay at camera rate processed, dropped and how late.

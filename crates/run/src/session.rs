@@ -327,7 +327,7 @@ pub fn run_sequence(
             .ok()
     });
     let moving_map_points = has_masks.then(|| {
-        fin.system.map().lock().map_or(0, |map| {
+        fin.system.map().lock().map_or(Default::default(), |map| {
             stillpoint_eval::movers::moving_map_points(&map, |t| {
                 stillpoint_eval::movers::moving_mask(&o.dataset, t)
             })
