@@ -152,11 +152,18 @@ fn real_hand_held_video_with_people_initialises_and_tracks() {
     assert_eq!(summary["frames"], 200);
     assert_eq!(summary["sensor"], "mono");
     let tracked = summary["tracked"].as_u64().unwrap();
-    assert!(tracked >= 100, "{summary}");
-    assert!(summary["keyframes"].as_u64().unwrap() >= 3, "{summary}");
+    let keyframes = summary["keyframes"].as_u64().unwrap();
     if model.is_file() {
-        // People are in most frames: their keypoints are culled.
+        // Measured with YOLOX-nano 480x640 (tract): 196 of 200 frames tracked, 19 keyframes,
+        // 81.3 keypoints culled a frame on average (median 2, p90 91: the culls come in a
+        // minority of the frames).
+        assert!(tracked >= 185, "{summary}");
+        assert!(keyframes >= 15, "{summary}");
         let culled = summary["culled_per_frame"]["mean"].as_f64().unwrap();
-        assert!(culled >= 20.0, "{summary}");
+        assert!(culled >= 60.0, "{summary}");
+    } else {
+        // Not measured without the model: that it initialises and tracks.
+        assert!(tracked >= 100, "{summary}");
+        assert!(keyframes >= 3, "{summary}");
     }
 }
