@@ -35,6 +35,9 @@ pub fn explain(e: &std::io::Error) -> String {
         Some(13) | Some(1) => {
             format!("no permission to open it ({e}): add yourself to the `video` group")
         }
+        Some(25) => format!(
+            "not a V4L2 camera ({e}): give a camera's device, e.g. /dev/video0 (`ls /dev/video*`)"
+        ),
         _ => e.to_string(),
     }
 }
@@ -101,6 +104,19 @@ mod v4l2 {
         let settings = settings.map(crate::read_settings).transpose()?;
         let err = |e: std::io::Error| device_err(path, explain(&e));
         let device = Device::with_path(path).map_err(err)?;
+        let caps = device.query_caps().map_err(err)?;
+        if !caps
+            .capabilities
+            .contains(v4l::capability::Flags::VIDEO_CAPTURE)
+        {
+            return Err(device_err(
+                path,
+                format!(
+                    "{} ({}) is not a video capture device: give a camera's device (`v4l2-ctl --list-devices`)",
+                    caps.card, caps.driver
+                ),
+            ));
+        }
         let formats = device.enum_formats().map_err(err)?;
         let offered: Vec<String> = formats.iter().map(|f| f.fourcc.to_string()).collect();
         let pixels = if formats.iter().any(|f| f.fourcc == FourCC::new(b"MJPG")) {
