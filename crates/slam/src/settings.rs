@@ -114,6 +114,11 @@ pub struct SlamSettings {
     /// follows its keyframe as tracking left it).
     #[serde(default = "default_settle_min_inliers")]
     pub trajectory_settle_min_inliers: usize,
+    /// ... and at most this many frames wait to settle: older ones settle on the map as it is
+    /// (a camera lapping a mapped room makes no keyframes, and the waiting frames' observations
+    /// grew memory by 20 KiB a frame).
+    #[serde(default = "default_settle_max_pending")]
+    pub trajectory_settle_max_pending: usize,
     /// ... "well behind": by more than this many pixels of virtual disparity (`bf / z`) and
     /// 10 cm (measured 0.5 / 1 / 2 px: gt mean ATE 1.54 / 1.47 / 1.47 cm, YOLOX worst 1.93 /
     /// 1.96 / 4.11 on the seeds tried).
@@ -275,6 +280,7 @@ impl SlamSettings {
             erase_seen_through_after: 2,
             trajectory_settle_keyframes: default_settle_keyframes(),
             trajectory_settle_min_inliers: default_settle_min_inliers(),
+            trajectory_settle_max_pending: default_settle_max_pending(),
             seen_through_gap_px: 1.0,
             kf_new_points_min: 100,
             covisibility_min_shared: 15,
@@ -318,4 +324,8 @@ fn default_settle_keyframes() -> usize {
 
 fn default_settle_min_inliers() -> usize {
     20
+}
+
+fn default_settle_max_pending() -> usize {
+    300
 }

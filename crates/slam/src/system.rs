@@ -352,6 +352,12 @@ impl System {
         Ok(())
     }
 
+    /// Tracked frames whose pose waits to be settled on a refined map
+    /// (`SlamSettings::trajectory_settle_keyframes`); at most `trajectory_settle_max_pending`.
+    pub fn frames_waiting_to_settle(&self) -> usize {
+        self.unsettled.len()
+    }
+
     /// Optimise again the poses of the tracked frames that local mapping has since refined the
     /// keyframes around (`SlamSettings::trajectory_settle_keyframes` keyframes later, mapping
     /// idle), or all of them (`all`, at the end), against the map as it is now, and anchor each
@@ -364,18 +370,32 @@ impl System {
                 t.idle.load(Ordering::SeqCst) && t.queued.load(Ordering::SeqCst) == 0
             }
         };
-        let due = |u: &Unsettled| {
-            all || (mapping_idle
-                && u.keyframes_at + s.trajectory_settle_keyframes <= self.keyframes_inserted)
+        // Past `trajectory_settle_max_pending` frames the oldest settle on the map as it is:
+        // where no keyframe comes (a camera lapping a mapped room) the queue would grow with
+        // every frame.
+        let (keyframes_inserted, max_pending) =
+            (self.keyframes_inserted, s.trajectory_settle_max_pending);
+        let due = |u: &Unsettled, pending: usize| {
+            all || pending > max_pending
+                || (mapping_idle
+                    && u.keyframes_at + s.trajectory_settle_keyframes <= keyframes_inserted)
         };
-        if !self.unsettled.front().is_some_and(due) {
+        if !self
+            .unsettled
+            .front()
+            .is_some_and(|u| due(u, self.unsettled.len()))
+        {
             return;
         }
         let Ok(map) = self.map.lock() else {
             return;
         };
         let inv_sigma2 = s.inv_level_sigma2();
-        while self.unsettled.front().is_some_and(due) {
+        while self
+            .unsettled
+            .front()
+            .is_some_and(|u| due(u, self.unsettled.len()))
+        {
             let Some(u) = self.unsettled.pop_front() else {
                 break;
             };

@@ -247,3 +247,33 @@ fn frames_settle_on_the_refined_map_instead_of_following_a_keyframe_that_moved()
     assert!(anchored > 0.05, "without settling: {anchored} m");
     assert!(settled < 0.005, "settled: {settled} m");
 }
+
+#[test]
+fn a_camera_that_makes_no_keyframes_keeps_few_frames_waiting_to_settle() {
+    let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
+    let mut s = SlamSettings::rgbd(cam, 40.0, 30.0);
+    s.local_mapping_thread = false;
+    s.trajectory_settle_max_pending = 10;
+    let sc = scene(3, 4000);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(4);
+    let mut sys = System::new(s);
+    // A camera standing still: after the first keyframe nothing asks for another.
+    let mut most_waiting = 0;
+    for i in 0..50 {
+        let (f, d, depth) = observe(&sc, &truth(0), &cam, &mut rng);
+        let r = sys
+            .track_rgbd(i, i as f64 / 30.0, &f, &d, Some(&depth))
+            .unwrap();
+        assert_eq!(r.state, TrackingState::Ok, "frame {i}");
+        most_waiting = most_waiting.max(sys.frames_waiting_to_settle());
+    }
+    assert!(
+        sys.keyframe_count() <= 2,
+        "{} keyframes",
+        sys.keyframe_count()
+    );
+    assert_eq!(most_waiting, 10);
+    sys.shutdown().unwrap();
+    assert_eq!(sys.frames_waiting_to_settle(), 0);
+    assert_eq!(sys.rebuilt_trajectory().len(), 50);
+}
