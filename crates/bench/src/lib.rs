@@ -7,7 +7,8 @@
 //! - [`keypoints`]: precision and recall of the dynamic-keypoint decision (the paper, variants,
 //!   ours, two baselines) against the generator's masks;
 //! - [`features`]: the feature front-end's speed against OpenCV, measured in the same run;
-//! - [`detector`]: detector latency per backend, thread count and model.
+//! - [`detector`]: detector latency per backend, thread count and model;
+//! - [`soak`]: one long lapping run, memory and time per frame along it.
 //!
 //! Runs go through `stillpoint-run`, measurements through `stillpoint-eval`.
 //!
@@ -30,6 +31,7 @@ pub mod detector;
 pub mod features;
 pub mod keypoints;
 pub mod matrix;
+pub mod soak;
 pub mod tum;
 
 use stillpoint_datasets::DatasetError;
@@ -99,6 +101,12 @@ pub enum BenchError {
         /// The underlying error, when there is one.
         source: Option<Box<dyn std::error::Error + Send + Sync>>,
     },
+    /// The pipeline stopped on a frame of an in-memory run.
+    #[error(transparent)]
+    Pipeline(#[from] stillpoint_pipeline::PipelineError),
+    /// Poses that do not make a trajectory.
+    #[error(transparent)]
+    Trajectory(#[from] stillpoint_trajectory::TrajectoryError),
 }
 
 pub use stillpoint_run::error_chain;

@@ -5,6 +5,7 @@ pub mod detect;
 pub mod dynamic;
 pub mod features;
 pub mod matrix;
+pub mod soak;
 pub mod tum;
 
 #[derive(clap::Subcommand)]
@@ -19,6 +20,8 @@ pub enum BenchCommand {
     Tum(tum::Args),
     /// ATE and map points on movers over synthetic presets x seeds x {off, gt, yolox}.
     Matrix(matrix::Args),
+    /// One long lapping run: memory and time per frame along it (flat, or it fails).
+    Soak(soak::Args),
 }
 
 /// The shared data folder: `$STILLPOINT_SHARED`, else `../shared` (the benches' default inputs).
@@ -35,5 +38,6 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Dynamic(a) => dynamic::run(a),
         BenchCommand::Tum(a) => tum::run(a),
         BenchCommand::Matrix(a) => matrix::run(a),
+        BenchCommand::Soak(a) => soak::run(a),
     }
 }
