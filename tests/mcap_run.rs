@@ -93,25 +93,7 @@ fn a_recording_runs_as_its_folder_does() {
     for k in ["tracked", "keyframes", "map_points"] {
         assert_eq!(recording[k], folder[k], "{k}");
     }
-    let (ta, tb) = (
-        stillpoint_trajectory::read_tum(&a).unwrap(),
-        stillpoint_trajectory::read_tum(&b).unwrap(),
-    );
-    assert_eq!(ta.len(), tb.len());
-    for (i, ((sa, pa), (sb, pb))) in ta
-        .stamps
-        .iter()
-        .zip(&ta.poses)
-        .zip(tb.stamps.iter().zip(&tb.poses))
-        .enumerate()
-    {
-        assert_eq!(sa, sb, "pose {i}: stamps");
-        let d = pa.inverse() * pb;
-        assert!(
-            d.translation.vector.norm() < 1e-9 && d.rotation.angle() < 1e-9,
-            "pose {i}: {pa:?} vs {pb:?}"
-        );
-    }
+    common::assert_same_trajectory(&a, &b);
 
     // `info` names the topics, the types, the counts and the first images.
     let out = stillpoint()
