@@ -27,6 +27,10 @@ pub struct Args {
     /// as it goes; stop with Ctrl-C. Needs a build with the `camera` feature.
     #[arg(long, conflicts_with_all = ["bag", "kind", "realtime"])]
     pub camera: Option<PathBuf>,
+    /// Write a picture of each frame into this folder (`000042.png`): keypoints matched green,
+    /// kept yellow, culled red; objects boxed red when moving, blue when static.
+    #[arg(long)]
+    pub overlay: Option<PathBuf>,
     /// A ROS recording to run on instead of a folder: ROS 2 (`.mcap`, or the `ros2 bag` folder
     /// holding one) or ROS 1 (`.bag`); colour from `--rgb-topic`, depth from `--depth-topic`
     /// or a stereo pair's right images from `--right-topic` (monocular without), the camera
@@ -361,6 +365,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         frames: args.frames,
         model: args.model.clone(),
         paper_cull: args.paper_cull,
+        overlay: args.overlay.clone(),
         overrides: Overrides {
             config: args.layers.config.clone(),
             sets: args.layers.sets.clone(),

@@ -105,19 +105,38 @@ pub fn draw_text(img: &mut Rgb8, x: isize, y: isize, text: &str, fg: [u8; 3], bg
 /// above it (inside the box when there is no room above).
 pub fn draw_detections(img: &mut Rgb8, dets: &[Detection]) {
     for d in dets {
-        let colour = class_colour(d.class_id);
-        let b = d.bbox;
-        let (x1, y1) = (b.x1.round() as isize, b.y1.round() as isize);
-        let (x2, y2) = (b.x2.round() as isize, b.y2.round() as isize);
-        fill(img, x1, y1, x2, y1 + 2, colour);
-        fill(img, x1, y2 - 2, x2, y2, colour);
-        fill(img, x1, y1, x1 + 2, y2, colour);
-        fill(img, x2 - 2, y1, x2, y2, colour);
         let label = format!("{} {:.2}", d.class_name(), d.score);
+        draw_box(img, &d.bbox, class_colour(d.class_id), &label);
+    }
+}
+
+/// Draw `bbox` as a 2-pixel rectangle in `colour` with `label` above it (inside the box when
+/// there is no room above; no label when empty).
+pub fn draw_box(img: &mut Rgb8, bbox: &crate::BBox, colour: [u8; 3], label: &str) {
+    let (x1, y1) = (bbox.x1.round() as isize, bbox.y1.round() as isize);
+    let (x2, y2) = (bbox.x2.round() as isize, bbox.y2.round() as isize);
+    fill(img, x1, y1, x2, y1 + 2, colour);
+    fill(img, x1, y2 - 2, x2, y2, colour);
+    fill(img, x1, y1, x1 + 2, y2, colour);
+    fill(img, x2 - 2, y1, x2, y2, colour);
+    if !label.is_empty() {
         let label_h = 7 * FONT_SCALE as isize;
         let ly = if y1 >= label_h { y1 - label_h } else { y1 + 2 };
-        draw_text(img, x1, ly, &label, [0, 0, 0], colour);
+        draw_text(img, x1, ly, label, [0, 0, 0], colour);
     }
+}
+
+/// Draw a filled square of side `2 * radius + 1` centred on (x, y), clipped to the image.
+pub fn draw_dot(img: &mut Rgb8, x: f32, y: f32, radius: isize, colour: [u8; 3]) {
+    let (cx, cy) = (x.round() as isize, y.round() as isize);
+    fill(
+        img,
+        cx - radius,
+        cy - radius,
+        cx + radius + 1,
+        cy + radius + 1,
+        colour,
+    );
 }
 
 #[cfg(test)]

@@ -392,6 +392,16 @@ impl DynamicFrontEnd {
         self.moving_boxes()
     }
 
+    /// The objects seen in frame `index` (box, class, moving or not): what an overlay of the
+    /// frame draws. Empty for a frame the front-end did not judge.
+    pub fn objects_in_view(&self, index: usize) -> Vec<&stillpoint_dynamic::TrackedObject> {
+        self.objects
+            .objects()
+            .iter()
+            .filter(|o| o.last_seen == index)
+            .collect()
+    }
+
     /// The boxes of the objects judged moving in the last judged frame, grown by
     /// [`FrontEndSettings::orb_exclusion_margin`] of their size on each side.
     fn moving_boxes(&self) -> Vec<[f32; 4]> {

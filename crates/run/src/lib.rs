@@ -30,6 +30,7 @@
 #![deny(missing_docs)]
 
 mod output;
+pub mod overlay;
 mod replay;
 mod session;
 
@@ -76,6 +77,9 @@ pub struct RunOptions {
     pub overrides: Overrides,
     /// Replay at the frames' timestamps and drop the frames that arrive while busy.
     pub realtime: bool,
+    /// A folder for a picture of each frame: keypoints kept and culled, objects moving and
+    /// static ([`overlay`]).
+    pub overlay: Option<PathBuf>,
     /// Set (from another thread or a signal handler) to stop taking frames; the map and the
     /// files are still finished.
     pub stop: Option<&'static AtomicBool>,
@@ -97,6 +101,7 @@ impl RunOptions {
             model: None,
             overrides: Overrides::default(),
             realtime: false,
+            overlay: None,
             stop: None,
         }
     }

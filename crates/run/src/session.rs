@@ -169,6 +169,12 @@ pub fn run_sequence(
         )));
     }
     let _lock = o.out.as_deref().map(lock_output).transpose()?;
+    if let Some(dir) = &o.overlay {
+        std::fs::create_dir_all(dir).map_err(|source| RunError::Io {
+            context: format!("creating {}", dir.display()),
+            source,
+        })?;
+    }
     let mut writer = match &o.out {
         Some(p) => Some(TumWriter::create(p).map_err(|source| RunError::Trajectory {
             context: format!("creating {}", p.display()),
@@ -287,6 +293,18 @@ pub fn run_sequence(
                         })?;
                 }
             }
+        }
+        if let Some(dir) = &o.overlay {
+            let objects = pipeline
+                .front_end()
+                .map(|f| f.objects_in_view(frame.index))
+                .unwrap_or_default();
+            let img = crate::overlay::draw_overlay(&frame, &r, &objects);
+            let path = crate::overlay::overlay_path(dir, frame.index);
+            stillpoint_image::write_rgb(&path, &img).map_err(|e| RunError::Io {
+                context: format!("writing {}", path.display()),
+                source: std::io::Error::other(e.to_string()),
+            })?;
         }
         progress(Event::Tracked {
             result: &r,
