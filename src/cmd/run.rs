@@ -31,6 +31,10 @@ pub struct Args {
     /// kept yellow, culled red; objects boxed red when moving, blue when static.
     #[arg(long)]
     pub overlay: Option<PathBuf>,
+    /// Write the map's points at the end as a PLY point cloud (x y z, metres, and how many
+    /// keyframes see each point).
+    #[arg(long)]
+    pub map_cloud: Option<PathBuf>,
     /// A ROS recording to run on instead of a folder: ROS 2 (`.mcap`, or the `ros2 bag` folder
     /// holding one) or ROS 1 (`.bag`); colour from `--rgb-topic`, depth from `--depth-topic`
     /// or a stereo pair's right images from `--right-topic` (monocular without), the camera
@@ -366,6 +370,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         model: args.model.clone(),
         paper_cull: args.paper_cull,
         overlay: args.overlay.clone(),
+        map_cloud: args.map_cloud.clone(),
         overrides: Overrides {
             config: args.layers.config.clone(),
             sets: args.layers.sets.clone(),

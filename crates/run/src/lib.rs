@@ -80,6 +80,8 @@ pub struct RunOptions {
     /// A folder for a picture of each frame: keypoints kept and culled, objects moving and
     /// static ([`overlay`]).
     pub overlay: Option<PathBuf>,
+    /// A PLY file for the map's points at the end (the sparse map, movers kept out of it).
+    pub map_cloud: Option<PathBuf>,
     /// Set (from another thread or a signal handler) to stop taking frames; the map and the
     /// files are still finished.
     pub stop: Option<&'static AtomicBool>,
@@ -102,6 +104,7 @@ impl RunOptions {
             overrides: Overrides::default(),
             realtime: false,
             overlay: None,
+            map_cloud: None,
             stop: None,
         }
     }

@@ -344,6 +344,22 @@ pub fn run_sequence(
             .map_err(|e| tracing::warn!("ground truth unreadable: {}", crate::error_chain(&e)))
             .ok()
     });
+    if let Some(path) = &o.map_cloud {
+        let io = |source| RunError::Io {
+            context: format!("writing {}", path.display()),
+            source,
+        };
+        let file = std::fs::File::create(path).map_err(io)?;
+        let map = fin.system.map();
+        let written = match map.lock() {
+            Ok(map) => {
+                stillpoint_slam::io::write_map_points_ply(&map, std::io::BufWriter::new(file))
+                    .map_err(io)?
+            }
+            Err(_) => 0,
+        };
+        tracing::info!("{written} map points written to {}", path.display());
+    }
     let moving_map_points = has_masks.then(|| {
         fin.system.map().lock().map_or(Default::default(), |map| {
             stillpoint_eval::movers::moving_map_points(&map, |t| {

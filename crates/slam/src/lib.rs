@@ -28,6 +28,7 @@
 #![deny(missing_docs)]
 
 pub mod data;
+pub mod io;
 pub mod matching;
 pub mod module;
 pub mod optimize;

@@ -1,5 +1,6 @@
 //! `run --overlay DIR`: a picture per frame, with the walkers' keypoints culled (red) and their
-//! boxes judged moving, the static scene's keypoints kept (green or yellow).
+//! boxes judged moving, the static scene's keypoints kept (green or yellow); `--map-cloud FILE`:
+//! the map's points as a PLY cloud.
 
 mod common;
 use common::stillpoint;
@@ -10,7 +11,7 @@ fn count(img: &stillpoint_image::Rgb8, colour: [u8; 3]) -> usize {
 }
 
 #[test]
-fn each_frame_gets_a_picture_with_culled_walkers_and_kept_background() {
+fn each_frame_gets_a_picture_and_the_map_a_point_cloud() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("seq");
     let st = stillpoint()
@@ -38,6 +39,9 @@ fn each_frame_gets_a_picture_with_culled_walkers_and_kept_background() {
         .arg(tmp.path().join("traj.txt"))
         .arg("--overlay")
         .arg(&dir)
+        .arg("--map-cloud")
+        .arg(tmp.path().join("map.ply"))
+        .arg("--json")
         .output()
         .unwrap();
     assert!(
@@ -62,4 +66,21 @@ fn each_frame_gets_a_picture_with_culled_walkers_and_kept_background() {
         count(&last, MATCHED),
         count(&last, KEPT)
     );
+
+    // The cloud holds the map's points, each a line after the header.
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let ply = std::fs::read_to_string(tmp.path().join("map.ply")).unwrap();
+    let (header, body) = ply.split_once("end_header\n").unwrap();
+    let n = summary["map_points"].as_u64().unwrap() as usize;
+    assert!(n > 100, "{summary}");
+    assert!(
+        header.contains(&format!("element vertex {n}\n")),
+        "{header}"
+    );
+    assert_eq!(body.lines().count(), n);
+    for line in body.lines() {
+        let v: Vec<f64> = line.split(' ').map(|x| x.parse().unwrap()).collect();
+        assert_eq!(v.len(), 4, "{line}");
+        assert!(v[2].abs() < 20.0 && v[3] >= 1.0, "{line}");
+    }
 }
