@@ -1,6 +1,6 @@
 //! `run --overlay DIR`: a picture per frame, with the walkers' keypoints culled (red) and their
 //! boxes judged moving, the static scene's keypoints kept (green or yellow); `--map-cloud FILE`:
-//! the map's points as a PLY cloud.
+//! the map's points as a PLY cloud; `--dense-cloud FILE`: keyframe depth without the walkers.
 
 mod common;
 use common::stillpoint;
@@ -21,6 +21,7 @@ fn each_frame_gets_a_picture_and_the_map_a_point_cloud() {
             "walking_xyz",
             "--frames",
             "12",
+            "--masks",
             "--out",
         ])
         .arg(&seq)
@@ -41,6 +42,8 @@ fn each_frame_gets_a_picture_and_the_map_a_point_cloud() {
         .arg(&dir)
         .arg("--map-cloud")
         .arg(tmp.path().join("map.ply"))
+        .arg("--dense-cloud")
+        .arg(tmp.path().join("dense.ply"))
         .arg("--json")
         .output()
         .unwrap();
@@ -83,4 +86,14 @@ fn each_frame_gets_a_picture_and_the_map_a_point_cloud() {
         assert_eq!(v.len(), 4, "{line}");
         assert!(v[2].abs() < 20.0 && v[3] >= 1.0, "{line}");
     }
+    // The dense cloud: what two keyframes both saw of the room, the walkers left out.
+    let dense = std::fs::read_to_string(tmp.path().join("dense.ply")).unwrap();
+    let points = summary["dense_points"].as_u64().unwrap();
+    assert!(points > 1_000, "{summary}");
+    assert!(dense.contains(&format!("element vertex {points}\n")));
+    let on_movers = summary["dense_points_on_movers"].as_u64().unwrap();
+    assert!(
+        on_movers * 1000 <= points,
+        "{on_movers} of {points} on the walkers"
+    );
 }

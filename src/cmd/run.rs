@@ -35,6 +35,10 @@ pub struct Args {
     /// keyframes see each point).
     #[arg(long)]
     pub map_cloud: Option<PathBuf>,
+    /// RGB-D: write a dense cloud of the static scene (keyframe depth fused in 1 cm voxels,
+    /// the movers' pixels left out; `--set dense.voxel_m=...`) as PLY.
+    #[arg(long)]
+    pub dense_cloud: Option<PathBuf>,
     /// A ROS recording to run on instead of a folder: ROS 2 (`.mcap`, or the `ros2 bag` folder
     /// holding one) or ROS 1 (`.bag`); colour from `--rgb-topic`, depth from `--depth-topic`
     /// or a stereo pair's right images from `--right-topic` (monocular without), the camera
@@ -247,6 +251,8 @@ pub fn summary_json(s: &RunSummary) -> serde_json::Value {
         }),
         "moving_map_points": s.moving_map_points.map(|m| m.lying),
         "moving_map_points_seen": s.moving_map_points.map(|m| m.seen),
+        "dense_points": s.dense.map(|d| d.points),
+        "dense_points_on_movers": s.dense.and_then(|d| d.on_movers),
         "ate_keyframes": ate_keyframes.map(|a| serde_json::json!({"rmse": a.stats.rmse, "pairs": a.stats.count})),
         "loop_closing": loops_json(s),
         "realtime": s.realtime.as_ref().map(|r| realtime_json(r, acc.as_ref().map(|(a, _)| a.stats.rmse))),
@@ -371,6 +377,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         paper_cull: args.paper_cull,
         overlay: args.overlay.clone(),
         map_cloud: args.map_cloud.clone(),
+        dense_cloud: args.dense_cloud.clone(),
         overrides: Overrides {
             config: args.layers.config.clone(),
             sets: args.layers.sets.clone(),

@@ -455,6 +455,33 @@ impl DynamicFrontEnd {
         })
     }
 
+    /// The pixels of every object in frame `index` that is moving or of a movable class
+    /// (people, animals, vehicles: still or not), each box within its object's depth band: what
+    /// a static map of the scene should hold none of. `None` when there is no such object.
+    pub fn movable_surface_mask(&self, index: usize, depth: &DepthMetres) -> Option<Gray8> {
+        let movable = &self.settings.dynamic.objects.movable_classes;
+        let rects: Vec<[f32; 4]> = self
+            .objects_in_view(index)
+            .into_iter()
+            .filter(|o| o.moving || movable.contains(&o.class_id))
+            .map(|o| {
+                // Grown as the ORB exclusion grows them: a box misses limbs.
+                let (b, m) = (&o.bbox, self.settings.orb_exclusion_margin);
+                let (dx, dy) = (m * b.width(), m * b.height());
+                [b.x1 - dx, b.y1 - dy, b.x2 + dx, b.y2 + dy]
+            })
+            .collect();
+        (!rects.is_empty()).then(|| {
+            mover_mask(
+                &rects,
+                Some(depth),
+                &self.settings.dynamic.depth,
+                depth.width,
+                depth.height,
+            )
+        })
+    }
+
     /// How the last frame's camera motion was judged against the static world (`None`: not
     /// judged; the paper's two-frame check decided).
     pub fn last_world_source(&self) -> Option<WorldSource> {

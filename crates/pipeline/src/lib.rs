@@ -24,6 +24,7 @@
 
 #![deny(missing_docs)]
 
+pub mod dense;
 pub mod settings;
 
 pub use settings::{Layered, SettingsError, SettingsTree, Source};

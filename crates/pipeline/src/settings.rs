@@ -46,6 +46,9 @@ pub struct SettingsTree {
     pub front_end: FrontEndSettings,
     /// The YOLOX detector.
     pub detect: DetectSettings,
+    /// The dense static cloud (`run --dense-cloud`).
+    #[serde(default)]
+    pub dense: crate::dense::DenseSettings,
 }
 
 /// Where a value of the tree came from.
@@ -140,6 +143,7 @@ impl SettingsTree {
             stereo: p.stereo,
             front_end: FrontEndSettings::default(),
             detect: DetectSettings::default(),
+            dense: Default::default(),
         }
     }
 

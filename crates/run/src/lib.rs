@@ -82,6 +82,9 @@ pub struct RunOptions {
     pub overlay: Option<PathBuf>,
     /// A PLY file for the map's points at the end (the sparse map, movers kept out of it).
     pub map_cloud: Option<PathBuf>,
+    /// A PLY file for the dense static cloud: keyframe depth fused without the movers' pixels
+    /// (RGB-D; `[dense]` settings).
+    pub dense_cloud: Option<PathBuf>,
     /// Set (from another thread or a signal handler) to stop taking frames; the map and the
     /// files are still finished.
     pub stop: Option<&'static AtomicBool>,
@@ -105,6 +108,7 @@ impl RunOptions {
             realtime: false,
             overlay: None,
             map_cloud: None,
+            dense_cloud: None,
             stop: None,
         }
     }
@@ -179,6 +183,18 @@ pub struct RunSummary {
     pub untracked_reason: Option<String>,
     /// The source ended before its last frame (a cut or corrupt video, a camera gone): why.
     pub ended: Option<String>,
+    /// The dense cloud written, when one was asked for.
+    pub dense: Option<DenseReport>,
+}
+
+/// What `dense_cloud` wrote.
+#[derive(Clone, Copy, Debug)]
+pub struct DenseReport {
+    /// Points (voxels) in the cloud.
+    pub points: usize,
+    /// Of those, made mostly of pixels the generator's masks mark as moving (synthetic
+    /// sequences with masks only).
+    pub on_movers: Option<usize>,
 }
 
 impl RunSummary {

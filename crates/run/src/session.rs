@@ -12,7 +12,7 @@ use stillpoint_trajectory::TumWriter;
 
 use crate::output::{keyframe_path, lock_output};
 use crate::replay::{RealtimeReport, ReplayCamera};
-use crate::{Media, Overrides, RunError, RunOptions, RunSummary};
+use crate::{DenseReport, Media, Overrides, RunError, RunOptions, RunSummary};
 
 /// What a run reports as it goes, for a progress display.
 pub enum Event<'a> {
@@ -193,6 +193,12 @@ pub fn run_sequence(
         pipeline_settings.slam.init_min_with_depth,
         pipeline_settings.slam.init_min_cells_with_depth,
     );
+    let mut dense = o.dense_cloud.as_ref().map(|_| {
+        stillpoint_pipeline::dense::DenseFusion::new(
+            tree.dense.clone(),
+            pipeline_settings.slam.camera,
+        )
+    });
     let mut pipeline = Pipeline::new(pipeline_settings, front, vocabulary);
     // A live source has no known end (len usize::MAX): frames are counted as they come.
     let live = seq.len() == usize::MAX;
@@ -294,6 +300,22 @@ pub fn run_sequence(
                 }
             }
         }
+        if let (Some(d), Some(depth), true) = (dense.as_mut(), &frame.depth, r.new_keyframe) {
+            // The pixels of movers and of people (still or not) stay out of the static cloud.
+            let skip = pipeline
+                .front_end()
+                .and_then(|f| f.movable_surface_mask(frame.index, depth));
+            let truth = has_masks
+                .then(|| stillpoint_eval::movers::moving_mask(&o.dataset, frame.timestamp))
+                .flatten();
+            d.add_keyframe(
+                frame.timestamp,
+                depth,
+                frame.rgb.as_ref(),
+                skip.as_ref(),
+                truth.as_ref(),
+            );
+        }
         if let Some(dir) = &o.overlay {
             let objects = pipeline
                 .front_end()
@@ -344,6 +366,38 @@ pub fn run_sequence(
             .map_err(|e| tracing::warn!("ground truth unreadable: {}", crate::error_chain(&e)))
             .ok()
     });
+    let mut dense_report = None;
+    if let (Some(path), Some(d)) = (&o.dense_cloud, &dense) {
+        let poses: std::collections::HashMap<u64, stillpoint_geometry::Se3> = fin
+            .trajectory
+            .stamps
+            .iter()
+            .zip(&fin.trajectory.poses)
+            .map(|(t, p)| (t.to_bits(), *p))
+            .collect();
+        let points = d.fuse(|t| poses.get(&t.to_bits()).copied());
+        let file = std::fs::File::create(path).map_err(|source| RunError::Io {
+            context: format!("writing {}", path.display()),
+            source,
+        })?;
+        stillpoint_pipeline::dense::write_dense_ply(&points, std::io::BufWriter::new(file))
+            .map_err(|source| RunError::Io {
+                context: format!("writing {}", path.display()),
+                source,
+            })?;
+        let on_movers = has_masks.then(|| points.iter().filter(|p| p.on_mover).count());
+        tracing::info!(
+            "{} dense points from {} keyframes written to {}{}",
+            points.len(),
+            d.keyframes(),
+            path.display(),
+            on_movers.map_or(String::new(), |m| format!(" ({m} on movers)"))
+        );
+        dense_report = Some(DenseReport {
+            points: points.len(),
+            on_movers,
+        });
+    }
     if let Some(path) = &o.map_cloud {
         let io = |source| RunError::Io {
             context: format!("writing {}", path.display()),
@@ -406,6 +460,7 @@ pub fn run_sequence(
         loops,
         realtime: camera.is_some().then_some(realtime),
         ended,
+        dense: dense_report,
         untracked_reason: (tracked == 0).then(|| {
             let init = &pipeline_settings_init;
             if frames_read == 0 {
