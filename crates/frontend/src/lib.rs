@@ -431,8 +431,16 @@ impl DynamicFrontEnd {
         height: usize,
     ) -> Option<Gray8> {
         let rects = self.orb_exclusion();
-        (!rects.is_empty())
-            .then(|| mover_mask(&rects, depth, &self.settings.dynamic.depth, width, height))
+        (!rects.is_empty()).then(|| {
+            mover_mask(
+                &rects,
+                depth,
+                &self.settings.dynamic.depth,
+                width,
+                height,
+                false,
+            )
+        })
     }
 
     /// After [`KeypointFilter::judge`]: the pixels of the objects judged moving in that frame
@@ -451,13 +459,16 @@ impl DynamicFrontEnd {
                 &self.settings.dynamic.depth,
                 depth.width,
                 depth.height,
+                false,
             )
         })
     }
 
     /// The pixels of every object in frame `index` that is moving or of a movable class
-    /// (people, animals, vehicles: still or not), each box within its object's depth band: what
-    /// a static map of the scene should hold none of. `None` when there is no such object.
+    /// (people, animals, vehicles: still or not): in each box, everything up to the far end of
+    /// its object's depth band (a close person's head and hands lie outside their torso's
+    /// band), the background behind kept. What a static map of the scene should hold none of.
+    /// `None` when there is no such object.
     pub fn movable_surface_mask(&self, index: usize, depth: &DepthMetres) -> Option<Gray8> {
         let movable = &self.settings.dynamic.objects.movable_classes;
         let rects: Vec<[f32; 4]> = self
@@ -478,6 +489,7 @@ impl DynamicFrontEnd {
                 &self.settings.dynamic.depth,
                 depth.width,
                 depth.height,
+                true,
             )
         })
     }
@@ -849,12 +861,15 @@ impl DynamicFrontEnd {
 /// The pixels of movers (255) inside their boxes (`[x1, y1, x2, y2]`): with depth, those within
 /// the object's depth band (`dynamic::depth::object_depth`, as the culling finds it); without
 /// depth, or with too few depth samples, the whole box.
+/// The pixels of `rects` within each box's object depth band (or, `up_to_far`, anything in
+/// front of the band's far end too); whole boxes without depth.
 fn mover_mask(
     rects: &[[f32; 4]],
     depth: Option<&DepthMetres>,
     d: &stillpoint_dynamic::DepthParams,
     width: usize,
     height: usize,
+    up_to_far: bool,
 ) -> Gray8 {
     let mut mask = Gray8::new(width, height, 0);
     for r in rects {
@@ -868,7 +883,7 @@ fn mover_mask(
                 let on_mover = match (object, depth) {
                     (Some(o), Some(z)) => z
                         .get_checked(x as isize, y as isize)
-                        .is_some_and(|v| o.holds(v)),
+                        .is_some_and(|v| o.holds(v) || (up_to_far && v > 0.0 && v <= o.far)),
                     _ => true,
                 };
                 if on_mover {
@@ -1464,12 +1479,12 @@ mod tests {
         }
         let params = stillpoint_dynamic::DepthParams::default();
         let rect = [50.0, 50.0, 150.0, 150.0];
-        let mask = mover_mask(&[rect], Some(&depth), &params, 200, 200);
+        let mask = mover_mask(&[rect], Some(&depth), &params, 200, 200, false);
         assert_eq!(mask.get(100, 100), 255, "the person");
         assert_eq!(mask.get(60, 100), 0, "the wall beside them, inside the box");
         assert_eq!(mask.get(10, 10), 0, "outside the box");
         // Without depth the whole box.
-        let whole = mover_mask(&[rect], None, &params, 200, 200);
+        let whole = mover_mask(&[rect], None, &params, 200, 200, false);
         assert_eq!((whole.get(60, 100), whole.get(10, 10)), (255, 0));
     }
 
