@@ -3,7 +3,7 @@
 //! the map's points as a PLY cloud; `--dense-cloud FILE`: keyframe depth without the walkers.
 
 mod common;
-use common::stillpoint;
+use common::{assert_ok, ok_json, stillpoint};
 
 /// Pixels of exactly `colour` in an overlay.
 fn count(img: &stillpoint_image::Rgb8, colour: [u8; 3]) -> usize {
@@ -27,11 +27,7 @@ fn each_frame_gets_a_picture_and_the_map_a_point_cloud() {
         .arg(&seq)
         .output()
         .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    assert_ok(&st);
     let dir = tmp.path().join("overlay");
     let out = stillpoint()
         .args(["run", "--detector", "gt", "--sequential", "--dataset"])
@@ -47,11 +43,7 @@ fn each_frame_gets_a_picture_and_the_map_a_point_cloud() {
         .arg("--json")
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let summary = ok_json(&out);
     let mut files: Vec<_> = std::fs::read_dir(&dir)
         .unwrap()
         .map(|e| e.unwrap().file_name().into_string().unwrap())
@@ -71,7 +63,6 @@ fn each_frame_gets_a_picture_and_the_map_a_point_cloud() {
     );
 
     // The cloud holds the map's points, each a line after the header.
-    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let ply = std::fs::read_to_string(tmp.path().join("map.ply")).unwrap();
     let (header, body) = ply.split_once("end_header\n").unwrap();
     let n = summary["map_points"].as_u64().unwrap() as usize;

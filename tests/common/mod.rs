@@ -33,11 +33,7 @@ pub fn synth_static(dir: &Path, frames: usize, seed: u64) {
         .arg(dir)
         .output()
         .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    assert_ok(&st);
 }
 
 /// A synthetic static sequence whose depth PNGs hold millimetres (factor 1000), as a 16UC1
@@ -99,6 +95,15 @@ pub fn error_line(out: &Output) -> String {
     let errors: Vec<&str> = stderr.lines().filter(|l| l.starts_with("error")).collect();
     assert_eq!(errors.len(), 1, "{stderr}");
     errors[0].to_string()
+}
+
+/// The command succeeded (its stderr in the failure message).
+pub fn assert_ok(out: &Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 /// The JSON summary of a command that succeeded.
