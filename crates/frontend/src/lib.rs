@@ -406,16 +406,11 @@ impl DynamicFrontEnd {
     /// [`FrontEndSettings::orb_exclusion_margin`] of their size on each side.
     fn moving_boxes(&self) -> Vec<[f32; 4]> {
         let last = self.objects.objects().iter().map(|o| o.last_seen).max();
-        let m = self.settings.orb_exclusion_margin;
         self.objects
             .objects()
             .iter()
             .filter(|o| o.moving && Some(o.last_seen) == last)
-            .map(|o| {
-                let b = &o.bbox;
-                let (dx, dy) = (m * b.width(), m * b.height());
-                [b.x1 - dx, b.y1 - dy, b.x2 + dx, b.y2 + dy]
-            })
+            .map(|o| self.grown(&o.bbox))
             .collect()
     }
 
@@ -451,17 +446,7 @@ impl DynamicFrontEnd {
         if self.settings.erase_recent_mover_points_frames == 0 {
             return None;
         }
-        let rects = self.moving_boxes();
-        (!rects.is_empty()).then(|| {
-            mover_mask(
-                &rects,
-                Some(depth),
-                &self.settings.dynamic.depth,
-                depth.width,
-                depth.height,
-                false,
-            )
-        })
+        self.surface_mask(&self.moving_boxes(), depth, false)
     }
 
     /// The pixels of every object in frame `index` that is moving or of a movable class
@@ -475,23 +460,30 @@ impl DynamicFrontEnd {
             .objects_in_view(index)
             .into_iter()
             .filter(|o| o.moving || movable.contains(&o.class_id))
-            .map(|o| {
-                // Grown as the ORB exclusion grows them: a box misses limbs.
-                let (b, m) = (&o.bbox, self.settings.orb_exclusion_margin);
-                let (dx, dy) = (m * b.width(), m * b.height());
-                [b.x1 - dx, b.y1 - dy, b.x2 + dx, b.y2 + dy]
-            })
+            .map(|o| self.grown(&o.bbox))
             .collect();
+        self.surface_mask(&rects, depth, true)
+    }
+
+    /// [`mover_mask`] of `rects` on a depth image; `None` when there is no rectangle.
+    fn surface_mask(
+        &self,
+        rects: &[[f32; 4]],
+        depth: &DepthMetres,
+        up_to_far: bool,
+    ) -> Option<Gray8> {
         (!rects.is_empty()).then(|| {
-            mover_mask(
-                &rects,
-                Some(depth),
-                &self.settings.dynamic.depth,
-                depth.width,
-                depth.height,
-                true,
-            )
+            let d = &self.settings.dynamic.depth;
+            mover_mask(rects, Some(depth), d, depth.width, depth.height, up_to_far)
         })
+    }
+
+    /// A box grown by [`FrontEndSettings::orb_exclusion_margin`] of its size on each side (a
+    /// person's box misses limbs).
+    fn grown(&self, b: &stillpoint_geometry::BBox) -> [f32; 4] {
+        let m = self.settings.orb_exclusion_margin;
+        let (dx, dy) = (m * b.width(), m * b.height());
+        [b.x1 - dx, b.y1 - dy, b.x2 + dx, b.y2 + dy]
     }
 
     /// How the last frame's camera motion was judged against the static world (`None`: not

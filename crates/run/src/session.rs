@@ -270,10 +270,13 @@ pub fn run_sequence(
         let n_culled = r.culled();
         most_keypoints = most_keypoints.max(r.keypoints.len() - n_culled);
         culled.push(n_culled);
+        // The generator's mask, read once for both of its uses.
+        let truth_mask = has_masks
+            .then(|| stillpoint_eval::movers::moving_mask(&o.dataset, frame.timestamp))
+            .flatten();
         if has_masks {
-            let mask = stillpoint_eval::movers::moving_mask(&o.dataset, frame.timestamp);
-            moving_kept.push(mask.map_or(0, |m| {
-                stillpoint_eval::movers::moving_keypoints_kept(&m, &r.keypoints, &r.dynamic)
+            moving_kept.push(truth_mask.as_ref().map_or(0, |m| {
+                stillpoint_eval::movers::moving_keypoints_kept(m, &r.keypoints, &r.dynamic)
             }));
         }
         tracing::debug!(
@@ -305,15 +308,12 @@ pub fn run_sequence(
             let skip = pipeline
                 .front_end()
                 .and_then(|f| f.movable_surface_mask(frame.index, depth));
-            let truth = has_masks
-                .then(|| stillpoint_eval::movers::moving_mask(&o.dataset, frame.timestamp))
-                .flatten();
             d.add_keyframe(
                 frame.timestamp,
                 depth,
                 frame.rgb.as_ref(),
                 skip.as_ref(),
-                truth.as_ref(),
+                truth_mask.as_ref(),
             );
         }
         if let Some(dir) = &o.overlay {
