@@ -246,29 +246,39 @@ impl Pipeline {
             _ => &mut self.orb,
         };
         let orb_right = &mut self.orb_right;
-        // Left and right images in parallel, as ORB-SLAM does.
-        let (feats, right_feats) = std::thread::scope(|sc| {
+        let input = FilterInput {
+            index: frame.index,
+            timestamp: frame.timestamp,
+            gray: &frame.gray,
+            rgb: frame.rgb.as_ref(),
+            depth: frame.depth.as_ref(),
+        };
+        let front_end = &mut self.front_end;
+        // Left and right images in parallel, as ORB-SLAM does, and beside them the front-end's
+        // motion check, which needs no keypoints (on two cores ORB's time leaves the frame's).
+        let (feats, right_feats, measured, orb_ms) = std::thread::scope(|sc| {
             let right = frame
                 .right
                 .as_ref()
                 .map(|r| sc.spawn(|| orb_right.extract(r)));
+            let measured = front_end.as_mut().map(|f| sc.spawn(|| f.measure(&input)));
             let left = left_orb.extract(&frame.gray);
-            (left, right.and_then(|h| h.join().ok()))
+            let right = right.and_then(|h| h.join().ok());
+            let orb_ms = ms(t0);
+            let measured = measured.and_then(|h| {
+                h.join()
+                    .map_err(|_| tracing::warn!("frame {}: the motion check panicked", input.index))
+                    .ok()
+            });
+            (left, right, measured, orb_ms)
         });
-        timings.orb_ms = ms(t0);
+        timings.orb_ms = orb_ms;
         let mut features: Vec<Feature> = feats.keypoints.iter().map(Feature::from).collect();
         let keypoints: Vec<[f32; 2]> = features.iter().map(|k| [k.x, k.y]).collect();
         let mut descriptors = feats.descriptors;
         let (mut dynamic, mut no_new_points, mut dynamic_boxes) = (Vec::new(), Vec::new(), 0);
-        if let Some(f) = self.front_end.as_mut() {
-            let input = FilterInput {
-                index: frame.index,
-                timestamp: frame.timestamp,
-                gray: &frame.gray,
-                rgb: frame.rgb.as_ref(),
-                depth: frame.depth.as_ref(),
-            };
-            let outcome = f.judge(&input, &keypoints);
+        if let (Some(f), Some(measured)) = (self.front_end.as_mut(), measured) {
+            let outcome = f.judge_measured(&input, measured, &keypoints);
             timings.semantic_ms = outcome.semantic_ms;
             timings.geometry_ms = outcome.geometry_ms;
             dynamic_boxes = outcome.dynamic_boxes;
