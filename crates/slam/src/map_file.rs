@@ -177,7 +177,7 @@ pub enum MapFileError {
         "made with vocabulary {map}, the run's is {run:016x} ({run_words} words): leave --vocabulary out to use the map's"
     )]
     Vocabulary {
-        /// The map's vocabulary fingerprint (and word count), or `none`.
+        /// The map's vocabulary fingerprint and word count.
         map: String,
         /// The run's vocabulary fingerprint.
         run: u64,
@@ -195,19 +195,17 @@ impl MapFile {
         }
     }
 
-    /// Refuse a vocabulary other than the map's (its bags of words would differ).
+    /// Refuse a vocabulary other than the map's (the map was made, and its loops found, with
+    /// its own). A map without one takes any.
     pub fn check_vocabulary(&self, v: &Vocabulary) -> Result<(), MapFileError> {
         let run = v.fingerprint();
         match &self.vocabulary {
-            Some(m) if m.fingerprint() == run => Ok(()),
-            other => Err(MapFileError::Vocabulary {
-                map: other.as_ref().map_or(
-                    "none (trained online from the map's keyframes)".into(),
-                    |m| format!("{:016x} ({} words)", m.fingerprint(), m.words()),
-                ),
+            Some(m) if m.fingerprint() != run => Err(MapFileError::Vocabulary {
+                map: format!("{:016x} ({} words)", m.fingerprint(), m.words()),
                 run,
                 run_words: v.words(),
             }),
+            _ => Ok(()),
         }
     }
 }
