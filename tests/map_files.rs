@@ -52,7 +52,11 @@ fn a_second_sequence_localises_in_the_saved_map_and_leaves_it_unchanged() {
     synth(&seq_b, 60, 1.5, (320, 240));
     let map = dir.path().join("room.map");
     let (traj_a, traj_b) = (dir.path().join("a.txt"), dir.path().join("b.txt"));
-    let mapped = ok_json(&run(&seq_a, &traj_a, &["--save-map".as_ref(), map.as_os_str()]));
+    let mapped = ok_json(&run(
+        &seq_a,
+        &traj_a,
+        &["--save-map".as_ref(), map.as_os_str()],
+    ));
     let saved = &mapped["map_file"]["saved"];
     assert_eq!(saved["keyframes"], mapped["keyframes"], "{mapped}");
     assert_eq!(saved["map_points"], mapped["map_points"], "{mapped}");
@@ -64,20 +68,29 @@ fn a_second_sequence_localises_in_the_saved_map_and_leaves_it_unchanged() {
     let localised = ok_json(&run(
         &seq_b,
         &traj_b,
-        &["--load-map".as_ref(), map.as_os_str(), "--localize".as_ref()],
+        &[
+            "--load-map".as_ref(),
+            map.as_os_str(),
+            "--localize".as_ref(),
+        ],
     ));
     eprintln!(
         "mapping: {} keyframes, {} points; localisation: {localised}",
         mapped["keyframes"], mapped["map_points"]
     );
     // Relocalised at once, tracked throughout, and the map is as it was loaded.
-    let first = localised["first_relocalisation"].as_u64().expect("relocalised");
+    let first = localised["first_relocalisation"]
+        .as_u64()
+        .expect("relocalised");
     assert!(first <= 3, "first relocalised at frame {first}");
     assert_eq!(localised["tracked"].as_u64(), Some(60 - first));
     assert_eq!(localised["relocalisations"].as_u64(), Some(1));
     assert_eq!(localised["keyframes"], mapped["keyframes"]);
     assert_eq!(localised["map_points"], mapped["map_points"]);
-    assert_eq!(localised["map_file"]["loaded"]["map_points"], mapped["map_points"]);
+    assert_eq!(
+        localised["map_file"]["loaded"]["map_points"],
+        mapped["map_points"]
+    );
 
     // Accuracy in the map's frame.
     let gt = |seq: &Path| read_tum(&seq.join("groundtruth.txt")).unwrap();
@@ -151,7 +164,11 @@ fn maps_of_another_camera_vocabulary_or_format_are_refused_in_one_line() {
         "{e}"
     );
     // Another vocabulary: both fingerprints' sides named.
-    let e = load(&seq, &map, &["--vocabulary".as_ref(), other_voc.as_os_str()]);
+    let e = load(
+        &seq,
+        &map,
+        &["--vocabulary".as_ref(), other_voc.as_os_str()],
+    );
     assert!(e.contains(&name) && e.contains("vocabulary"), "{e}");
     // The map's own vocabulary is accepted (and tracking goes on in the map).
     let ok = ok_json(&run(
@@ -177,7 +194,9 @@ fn maps_of_another_camera_vocabulary_or_format_are_refused_in_one_line() {
         assert!(e.contains(&p.display().to_string()), "{e}");
         e
     };
-    let e = variant("newer.map", &|b| b[8..12].copy_from_slice(&2u32.to_le_bytes()));
+    let e = variant("newer.map", &|b| {
+        b[8..12].copy_from_slice(&2u32.to_le_bytes())
+    });
     assert!(e.contains("version 2") && e.contains("newer"), "{e}");
     let e = variant("cut.map", &|b| b.truncate(b.len() / 2));
     assert!(e.contains("truncated"), "{e}");
@@ -186,7 +205,9 @@ fn maps_of_another_camera_vocabulary_or_format_are_refused_in_one_line() {
         b[i] ^= 0x10;
     });
     assert!(e.contains("corrupted"), "{e}");
-    let e = variant("other.map", &|b| b[..8].copy_from_slice(b"\x89PNG\r\n\x1a\n"));
+    let e = variant("other.map", &|b| {
+        b[..8].copy_from_slice(b"\x89PNG\r\n\x1a\n")
+    });
     assert!(e.contains("not a stillpoint map"), "{e}");
     let e = load(&seq, &dir.path().join("missing.map"), &[]);
     assert!(e.contains("missing.map"), "{e}");

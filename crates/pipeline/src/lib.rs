@@ -36,10 +36,10 @@ use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::DynamicFrontEnd;
 use stillpoint_frontend::{FilterInput, KeypointFilter};
 use stillpoint_geometry::Se3;
+use stillpoint_slam::map_file::{MapFile, MapFileError};
 use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths};
 use stillpoint_slam::module::loop_closing::LoopStats;
 use stillpoint_slam::place::Vocabulary;
-use stillpoint_slam::map_file::{MapFile, MapFileError};
 use stillpoint_slam::{
     Descriptor, Feature, KeypointDepth, LoadedMapMode, SlamError, SlamSettings, System,
     TrackingState,

@@ -480,12 +480,11 @@ pub fn run_sequence(
     if let Some(path) = &o.save_map {
         let t0 = Instant::now();
         let file = fin.system.map_file();
-        let bytes = stillpoint_slam::map_file::save(path, &file).map_err(|source| {
-            RunError::MapFile {
+        let bytes =
+            stillpoint_slam::map_file::save(path, &file).map_err(|source| RunError::MapFile {
                 path: path.clone(),
                 source: source.into(),
-            }
-        })?;
+            })?;
         let report = MapFileReport {
             keyframes: file.map.keyframes.len(),
             map_points: file.map.points.len(),

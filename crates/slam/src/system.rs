@@ -11,11 +11,11 @@ use stillpoint_geometry::Se3;
 use stillpoint_image::DepthMetres;
 
 use crate::data::{FreeSpaceCheck, KfId, Map};
+use crate::map_file::{MapFile, MapSensor};
 use crate::module::local_mapping::{LocalMapper, MapperHooks, MapperThread};
 use crate::module::loop_closing::{LoopCloser, LoopStats, LoopThread};
 use crate::module::tracking::{FrameObservation, Tracker};
 use crate::optimize::{PoseObservation, optimize_pose};
-use crate::map_file::{MapFile, MapSensor};
 use crate::place::{KeyFrameDatabase, Vocabulary};
 use crate::{Descriptor, Feature, Frame, KeypointDepth, SlamError, SlamSettings, TrackingState};
 
@@ -159,7 +159,8 @@ impl System {
             None => (Map::new(), vocabulary, Default::default()),
         };
         let is_loaded = !map.keyframes.is_empty();
-        let reloc_db = is_loaded.then(|| relocalisation_database(&map, vocabulary.clone(), &settings));
+        let reloc_db =
+            is_loaded.then(|| relocalisation_database(&map, vocabulary.clone(), &settings));
         let map = Arc::new(Mutex::new(map));
         let mapping_ms = Arc::new(Mutex::new(Vec::new()));
         let mapper = LocalMapper::new(settings.clone());
@@ -371,15 +372,26 @@ impl System {
                             .get(&k)
                             .is_some_and(|x| !x.bad && x.map_epoch == epoch)
                     },
-                    |k| map.keyframes.get(&k).map_or(Vec::new(), |x| x.best_covisibles(10)),
+                    |k| {
+                        map.keyframes
+                            .get(&k)
+                            .map_or(Vec::new(), |x| x.best_covisibles(10))
+                    },
                 );
-                debug!(frame = index, candidates = candidates.len(), "relocalisation candidates");
+                debug!(
+                    frame = index,
+                    candidates = candidates.len(),
+                    "relocalisation candidates"
+                );
                 self.tracker
                     .set_relocalisation_candidates(candidates.into_iter().map(|c| c.0).collect());
             }
             let mut outcome = self.tracker.track(frame, &mut map, idle, queued);
             if let Some(db) = self.reloc_db.as_mut() {
-                for kf in [outcome.first_keyframe, outcome.new_keyframe].into_iter().flatten() {
+                for kf in [outcome.first_keyframe, outcome.new_keyframe]
+                    .into_iter()
+                    .flatten()
+                {
                     if let Some(k) = map.keyframes.get(&kf) {
                         db.add(kf, &k.descriptors);
                     }

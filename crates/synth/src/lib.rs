@@ -358,7 +358,8 @@ impl Generator {
 
     /// Camera-to-world pose of frame `i`.
     pub fn pose(&self, i: usize) -> Se3 {
-        self.camera_path.pose(self.config.path_offset + i as f64 / self.config.fps)
+        self.camera_path
+            .pose(self.config.path_offset + i as f64 / self.config.fps)
     }
 
     /// The scene's objects (index = object id).
