@@ -447,7 +447,9 @@ fn from_payload(p: Payload) -> Result<MapFile, String> {
     if !finite || fx <= 0.0 || fy <= 0.0 || s.width == 0 || s.height == 0 {
         return Err("camera unusable".into());
     }
-    if !(1..=32).contains(&s.n_levels) || !(s.scale_factor.is_finite() && s.scale_factor >= 1.0) {
+    let pyramid_ok =
+        (1..=32).contains(&s.n_levels) && s.scale_factor.is_finite() && s.scale_factor >= 1.0;
+    if !pyramid_ok {
         return Err("ORB pyramid unusable".into());
     }
     if !s.bf.is_finite() {
