@@ -405,11 +405,20 @@ pub fn decode(bytes: &[u8]) -> Result<MapFile, MapFileError> {
         });
     };
     let version = version as u32;
-    if version > FORMAT_VERSION || version == 0 {
+    if version == 0 {
+        return Err(MapFileError::Invalid("format version 0".into()));
+    }
+    if version > FORMAT_VERSION {
         return Err(MapFileError::NewerVersion {
             found: version,
             supported: FORMAT_VERSION,
         });
+    }
+    // Checked after the version: a newer format may use them.
+    if word(12, 4) != Some(0) {
+        return Err(MapFileError::Invalid(
+            "reserved header bytes are not zero".into(),
+        ));
     }
     let body = bytes.get(HEADER_LEN..).unwrap_or_default();
     if body.len() as u64 != len {
