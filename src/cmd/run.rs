@@ -107,6 +107,18 @@ pub struct Args {
     /// own thread (not with `--sequential`).
     #[arg(long, conflicts_with = "sequential")]
     pub realtime: bool,
+    /// Save the final map (keyframes, points, covisibility graph, spanning tree, loop edges,
+    /// vocabulary) to this file: versioned, checksummed, written atomically.
+    #[arg(long, conflicts_with = "localize")]
+    pub save_map: Option<PathBuf>,
+    /// Start in a map saved by --save-map: relocalise in it, then map on in it (new keyframes
+    /// are added; --save-map writes the grown map). Same camera and vocabulary only.
+    #[arg(long)]
+    pub load_map: Option<PathBuf>,
+    /// With --load-map: only localise (relocalise, then track against the map without
+    /// changing it: no keyframes, points, bundle adjustment or loop closing).
+    #[arg(long, requires = "load_map")]
+    pub localize: bool,
     /// Print a JSON summary on stdout instead of the tables.
     #[arg(long)]
     pub json: bool,
@@ -251,11 +263,25 @@ pub fn summary_json(s: &RunSummary) -> serde_json::Value {
         }),
         "moving_map_points": s.moving_map_points.map(|m| m.lying),
         "moving_map_points_seen": s.moving_map_points.map(|m| m.seen),
+        "first_relocalisation": s.first_relocalisation,
+        "map_file": map_files_json(s),
         "dense_points": s.dense.map(|d| d.points),
         "dense_points_on_movers": s.dense.and_then(|d| d.on_movers),
         "ate_keyframes": ate_keyframes.map(|a| serde_json::json!({"rmse": a.stats.rmse, "pairs": a.stats.count})),
         "loop_closing": loops_json(s),
         "realtime": s.realtime.as_ref().map(|r| realtime_json(r, acc.as_ref().map(|(a, _)| a.stats.rmse))),
+    })
+}
+
+/// The map loaded and saved (`--load-map`, `--save-map`) in the JSON summary.
+fn map_files_json(s: &RunSummary) -> serde_json::Value {
+    let one = |r: &stillpoint_run::MapFileReport| {
+        serde_json::json!({"keyframes": r.keyframes, "map_points": r.map_points,
+            "bytes": r.bytes, "ms": r.ms})
+    };
+    serde_json::json!({
+        "loaded": s.map_files.loaded.as_ref().map(one),
+        "saved": s.map_files.saved.as_ref().map(one),
     })
 }
 
@@ -284,6 +310,23 @@ pub fn print_summary(s: &RunSummary) {
         s.new_maps,
         s.detector
     );
+    if let Some(l) = &s.map_files.loaded {
+        println!(
+            "map loaded: {} keyframes, {} map points ({} bytes, {:.1} ms); first relocalised at frame {}",
+            l.keyframes,
+            l.map_points,
+            l.bytes,
+            l.ms,
+            s.first_relocalisation
+                .map_or("-".to_string(), |f| f.to_string())
+        );
+    }
+    if let Some(m) = &s.map_files.saved {
+        println!(
+            "map saved: {} keyframes, {} map points ({} bytes, {:.1} ms)",
+            m.keyframes, m.map_points, m.bytes, m.ms
+        );
+    }
     if let Some((a, r)) = s.accuracy() {
         print!(
             "ATE RMSE {:.4} m (S.D. {:.4}, {} pairs{})",
@@ -387,6 +430,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             media,
         },
         stop: Some(crate::interrupt_flag()),
+        load_map: args.load_map.clone(),
+        localize: args.localize,
+        save_map: args.save_map.clone(),
     };
     let mut bar = ProgressBar::default();
     let s = run_sequence(&o, &mut |e| bar.show(e))?;

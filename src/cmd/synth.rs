@@ -23,6 +23,10 @@ pub struct Args {
     /// Seed of all random choices.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Start this many seconds into the camera path (and the people's motion): the same room
+    /// from another stretch of the path, e.g. to localise in a map made from the first one.
+    #[arg(long, default_value_t = 0.0)]
+    path_offset: f64,
     /// Folder of photos (posters) and person cut-outs (an image with a `<stem>_person_mask*.png`).
     #[arg(long)]
     textures: Option<PathBuf>,
@@ -108,6 +112,7 @@ fn config(args: &Args, preset: Preset) -> anyhow::Result<SynthConfig> {
         stereo_baseline: args.stereo.then_some(args.baseline),
         mask_min_motion_px: args.mask_min_motion,
         antialias: args.antialias,
+        path_offset: args.path_offset,
         ..SynthConfig::default()
     })
 }

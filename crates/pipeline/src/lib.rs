@@ -36,11 +36,13 @@ use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::DynamicFrontEnd;
 use stillpoint_frontend::{FilterInput, KeypointFilter};
 use stillpoint_geometry::Se3;
+use stillpoint_slam::map_file::{MapFile, MapFileError};
 use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths};
 use stillpoint_slam::module::loop_closing::LoopStats;
 use stillpoint_slam::place::Vocabulary;
 use stillpoint_slam::{
-    Descriptor, Feature, KeypointDepth, SlamError, SlamSettings, System, TrackingState,
+    Descriptor, Feature, KeypointDepth, LoadedMapMode, SlamError, SlamSettings, System,
+    TrackingState,
 };
 use stillpoint_trajectory::{Trajectory, TrajectoryError};
 
@@ -168,7 +170,7 @@ pub struct Finished {
     pub mapping_ms: Vec<f64>,
     /// Loop closing's statistics (`None` when it is off).
     pub loops: Option<LoopStats>,
-    /// The stopped system: its map, for saving or inspection.
+    /// The stopped system: its map, for saving ([`System::map_file`]) or inspection.
     pub system: System,
 }
 
@@ -195,8 +197,52 @@ impl Pipeline {
     /// `settings` where its own settings left it unset.
     pub fn new(
         settings: PipelineSettings,
-        mut front_end: Option<DynamicFrontEnd>,
+        front_end: Option<DynamicFrontEnd>,
         vocabulary: Option<Vocabulary>,
+    ) -> Self {
+        let system = System::with_vocabulary(settings.slam.clone(), vocabulary);
+        Self::with_system(settings, front_end, system)
+    }
+
+    /// A pipeline that starts in a map read from a file ([`stillpoint_slam::map_file::load`]):
+    /// it relocalises in it, then maps on in it ([`LoadedMapMode::Extend`]) or only tracks
+    /// against it ([`LoadedMapMode::Localize`]: the map is left as it was, the moving-object
+    /// hygiene included). Fails when the map was made with another camera, sensor or ORB
+    /// pyramid, or with another vocabulary than `vocabulary`; `None` uses the map's.
+    ///
+    /// ```no_run
+    /// use stillpoint_pipeline::{Pipeline, PipelineSettings};
+    /// use stillpoint_slam::LoadedMapMode;
+    /// let seq = stillpoint_datasets::open("office_again".as_ref(), None, None)?;
+    /// let map = stillpoint_slam::map_file::load("office.map".as_ref())?;
+    /// let settings = PipelineSettings::from_dataset(seq.settings());
+    /// let mut slam = Pipeline::with_map(settings, None, None, map, LoadedMapMode::Localize)?;
+    /// for i in 0..seq.len() {
+    ///     let r = slam.track(&seq.frame(i)?)?;
+    ///     println!("{} {:?} relocalised: {}", r.timestamp, r.pose_wc, r.relocalised);
+    /// }
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn with_map(
+        settings: PipelineSettings,
+        front_end: Option<DynamicFrontEnd>,
+        vocabulary: Option<Vocabulary>,
+        map: MapFile,
+        mode: LoadedMapMode,
+    ) -> Result<Self, MapFileError> {
+        let mut map = map;
+        if let Some(v) = vocabulary {
+            map.check_vocabulary(&v)?;
+            map.vocabulary = Some(v);
+        }
+        let system = System::with_map(settings.slam.clone(), map, mode)?;
+        Ok(Self::with_system(settings, front_end, system))
+    }
+
+    fn with_system(
+        settings: PipelineSettings,
+        mut front_end: Option<DynamicFrontEnd>,
+        system: System,
     ) -> Self {
         let slam = settings.slam;
         if let Some(f) = front_end.as_mut() {
@@ -216,7 +262,7 @@ impl Pipeline {
             stereo: settings.stereo,
             bf: slam.bf,
             fx: slam.camera.fx,
-            system: System::with_vocabulary(slam, vocabulary),
+            system,
             stamps: Vec::new(),
             poses: Vec::new(),
         }
@@ -391,9 +437,12 @@ impl Pipeline {
     /// moving in this one leave the map
     /// (`FrontEndSettings::erase_recent_mover_points_frames`).
     fn erase_recent_points_on_movers(&mut self, frame: &Frame, pose_wc: Option<&Se3>) {
-        let (Some(f), Some(depth), Some(pose_wc)) =
-            (self.front_end.as_ref(), frame.depth.as_ref(), pose_wc)
-        else {
+        let (Some(f), Some(depth), Some(pose_wc), false) = (
+            self.front_end.as_ref(),
+            frame.depth.as_ref(),
+            pose_wc,
+            self.system.localizing(),
+        ) else {
             return;
         };
         let Some(mask) = f.mover_surface_mask(depth) else {

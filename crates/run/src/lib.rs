@@ -88,6 +88,13 @@ pub struct RunOptions {
     /// Set (from another thread or a signal handler) to stop taking frames; the map and the
     /// files are still finished.
     pub stop: Option<&'static AtomicBool>,
+    /// Start in the map saved in this file ([`stillpoint_slam::map_file`]): relocalise in it,
+    /// then map on in it (or only localise, `localize`).
+    pub load_map: Option<PathBuf>,
+    /// With `load_map`: track against the loaded map without changing it.
+    pub localize: bool,
+    /// Save the final map to this file (written atomically).
+    pub save_map: Option<PathBuf>,
 }
 
 impl RunOptions {
@@ -110,6 +117,9 @@ impl RunOptions {
             map_cloud: None,
             dense_cloud: None,
             stop: None,
+            load_map: None,
+            localize: false,
+            save_map: None,
         }
     }
 }
@@ -185,6 +195,34 @@ pub struct RunSummary {
     pub ended: Option<String>,
     /// The dense cloud written, when one was asked for.
     pub dense: Option<DenseReport>,
+    /// Position in the run of the first frame that relocalised (in a loaded map, the frame
+    /// that found its place in it).
+    pub first_relocalisation: Option<usize>,
+    /// The map loaded and the map saved, when asked for.
+    pub map_files: MapFilesReport,
+}
+
+/// What `load_map` read and `save_map` wrote.
+#[derive(Clone, Debug, Default)]
+pub struct MapFilesReport {
+    /// Keyframes and map points the loaded map held, its file size, and the time to read it
+    /// (ms; decoding and checks included).
+    pub loaded: Option<MapFileReport>,
+    /// The same for the map saved (time: encoding and the atomic write).
+    pub saved: Option<MapFileReport>,
+}
+
+/// One map file read or written.
+#[derive(Clone, Copy, Debug)]
+pub struct MapFileReport {
+    /// Keyframes in the map (culled ones included).
+    pub keyframes: usize,
+    /// Map points in the map.
+    pub map_points: usize,
+    /// File size.
+    pub bytes: usize,
+    /// Time to read or write it, ms.
+    pub ms: f64,
 }
 
 /// What `dense_cloud` wrote.
@@ -288,6 +326,15 @@ pub enum RunError {
         context: String,
         /// Why it failed.
         source: TrajectoryError,
+    },
+    /// A map file cannot be read, is corrupted, or does not fit the run (camera, sensor,
+    /// vocabulary, format version).
+    #[error("{}", .path.display())]
+    MapFile {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        source: stillpoint_slam::map_file::MapFileError,
     },
     /// Tracking or stopping the pipeline failed.
     #[error("{context}")]

@@ -12,7 +12,9 @@ use stillpoint_trajectory::TumWriter;
 
 use crate::output::{keyframe_path, lock_output};
 use crate::replay::{RealtimeReport, ReplayCamera};
-use crate::{DenseReport, Media, Overrides, RunError, RunOptions, RunSummary};
+use crate::{
+    DenseReport, MapFileReport, MapFilesReport, Media, Overrides, RunError, RunOptions, RunSummary,
+};
 
 /// What a run reports as it goes, for a progress display.
 pub enum Event<'a> {
@@ -116,6 +118,51 @@ pub fn run_sequence(
         .as_deref()
         .map(read_vocabulary)
         .transpose()?;
+    if o.localize && o.load_map.is_none() {
+        return Err(RunError::Refused(
+            "--localize needs a map to localise in (--load-map FILE)".into(),
+        ));
+    }
+    let mut map_files = MapFilesReport::default();
+    // Read and checked before the detector opens: a wrong map fails at once.
+    let loaded_map = match &o.load_map {
+        Some(path) => {
+            let t0 = Instant::now();
+            let map_error = |source| RunError::MapFile {
+                path: path.clone(),
+                source,
+            };
+            let bytes = std::fs::read(path).map_err(|e| map_error(e.into()))?;
+            let file = stillpoint_slam::map_file::decode(&bytes).map_err(map_error)?;
+            file.check_settings(&pipeline_settings.slam)
+                .map_err(map_error)?;
+            if let Some(v) = &vocabulary {
+                file.check_vocabulary(v).map_err(map_error)?;
+            }
+            let report = MapFileReport {
+                keyframes: file.map.keyframes.len(),
+                map_points: file.map.points.len(),
+                bytes: bytes.len(),
+                ms: ms_since(t0),
+            };
+            tracing::info!(
+                "{}: {} keyframes, {} map points ({} bytes, read in {:.1} ms){}",
+                path.display(),
+                report.keyframes,
+                report.map_points,
+                report.bytes,
+                report.ms,
+                if o.localize {
+                    "; localising in it"
+                } else {
+                    "; mapping on in it"
+                }
+            );
+            map_files.loaded = Some(report);
+            Some((path.clone(), file))
+        }
+        None => None,
+    };
     // What ran: the detector's name, backend and input size (`yolox-tract 640x480`).
     let mut detector_desc = "off".to_string();
     let front = match &o.detector {
@@ -199,7 +246,20 @@ pub fn run_sequence(
             pipeline_settings.slam.camera,
         )
     });
-    let mut pipeline = Pipeline::new(pipeline_settings, front, vocabulary);
+    let map_loaded = loaded_map.is_some();
+    let mut pipeline = match loaded_map {
+        Some((path, file)) => {
+            let mode = if o.localize {
+                stillpoint_slam::LoadedMapMode::Localize
+            } else {
+                stillpoint_slam::LoadedMapMode::Extend
+            };
+            Pipeline::with_map(pipeline_settings, front, vocabulary, file, mode)
+                .map_err(|source| RunError::MapFile { path, source })?
+        }
+        None => Pipeline::new(pipeline_settings, front, vocabulary),
+    };
+    let mut first_relocalisation = None;
     // A live source has no known end (len usize::MAX): frames are counted as they come.
     let live = seq.len() == usize::MAX;
     let mut times: Vec<FrameTimings> = Vec::with_capacity(n.min(1 << 16));
@@ -289,6 +349,9 @@ pub fn run_sequence(
             "tracked"
         );
         relocs += r.relocalised as usize;
+        if r.relocalised && first_relocalisation.is_none() {
+            first_relocalisation = Some(culled.len() - 1);
+        }
         new_maps += r.new_map as usize;
         if let Some(p) = r.pose_wc {
             tracked += 1;
@@ -414,7 +477,35 @@ pub fn run_sequence(
         };
         tracing::info!("{written} map points written to {}", path.display());
     }
-    let moving_map_points = has_masks.then(|| {
+    if let Some(path) = &o.save_map {
+        let t0 = Instant::now();
+        let file = fin.system.map_file();
+        let bytes =
+            stillpoint_slam::map_file::save(path, &file).map_err(|source| RunError::MapFile {
+                path: path.clone(),
+                source: source.into(),
+            })?;
+        let report = MapFileReport {
+            keyframes: file.map.keyframes.len(),
+            map_points: file.map.points.len(),
+            bytes,
+            ms: ms_since(t0),
+        };
+        tracing::info!(
+            "map saved to {}: {} keyframes, {} map points, vocabulary {}, {} bytes in {:.1} ms",
+            path.display(),
+            report.keyframes,
+            report.map_points,
+            file.vocabulary
+                .as_ref()
+                .map_or("none".to_string(), |v| format!("{} words", v.words())),
+            report.bytes,
+            report.ms
+        );
+        map_files.saved = Some(report);
+    }
+    // A loaded map's keyframes carry another sequence's timestamps: no masks to judge them by.
+    let moving_map_points = (has_masks && !map_loaded).then(|| {
         fin.system.map().lock().map_or(Default::default(), |map| {
             stillpoint_eval::movers::moving_map_points(&map, |t| {
                 stillpoint_eval::movers::moving_mask(&o.dataset, t)
@@ -461,10 +552,17 @@ pub fn run_sequence(
         realtime: camera.is_some().then_some(realtime),
         ended,
         dense: dense_report,
+        first_relocalisation,
+        map_files,
         untracked_reason: (tracked == 0).then(|| {
             let init = &pipeline_settings_init;
             if frames_read == 0 {
                 "no frame could be read".to_string()
+            } else if let Some(p) = &o.load_map {
+                format!(
+                    "no frame relocalised in the map of {} (another place, or too few matches)",
+                    p.display()
+                )
             } else if ds.sensor != Sensor::Mono && frames_with_depth == 0 {
                 format!(
                     "none of the {frames_read} frames had depth (an RGB-D map starts from depth: \

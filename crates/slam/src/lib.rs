@@ -11,6 +11,7 @@
 //!   the keypoint-filter hook through which the dynamic front-end removes moving keypoints;
 //! - [`place`]: place recognition, a bag of binary words trained online and the keyframe
 //!   database;
+//! - [`map_file`]: the map saved to and loaded from a versioned, checksummed binary file;
 //! - [`System`]: the entry point that ties them together.
 //!
 //! The crate works on already extracted features ([`Feature`] + [`Descriptor`]), so the ORB
@@ -29,6 +30,7 @@
 
 pub mod data;
 pub mod io;
+pub mod map_file;
 pub mod matching;
 pub mod module;
 pub mod optimize;
@@ -40,7 +42,7 @@ mod system;
 pub use data::frame::{Descriptor, Feature, Frame, KeypointDepth};
 pub use module::tracking::TrackingState;
 pub use settings::SlamSettings;
-pub use system::{FrameReport, System};
+pub use system::{FrameReport, LoadedMapMode, System};
 
 /// Errors from the SLAM core. Input problems (wrong sizes, NaN) are reported, not panicked on.
 #[derive(Debug, thiserror::Error)]
@@ -56,6 +58,31 @@ pub enum SlamError {
     /// The local mapping thread died or cannot be started.
     #[error("local mapping thread stopped: {0}")]
     LocalMapping(String),
+}
+
+/// FNV-1a, 64 bits: the checksum of map files and the vocabulary fingerprint (computed here:
+/// a few lines, no dependency).
+pub mod fnv1a64 {
+    /// The offset basis: the hash of no bytes.
+    pub const START: u64 = 0xcbf2_9ce4_8422_2325;
+    const PRIME: u64 = 0x0000_0100_0000_01b3;
+
+    /// The hash `h` continued over `bytes`.
+    pub fn update(mut h: u64, bytes: &[u8]) -> u64 {
+        for &b in bytes {
+            h = (h ^ b as u64).wrapping_mul(PRIME);
+        }
+        h
+    }
+
+    /// The hash of `bytes`.
+    ///
+    /// ```
+    /// assert_eq!(stillpoint_slam::fnv1a64::hash(b"a"), 0xaf63_dc4c_8601_ec8c);
+    /// ```
+    pub fn hash(bytes: &[u8]) -> u64 {
+        update(START, bytes)
+    }
 }
 
 /// Hamming distance between two 256-bit descriptors (the ORB extractor's).

@@ -11,11 +11,12 @@ use stillpoint_geometry::Se3;
 use stillpoint_image::DepthMetres;
 
 use crate::data::{FreeSpaceCheck, KfId, Map};
+use crate::map_file::{MapFile, MapSensor};
 use crate::module::local_mapping::{LocalMapper, MapperHooks, MapperThread};
 use crate::module::loop_closing::{LoopCloser, LoopStats, LoopThread};
 use crate::module::tracking::{FrameObservation, Tracker};
 use crate::optimize::{PoseObservation, optimize_pose};
-use crate::place::Vocabulary;
+use crate::place::{KeyFrameDatabase, Vocabulary};
 use crate::{Descriptor, Feature, Frame, KeypointDepth, SlamError, SlamSettings, TrackingState};
 
 /// What the system did with one frame.
@@ -75,6 +76,24 @@ pub struct System {
     unsettled: VecDeque<Unsettled>,
     /// Keyframes handed to local mapping so far.
     keyframes_inserted: usize,
+    /// A map was loaded: bags of words of its keyframes (and of the new ones), for
+    /// relocalising by place recognition.
+    reloc_db: Option<KeyFrameDatabase>,
+    /// Localisation only: the loaded map is never changed.
+    localize: bool,
+    /// Loop edges of a loaded map (the loop closer holds them too when it runs).
+    loaded_loop_edges: std::collections::BTreeSet<(KfId, KfId)>,
+}
+
+/// What to do with a map loaded from a file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LoadedMapMode {
+    /// Relocalise in it, then go on mapping in it: new keyframes and points are added, local
+    /// mapping and loop closing run as usual.
+    Extend,
+    /// Relocalise in it and track against it without changing it: no keyframes, no points, no
+    /// bundle adjustment, no loop closing, no counters.
+    Localize,
 }
 
 /// A tracked frame whose anchor is not final yet.
@@ -98,7 +117,51 @@ impl System {
     /// [`System::new`] with a place-recognition vocabulary given by the user (else loop closing
     /// trains its own from the keyframes).
     pub fn with_vocabulary(settings: SlamSettings, vocabulary: Option<Vocabulary>) -> Self {
-        let map = Arc::new(Mutex::new(Map::new()));
+        Self::build(settings, vocabulary, None)
+    }
+
+    /// A system that starts in a map loaded from a file ([`crate::map_file`]): tracking starts
+    /// lost and relocalises in it by place recognition (the map's vocabulary, or one trained
+    /// from its keyframes when it has none) and RANSAC; then `mode` says whether it maps on or
+    /// only localises. Fails when the map was made with another camera, sensor or ORB pyramid,
+    /// or holds no keyframe to relocalise in.
+    pub fn with_map(
+        settings: SlamSettings,
+        file: MapFile,
+        mode: LoadedMapMode,
+    ) -> Result<Self, crate::map_file::MapFileError> {
+        file.check_settings(&settings)?;
+        if file.map.current_keyframes().next().is_none() {
+            return Err(crate::map_file::MapFileError::Invalid(
+                "the map holds no keyframe to relocalise in".into(),
+            ));
+        }
+        Ok(Self::build(settings, None, Some((file, mode))))
+    }
+
+    fn build(
+        mut settings: SlamSettings,
+        vocabulary: Option<Vocabulary>,
+        loaded: Option<(MapFile, LoadedMapMode)>,
+    ) -> Self {
+        let localize = loaded
+            .as_ref()
+            .is_some_and(|(_, m)| *m == LoadedMapMode::Localize);
+        if localize {
+            // Loop closing would move the map's keyframes.
+            settings.loop_closing.enabled = false;
+        }
+        let (map, vocabulary, loaded_loop_edges) = match loaded {
+            Some((mut f, _)) => {
+                f.map.session_first_kf = f.map.next_kf;
+                (f.map, f.vocabulary.or(vocabulary), f.loop_edges)
+            }
+            None => (Map::new(), vocabulary, Default::default()),
+        };
+        let is_loaded = !map.keyframes.is_empty();
+        let reloc_db =
+            is_loaded.then(|| relocalisation_database(&map, vocabulary.clone(), &settings));
+        let map = Arc::new(Mutex::new(map));
         let mapping_ms = Arc::new(Mutex::new(Vec::new()));
         let mapper = LocalMapper::new(settings.clone());
         // Loop closing corrects with SE3: a monocular map drifts in scale too (ORB-SLAM
@@ -107,9 +170,15 @@ impl System {
             tracing::info!("loop closing is for RGB-D and stereo; off for this monocular run");
         }
         let looping_on = settings.loop_closing.enabled && !settings.monocular;
-        let closer = looping_on.then(|| match vocabulary {
-            Some(v) => LoopCloser::with_vocabulary(settings.clone(), v),
-            None => LoopCloser::new(settings.clone()),
+        let closer = looping_on.then(|| {
+            let mut c = match vocabulary {
+                Some(v) => LoopCloser::with_vocabulary(settings.clone(), v),
+                None => LoopCloser::new(settings.clone()),
+            };
+            if is_loaded && let Ok(m) = map.lock() {
+                c.resume(&m, &loaded_loop_edges);
+            }
+            c
         });
         let mut looping = Looping::Off;
         let mapping = if settings.local_mapping_thread {
@@ -147,8 +216,13 @@ impl System {
             }
             Mapping::Inline(Box::new(mapper))
         };
+        let tracker = if is_loaded {
+            Tracker::for_loaded_map(settings.clone(), localize)
+        } else {
+            Tracker::new(settings.clone())
+        };
         Self {
-            tracker: Tracker::new(settings.clone()),
+            tracker,
             settings,
             map,
             mapping,
@@ -157,6 +231,40 @@ impl System {
             anchors: Vec::new(),
             unsettled: VecDeque::new(),
             keyframes_inserted: 0,
+            reloc_db,
+            localize,
+            loaded_loop_edges,
+        }
+    }
+
+    /// Localising in a loaded map without changing it.
+    pub fn localizing(&self) -> bool {
+        self.localize
+    }
+
+    /// The map as a [`MapFile`] to save: a copy of the map, the place-recognition vocabulary
+    /// (the loop closer's, else the one relocalisation uses) and the loop edges. Call it after
+    /// [`System::shutdown`]: a loop-closing thread hands its vocabulary back only then.
+    pub fn map_file(&self) -> MapFile {
+        let map = self.map.lock().map(|m| m.clone()).unwrap_or_default();
+        let closer = match &self.looping {
+            Looping::Off => None,
+            Looping::Inline(l) => Some(l.as_ref()),
+            Looping::Thread(t) => t.closer(),
+        };
+        let vocabulary = closer
+            .and_then(|c| c.vocabulary())
+            .or_else(|| self.reloc_db.as_ref().and_then(|d| d.vocabulary()))
+            .cloned();
+        let mut loop_edges = self.loaded_loop_edges.clone();
+        if let Some(c) = closer {
+            loop_edges.extend(c.loop_edges().iter().copied());
+        }
+        MapFile {
+            sensor: MapSensor::of(&self.settings),
+            map,
+            vocabulary,
+            loop_edges,
         }
     }
 
@@ -251,7 +359,44 @@ impl System {
                     self.tracker.on_map_corrected(&c.poses);
                 }
             }
+            if self.tracker.state == TrackingState::Lost
+                && let Some(db) = &self.reloc_db
+                && let Some(v) = db.vocabulary()
+            {
+                let bow = v.transform(&frame.descriptors);
+                let epoch = map.epoch;
+                let candidates = db.relocalisation_candidates(
+                    &bow,
+                    |k| {
+                        map.keyframes
+                            .get(&k)
+                            .is_some_and(|x| !x.bad && x.map_epoch == epoch)
+                    },
+                    |k| {
+                        map.keyframes
+                            .get(&k)
+                            .map_or(Vec::new(), |x| x.best_covisibles(10))
+                    },
+                );
+                debug!(
+                    frame = index,
+                    candidates = candidates.len(),
+                    "relocalisation candidates"
+                );
+                self.tracker
+                    .set_relocalisation_candidates(candidates.into_iter().map(|c| c.0).collect());
+            }
             let mut outcome = self.tracker.track(frame, &mut map, idle, queued);
+            if let Some(db) = self.reloc_db.as_mut() {
+                for kf in [outcome.first_keyframe, outcome.new_keyframe]
+                    .into_iter()
+                    .flatten()
+                {
+                    if let Some(k) = map.keyframes.get(&kf) {
+                        db.add(kf, &k.descriptors);
+                    }
+                }
+            }
             if let Some(wc) = outcome.pose_wc
                 && let Some(r) = self.tracker.reference_keyframe()
                 && let Some(k) = map.keyframes.get(&r)
@@ -277,7 +422,9 @@ impl System {
         if let Some(kf) = outcome.new_keyframe {
             self.insert_keyframe(kf)?;
         }
-        if let (KeypointDepth::Map(image), Some(pose_wc)) = (depth, outcome.pose_wc) {
+        if let (KeypointDepth::Map(image), Some(pose_wc), false) =
+            (depth, outcome.pose_wc, self.localize)
+        {
             self.erase_points_seen_through(index, &pose_wc.inverse(), image);
         }
         self.settle(false);
@@ -478,14 +625,15 @@ impl System {
         self.map.lock().map(|m| m.points.len()).unwrap_or(0)
     }
 
-    /// (timestamp, camera-to-world) of every good keyframe, in order.
+    /// (timestamp, camera-to-world) of every good keyframe this run made, in order (a loaded
+    /// map's keyframes carry another run's timestamps).
     pub fn keyframe_trajectory(&self) -> Vec<(f64, Se3)> {
         self.map
             .lock()
             .map(|m| {
                 m.keyframes
                     .values()
-                    .filter(|k| !k.bad)
+                    .filter(|k| !k.bad && k.id >= m.session_first_kf)
                     .map(|k| (k.timestamp, k.pose_cw.inverse()))
                     .collect()
             })
@@ -503,5 +651,34 @@ impl System {
     /// Shared map (read it under the lock).
     pub fn map(&self) -> Arc<Mutex<Map>> {
         self.map.clone()
+    }
+}
+
+/// The keyframe database relocalisation queries in a loaded map: the map's vocabulary, or one
+/// trained from its keyframes (deterministic), with every good keyframe's bag of words.
+fn relocalisation_database(
+    map: &Map,
+    vocabulary: Option<Vocabulary>,
+    s: &SlamSettings,
+) -> KeyFrameDatabase {
+    let docs: Vec<(KfId, &[Descriptor])> = map
+        .keyframes
+        .values()
+        .filter(|k| !k.bad)
+        .map(|k| (k.id, k.descriptors.as_slice()))
+        .collect();
+    match vocabulary {
+        Some(v) => {
+            let mut db = KeyFrameDatabase::with_vocabulary(v);
+            for (k, d) in docs {
+                db.add(k, d);
+            }
+            db
+        }
+        None => {
+            let mut db = KeyFrameDatabase::new();
+            db.train(&docs, &s.loop_closing.database);
+            db
+        }
     }
 }

@@ -96,6 +96,10 @@ pub struct SynthConfig {
     pub fps: f64,
     /// Timestamp of the first frame in seconds (non-zero, TUM-like Unix time).
     pub start_time: f64,
+    /// Seconds into the scene's motion (camera path, people, objects) at which the first frame
+    /// is taken: another stretch of the same camera path through the same room (0: from the
+    /// start). The ground truth stays in the room's frame.
+    pub path_offset: f64,
     /// Sensor noise on the rendered depth and colour (`Preset::default_noise` for the preset's own).
     pub noise: Noise,
     /// Folder of photos: used as posters, and person cut-outs (an RGB image with a
@@ -127,6 +131,7 @@ impl Default for SynthConfig {
             camera: tum_fr3_camera(),
             fps: 30.0,
             start_time: 1_341_846_313.5,
+            path_offset: 0.0,
             noise: Noise::None,
             textures: None,
             stereo_baseline: None,
@@ -288,10 +293,14 @@ impl Generator {
                 c.width, c.height, c.fx, c.fy
             )));
         }
-        if config.fps.is_nan() || config.fps <= 0.0 || !config.start_time.is_finite() {
+        if config.fps.is_nan()
+            || config.fps <= 0.0
+            || !config.start_time.is_finite()
+            || !config.path_offset.is_finite()
+        {
             return Err(SynthError::Config(format!(
-                "fps {} / start time {} must be positive / finite",
-                config.fps, config.start_time
+                "fps {} / start time {} / path offset {} must be positive / finite / finite",
+                config.fps, config.start_time, config.path_offset
             )));
         }
         if let Some(b) = config.stereo_baseline
@@ -349,7 +358,8 @@ impl Generator {
 
     /// Camera-to-world pose of frame `i`.
     pub fn pose(&self, i: usize) -> Se3 {
-        self.camera_path.pose(i as f64 / self.config.fps)
+        self.camera_path
+            .pose(self.config.path_offset + i as f64 / self.config.fps)
     }
 
     /// The scene's objects (index = object id).
@@ -458,7 +468,7 @@ impl Generator {
         let cfg = &self.config;
         let cam = &cfg.camera;
         let (w, h) = (cam.width as usize, cam.height as usize);
-        let t = index as f64 / cfg.fps;
+        let t = cfg.path_offset + index as f64 / cfg.fps;
         let dt = 1.0 / cfg.fps;
         let pose_wc = self.camera_path.pose(t);
         let prev_wc = self.camera_path.pose(t - dt);

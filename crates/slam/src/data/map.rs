@@ -227,8 +227,11 @@ pub struct Map {
     pub keyframes: BTreeMap<KfId, KeyFrame>,
     /// Map points by id.
     pub points: BTreeMap<MpId, MapPoint>,
-    next_kf: KfId,
-    next_mp: MpId,
+    pub(crate) next_kf: KfId,
+    pub(crate) next_mp: MpId,
+    /// Keyframes with a smaller id came from a map file: their frame indices and timestamps
+    /// are another run's (0 when nothing was loaded).
+    pub session_first_kf: KfId,
     /// Current map; older maps stay for the keyframe trajectory but are not tracked against.
     pub epoch: u32,
     /// First keyframe of the current map (fixed in bundle adjustment: the gauge).
@@ -573,9 +576,12 @@ impl Map {
             .values()
             .filter(|p| p.map_epoch == self.epoch && !p.bad)
             .filter(|p| {
-                self.keyframes
-                    .get(&p.first_kf)
-                    .is_some_and(|k| k.frame_index >= since_frame)
+                // A loaded map's keyframes count frames of another run: never recent.
+                p.first_kf >= self.session_first_kf
+                    && self
+                        .keyframes
+                        .get(&p.first_kf)
+                        .is_some_and(|k| k.frame_index >= since_frame)
             })
             .filter(|p| {
                 let pc = pose_cw * nalgebra::Point3::from(p.position);

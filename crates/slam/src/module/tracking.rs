@@ -90,6 +90,11 @@ pub struct Tracker {
     mono_init: MonoInitializer,
     /// Monocular: relocalisation kept failing and the next initialisation starts a new map.
     new_map_pending: bool,
+    /// Localisation only: track against the map without changing it (no keyframes, no
+    /// points, no counters, no new map when lost).
+    localize: bool,
+    /// Keyframes place recognition proposes for the next relocalisation, best first.
+    reloc_candidates: Vec<KfId>,
 }
 
 impl Tracker {
@@ -109,7 +114,24 @@ impl Tracker {
             inv_sigma2,
             mono_init: MonoInitializer::default(),
             new_map_pending: false,
+            localize: false,
+            reloc_candidates: Vec::new(),
         }
+    }
+
+    /// A tracker for a map loaded from a file: lost (it relocalises first, into that map);
+    /// with `localize` it never changes the map.
+    pub fn for_loaded_map(s: SlamSettings, localize: bool) -> Self {
+        Self {
+            state: TrackingState::Lost,
+            localize,
+            ..Self::new(s)
+        }
+    }
+
+    /// Keyframes to try first at the next relocalisation (bag-of-words candidates).
+    pub fn set_relocalisation_candidates(&mut self, candidates: Vec<KfId>) {
+        self.reloc_candidates = candidates;
     }
 
     /// Track one frame against the map. `mapper_idle` and `mapper_queue` come from local mapping
@@ -189,7 +211,9 @@ impl Tracker {
                 v.rotation.renormalize();
                 self.velocity = Some(v);
             }
-            if self.need_new_keyframe(&frame, map, out.inliers, mapper_idle, mapper_queue) {
+            if !self.localize
+                && self.need_new_keyframe(&frame, map, out.inliers, mapper_idle, mapper_queue)
+            {
                 out.new_keyframe = self.create_keyframe(&mut frame, map);
             }
             out.pose_wc = frame.pose_cw.map(|p| p.inverse());
@@ -200,7 +224,9 @@ impl Tracker {
             self.state = TrackingState::Lost;
             self.velocity = None;
             self.lost_frames += 1;
-            if self.s.monocular && self.lost_frames > self.s.new_map_after_lost_frames {
+            if self.localize {
+                // The loaded map is all there is: keep relocalising in it.
+            } else if self.s.monocular && self.lost_frames > self.s.new_map_after_lost_frames {
                 // Relocalisation kept failing: initialise again from two views, into a new map
                 // (at its own scale).
                 warn!(
@@ -502,10 +528,12 @@ impl Tracker {
                 local.insert(p);
             }
         }
+        // Localisation leaves the map's counters (and so its culling) as they were.
+        let count = !self.localize;
         let mut in_frame: BTreeSet<MpId> = BTreeSet::new();
         for mp in frame.map_points.iter().flatten() {
             in_frame.insert(*mp);
-            if let Some(p) = map.points.get_mut(mp) {
+            if count && let Some(p) = map.points.get_mut(mp) {
                 p.visible += 1;
             }
         }
@@ -532,7 +560,7 @@ impl Tracker {
             }
         }
         for pp in &projected {
-            if let Some(p) = map.points.get_mut(&pp.id) {
+            if count && let Some(p) = map.points.get_mut(&pp.id) {
                 p.visible += 1;
             }
         }
@@ -556,7 +584,7 @@ impl Tracker {
                 if self.s.no_points_from_pose_outliers {
                     frame.no_new_point[i] = true;
                 }
-                if let Some(p) = map.points.get_mut(&mp) {
+                if count && let Some(p) = map.points.get_mut(&mp) {
                     p.rejected += 1;
                     let max = self.s.point_max_rejections;
                     if max > 0 && p.rejected >= max && p.rejected >= p.found {
@@ -566,7 +594,9 @@ impl Tracker {
                 continue;
             }
             if let Some(p) = map.points.get_mut(&mp) {
-                p.found += 1;
+                if count {
+                    p.found += 1;
+                }
                 if !p.observations.is_empty() {
                     inliers += 1;
                 }
@@ -705,9 +735,9 @@ impl Tracker {
         Some(kf)
     }
 
-    /// Match against candidate keyframes (nearest to the last known pose, then newest), robust
-    /// pose by RANSAC (3D-3D with depth, EPnP monocular), then pose optimisation; needs
-    /// `reloc_min_inliers`.
+    /// Match against candidate keyframes (those place recognition proposed, then the nearest to
+    /// the last known pose, or the newest), robust pose by RANSAC (3D-3D with depth, EPnP
+    /// monocular), then pose optimisation; needs `reloc_min_inliers`.
     fn relocalise(&mut self, frame: &mut Frame, map: &Map) -> bool {
         if !self.s.monocular && frame.with_depth() < 3 {
             return false;
@@ -722,8 +752,21 @@ impl Tracker {
             .collect();
         cands.sort_by(|a, b| a.0.total_cmp(&b.0));
         cands.truncate(self.s.reloc_candidates);
-        for (_, kid) in cands {
-            let kf = &map.keyframes[&kid];
+        let proposed = std::mem::take(&mut self.reloc_candidates);
+        let mut tried = BTreeSet::new();
+        let order = proposed
+            .into_iter()
+            .chain(cands.into_iter().map(|(_, k)| k))
+            .filter(|k| tried.insert(*k))
+            .collect::<Vec<_>>();
+        for kid in order {
+            let Some(kf) = map
+                .keyframes
+                .get(&kid)
+                .filter(|k| !k.bad && k.map_epoch == map.epoch)
+            else {
+                continue;
+            };
             frame.map_points.iter_mut().for_each(|m| *m = None);
             frame.outliers.iter_mut().for_each(|o| *o = false);
             let n = search_by_descriptors(frame, kf, map, 0.75, self.s.th_low);

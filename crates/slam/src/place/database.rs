@@ -160,12 +160,40 @@ impl KeyFrameDatabase {
         let Some(bow) = self.bows.get(&kf) else {
             return Vec::new();
         };
+        self.candidates(
+            bow,
+            |other| other != kf && !excluded.contains(&other) && usable(other),
+            min_score,
+            covisibles,
+        )
+    }
+
+    /// ORB-SLAM's `DetectRelocalizationCandidates` for a frame's bag of words: the keyframes
+    /// accepted by `usable` sharing words with it, grouped with their `covisibles` as
+    /// [`KeyFrameDatabase::loop_candidates`] does (no minimum score), best first.
+    pub fn relocalisation_candidates(
+        &self,
+        bow: &BowVector,
+        usable: impl Fn(KfId) -> bool,
+        covisibles: impl Fn(KfId) -> Vec<KfId>,
+    ) -> Vec<(KfId, f32)> {
+        self.candidates(bow, usable, 0.0, covisibles)
+    }
+
+    /// Keyframes sharing words with `bow` (accepted by `usable`), at least 80 % of the best
+    /// count of common words, scored; groups with their covisibles; the best of every group
+    /// reaching 75 % of the best group's accumulated score.
+    fn candidates(
+        &self,
+        bow: &BowVector,
+        usable: impl Fn(KfId) -> bool,
+        min_score: f32,
+        covisibles: impl Fn(KfId) -> Vec<KfId>,
+    ) -> Vec<(KfId, f32)> {
         let mut common: BTreeMap<KfId, usize> = BTreeMap::new();
         for (w, _) in &bow.0 {
             for &other in self.inverted.get(w).map_or(&[][..], |v| v.as_slice()) {
-                if other != kf && !excluded.contains(&other) {
-                    *common.entry(other).or_default() += 1;
-                }
+                *common.entry(other).or_default() += 1;
             }
         }
         common.retain(|k, _| usable(*k));
@@ -178,7 +206,7 @@ impl KeyFrameDatabase {
         let scored: BTreeMap<KfId, f32> = common
             .iter()
             .filter(|(_, c)| **c > min_common)
-            .map(|(k, _)| (*k, self.score(kf, *k)))
+            .map(|(k, _)| (*k, self.bows.get(k).map_or(0.0, |b| bow.score(b))))
             .collect();
         let mut groups: Vec<(f32, KfId, f32)> = Vec::new();
         for (&k, &s) in &scored {

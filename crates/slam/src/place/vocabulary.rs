@@ -86,7 +86,7 @@ impl Default for VocabularyParams {
 
 const NO_WORD: u32 = u32::MAX;
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 struct Node {
     descriptor: Descriptor,
     first_child: u32,
@@ -94,8 +94,9 @@ struct Node {
     word: u32,
 }
 
-/// The vocabulary tree with per-word IDF weights.
-#[derive(Clone, Debug)]
+/// The vocabulary tree with per-word IDF weights. Serialisable (map files carry it); a
+/// deserialised one must pass [`Vocabulary::check`] before use.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Vocabulary {
     nodes: Vec<Node>,
     /// IDF weight per word.
@@ -240,6 +241,53 @@ impl Vocabulary {
             *w = (n / h.max(1) as f32).ln();
         }
         self.documents = documents.len();
+    }
+
+    /// Whether the tree is usable: every child range lies after its node and inside the tree
+    /// (so descending ends), every leaf names a word, every weight is finite. A vocabulary read
+    /// from a file must pass this before [`Vocabulary::word`] or [`Vocabulary::transform`].
+    pub fn check(&self) -> Result<(), String> {
+        if self.nodes.is_empty() || self.weights.is_empty() {
+            return Err("vocabulary without nodes or words".into());
+        }
+        for (i, n) in self.nodes.iter().enumerate() {
+            if n.n_children == 0 {
+                if n.word as usize >= self.weights.len() {
+                    return Err(format!("vocabulary node {i}: leaf without a valid word"));
+                }
+            } else {
+                let (first, end) = (
+                    n.first_child as usize,
+                    n.first_child as u64 + n.n_children as u64,
+                );
+                if first <= i || end > self.nodes.len() as u64 {
+                    return Err(format!(
+                        "vocabulary node {i}: children out of order or range"
+                    ));
+                }
+            }
+        }
+        if let Some(w) = self.weights.iter().position(|w| !w.is_finite()) {
+            return Err(format!("vocabulary word {w}: weight not finite"));
+        }
+        Ok(())
+    }
+
+    /// A 64-bit FNV-1a hash of the tree and the word weights: two vocabularies with the same
+    /// fingerprint give the same words and bags of words (map files store it to refuse a map
+    /// made with another vocabulary).
+    pub fn fingerprint(&self) -> u64 {
+        let mut h = crate::fnv1a64::START;
+        for n in &self.nodes {
+            h = crate::fnv1a64::update(h, &n.descriptor);
+            for v in [n.first_child, n.n_children, n.word] {
+                h = crate::fnv1a64::update(h, &v.to_le_bytes());
+            }
+        }
+        for w in &self.weights {
+            h = crate::fnv1a64::update(h, &w.to_bits().to_le_bytes());
+        }
+        h
     }
 
     /// Number of words (leaves).

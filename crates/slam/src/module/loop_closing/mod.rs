@@ -231,6 +231,21 @@ impl LoopCloser {
         c
     }
 
+    /// Go on from a map loaded from a file: its good keyframes go into the keyframe database
+    /// (once there is a vocabulary; an online one is trained at the next keyframe) and its loop
+    /// edges into the essential graph.
+    pub fn resume(&mut self, map: &Map, loop_edges: &BTreeSet<(KfId, KfId)>) {
+        for k in map.keyframes.values().filter(|k| !k.bad) {
+            self.db.add(k.id, &k.descriptors);
+        }
+        self.loop_edges.extend(loop_edges.iter().copied());
+    }
+
+    /// The place-recognition vocabulary, once trained or given.
+    pub fn vocabulary(&self) -> Option<&Vocabulary> {
+        self.db.vocabulary()
+    }
+
     /// What it did so far.
     pub fn stats(&self) -> &LoopStats {
         &self.stats
@@ -385,6 +400,11 @@ impl LoopThread {
             self.closer = Some(c);
         }
         Ok(())
+    }
+
+    /// The closer once [`LoopThread::finish`] returned.
+    pub fn closer(&self) -> Option<&LoopCloser> {
+        self.closer.as_ref()
     }
 
     /// The closer's statistics once [`LoopThread::finish`] returned.
