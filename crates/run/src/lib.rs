@@ -31,6 +31,7 @@
 
 mod output;
 pub mod overlay;
+pub mod record;
 mod replay;
 mod session;
 
@@ -85,6 +86,9 @@ pub struct RunOptions {
     /// A PLY file for the dense static cloud: keyframe depth fused without the movers' pixels
     /// (RGB-D; `[dense]` settings).
     pub dense_cloud: Option<PathBuf>,
+    /// An MCAP file of the run for Foxglove: images, keypoints and boxes, poses, the map
+    /// ([`record`]; `[record]` settings).
+    pub record: Option<PathBuf>,
     /// Set (from another thread or a signal handler) to stop taking frames; the map and the
     /// files are still finished.
     pub stop: Option<&'static AtomicBool>,
@@ -109,6 +113,7 @@ impl RunOptions {
             overlay: None,
             map_cloud: None,
             dense_cloud: None,
+            record: None,
             stop: None,
         }
     }
@@ -185,6 +190,8 @@ pub struct RunSummary {
     pub ended: Option<String>,
     /// The dense cloud written, when one was asked for.
     pub dense: Option<DenseReport>,
+    /// The MCAP recording written, when one was asked for.
+    pub record: Option<record::RecordReport>,
 }
 
 /// What `dense_cloud` wrote.

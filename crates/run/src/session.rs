@@ -175,6 +175,12 @@ pub fn run_sequence(
             source,
         })?;
     }
+    let mut recorder = o
+        .record
+        .as_deref()
+        .map(|p| crate::record::Recorder::create(p, &tree.record))
+        .transpose()?;
+    let camera_model = pipeline_settings.slam.camera;
     let mut writer = match &o.out {
         Some(p) => Some(TumWriter::create(p).map_err(|source| RunError::Trajectory {
             context: format!("creating {}", p.display()),
@@ -328,6 +334,26 @@ pub fn run_sequence(
                 source: std::io::Error::other(e.to_string()),
             })?;
         }
+        if let Some(rec) = recorder.as_mut() {
+            let front = pipeline.front_end();
+            let objects = front
+                .map(|f| f.objects_in_view(frame.index))
+                .unwrap_or_default();
+            let carried = front.map_or(&[][..], |f| f.carried_in_view(frame.index));
+            rec.frame(&crate::record::FrameRecord {
+                frame: &frame,
+                result: &r,
+                objects: &objects,
+                carried,
+                camera: &camera_model,
+            })?;
+            if r.new_keyframe {
+                let map = pipeline.system().map();
+                if let Ok(map) = map.lock() {
+                    rec.keyframe(&map)?;
+                }
+            }
+        }
         progress(Event::Tracked {
             result: &r,
             keyframes: pipeline.system().keyframe_count(),
@@ -414,6 +440,23 @@ pub fn run_sequence(
         };
         tracing::info!("{written} map points written to {}", path.display());
     }
+    let record = match recorder {
+        Some(rec) => {
+            let map = fin.system.map();
+            let map = map.lock().ok();
+            let report = rec.finish(map.as_deref(), &fin.trajectory)?;
+            if let Some(p) = &o.record {
+                tracing::info!(
+                    "recording written to {} ({:.1} MB, {} messages)",
+                    p.display(),
+                    report.bytes as f64 / 1e6,
+                    report.messages.values().sum::<usize>()
+                );
+            }
+            Some(report)
+        }
+        None => None,
+    };
     let moving_map_points = has_masks.then(|| {
         fin.system.map().lock().map_or(Default::default(), |map| {
             stillpoint_eval::movers::moving_map_points(&map, |t| {
@@ -461,6 +504,7 @@ pub fn run_sequence(
         realtime: camera.is_some().then_some(realtime),
         ended,
         dense: dense_report,
+        record,
         untracked_reason: (tracked == 0).then(|| {
             let init = &pipeline_settings_init;
             if frames_read == 0 {
