@@ -209,6 +209,7 @@ pub fn run_sequence(
     // A live source has no known end (len usize::MAX): frames are counted as they come.
     let live = seq.len() == usize::MAX;
     let mut times: Vec<FrameTimings> = Vec::with_capacity(n.min(1 << 16));
+    let mut record_ms = Vec::new();
     let mut written: Option<f64> = None;
     let mut culled = Vec::with_capacity(n.min(1 << 16));
     let (mut tracked, mut relocs, mut new_maps) = (0, 0, 0);
@@ -335,6 +336,7 @@ pub fn run_sequence(
             })?;
         }
         if let Some(rec) = recorder.as_mut() {
+            let t0 = Instant::now();
             let front = pipeline.front_end();
             let objects = front
                 .map(|f| f.objects_in_view(frame.index))
@@ -353,6 +355,7 @@ pub fn run_sequence(
                     rec.keyframe(&map)?;
                 }
             }
+            record_ms.push(ms_since(t0));
         }
         progress(Event::Tracked {
             result: &r,
@@ -477,6 +480,9 @@ pub fn run_sequence(
     timings.push(("tracking", pick(|t| t.tracking_ms)));
     let loops = fin.loops;
     timings.push(("local mapping (per keyframe)", fin.mapping_ms));
+    if o.record.is_some() {
+        timings.push(("recording", record_ms));
+    }
     if let Some(l) = &loops {
         timings.push(("loop detection (per keyframe)", l.detection_ms.clone()));
         timings.push(("loop correction", l.correction_ms.clone()));
