@@ -24,7 +24,7 @@ enum Command {
     /// Generate a synthetic dynamic sequence, run SLAM with the dynamic front-end off and on, print ATE.
     Demo(cmd::demo::Args),
     /// Run SLAM on a dataset and write the trajectory.
-    Run(cmd::run::Args),
+    Run(Box<cmd::run::Args>),
     /// List a ROS recording's topics: message types, counts, image sizes and encodings.
     Info(cmd::info::Args),
     /// Print the effective settings tree and where each value came from.
@@ -59,7 +59,7 @@ fn main() -> std::process::ExitCode {
         .init();
     let result = match cli.command {
         Command::Demo(a) => cmd::demo::run(a),
-        Command::Run(a) => cmd::run::run(a),
+        Command::Run(a) => cmd::run::run(*a),
         Command::Info(a) => cmd::info::run(a),
         Command::Settings(a) => cmd::settings::run(a),
         Command::Synth(a) => cmd::synth::run(a),

@@ -44,7 +44,7 @@ fn violations(schema: &Value, value: &Value, at: &str) -> Vec<String> {
     }
     if schema["contentEncoding"] == "base64" {
         let s = value.as_str().unwrap();
-        if s.len() % 4 != 0
+        if !s.len().is_multiple_of(4)
             || !s
                 .bytes()
                 .all(|b| b.is_ascii_alphanumeric() || b"+/=".contains(&b))
