@@ -125,3 +125,65 @@ fn bad_input_fails_with_file_and_line() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/gt.txt"));
 }
+
+#[test]
+fn ate_over_time_plot_with_moving_periods() {
+    let dir = tempfile::tempdir().unwrap();
+    let (g, e) = write_pair(dir.path());
+    let (g, e) = (g.to_str().unwrap(), e.to_str().unwrap());
+    let moving = dir.path().join("moving.txt");
+    std::fs::write(&moving, "# start end\n101.0 102.5\n104 105\n").unwrap();
+    let plot = dir.path().join("ate.png");
+    let args = [
+        "eval",
+        "ate",
+        "--gt",
+        g,
+        "--est",
+        e,
+        "--align",
+        "se3",
+        "--json",
+        "--time-plot",
+    ];
+    let out = stillpoint(
+        &[
+            &args[..],
+            &[plot.to_str().unwrap(), "--moving", moving.to_str().unwrap()],
+        ]
+        .concat(),
+    );
+    json(&out);
+    let img = stillpoint_image::read_rgb(&plot).unwrap();
+    let (w, h) = stillpoint_trajectory::plot::ERROR_PLOT_SIZE;
+    assert_eq!((img.width, img.height), (w as usize, h as usize));
+    // Without periods: a plot all the same; a bad periods file or a folder without boxes: one
+    // error naming it.
+    json(&stillpoint(
+        &[&args[..], &[plot.to_str().unwrap()]].concat(),
+    ));
+    std::fs::write(&moving, "101 102\n103 oops\n").unwrap();
+    let out = stillpoint(
+        &[
+            &args[..],
+            &[plot.to_str().unwrap(), "--moving", moving.to_str().unwrap()],
+        ]
+        .concat(),
+    );
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("moving.txt:2:"), "{err}");
+    let out = stillpoint(
+        &[
+            &args[..],
+            &[
+                plot.to_str().unwrap(),
+                "--dataset",
+                dir.path().to_str().unwrap(),
+            ],
+        ]
+        .concat(),
+    );
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no boxes.jsonl"));
+}

@@ -3,7 +3,7 @@
 //! nothing but the binary (the gt detector reads the boxes the generator wrote).
 
 use anyhow::Context;
-use stillpoint_bench::demo::{DemoOptions, demo};
+use stillpoint_bench::demo::{DemoOptions, demo, write_plots};
 use stillpoint_eval::stats;
 use stillpoint_synth::Preset;
 
@@ -27,6 +27,11 @@ pub struct Args {
     /// Keep the generated sequence in this folder instead of a temporary one.
     #[arg(long)]
     pub keep: Option<std::path::PathBuf>,
+    /// Write the plots here: top views of both runs against the ground truth, and both runs'
+    /// ATE over time with the periods a walker was in view shaded (default: a
+    /// `stillpoint-demo-plots-PID` folder in the temporary directory; its name is printed).
+    #[arg(long)]
+    pub plots: Option<std::path::PathBuf>,
     #[arg(long)]
     pub json: bool,
 }
@@ -46,6 +51,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         &mut |e| bar.show(e),
     )?;
+    let plots_dir = args.plots.clone().unwrap_or_else(|| {
+        std::env::temp_dir().join(format!("stillpoint-demo-plots-{}", std::process::id()))
+    });
+    let plots = write_plots(&report, preset.name(), &plots_dir)?;
+    tracing::info!("plots written to {}", plots_dir.display());
     let (off, on) = (&report.off, &report.on);
     let (a_off, a_on, improvement) = (report.ate_off, report.ate_on, report.improvement_percent);
     if args.json {
@@ -59,6 +69,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 "ate_rmse_off": a_off,
                 "ate_rmse_on": a_on,
                 "improvement_percent": improvement,
+                "moving_periods": report.moving_intervals,
+                "plots": plots,
             })
         );
         return Ok(());
@@ -107,5 +119,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("{k:<30} {m:>9.2} {med:>9.2} {p90:>9.2} {base:>12}");
     }
     print_culled_row(on);
+    println!();
+    println!("plots in {}:", plots_dir.display());
+    for p in &plots {
+        println!("  {}", p.display());
+    }
     Ok(())
 }

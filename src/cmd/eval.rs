@@ -4,8 +4,9 @@ use anyhow::{Context, Result};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use stillpoint_trajectory::{
-    Alignment, AteOptions, DeltaUnit, ErrorStats, KittiOptions, Matching, RpeOptions, Trajectory,
-    TrajectoryFormat, ate, kitti_odometry, plot_top_view, read_trajectory_lenient, rpe,
+    Alignment, AteOptions, DeltaUnit, ErrorSeries, ErrorStats, KittiOptions, Matching, RpeOptions,
+    Trajectory, TrajectoryFormat, ate, kitti_odometry, plot_error_over_time, plot_top_view,
+    read_trajectory_lenient, rpe,
 };
 
 #[derive(clap::Subcommand)]
@@ -53,6 +54,17 @@ pub struct AteArgs {
     /// Write a top-view plot (estimate coloured by error) to this .png or .svg file.
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// Write the error of each pose over time (after alignment) to this .png or .svg file.
+    #[arg(long)]
+    time_plot: Option<PathBuf>,
+    /// Shade the periods a moving object was in view in --time-plot: a file of `start end`
+    /// lines (seconds, on the estimate's clock; `#` comments).
+    #[arg(long, requires = "time_plot", conflicts_with = "dataset")]
+    moving: Option<PathBuf>,
+    /// Shade the periods a moving object was in view in --time-plot, from this sequence's
+    /// per-frame boxes (boxes.jsonl, as `stillpoint synth` writes them).
+    #[arg(long, requires = "time_plot")]
+    dataset: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -158,14 +170,30 @@ fn run_ate(a: AteArgs) -> Result<()> {
     )
     .with_context(|| format!("ATE of {} against {}", i.est.display(), i.gt.display()))?;
     if let Some(plot) = &a.plot {
-        let title = i
-            .est
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
+        let title = label_of(&i.est);
         plot_top_view(plot, &title, &gt.positions(), &r.est_positions, &r.errors)
             .context("writing the ATE plot")?;
         tracing::info!("plot written to {}", plot.display());
+    }
+    if let Some(plot) = &a.time_plot {
+        let shaded = match (&a.moving, &a.dataset) {
+            (Some(file), _) => stillpoint_eval::periods::read_intervals(file)?,
+            (None, Some(dir)) => stillpoint_eval::periods::dataset_moving_intervals(dir)?,
+            (None, None) => Vec::new(),
+        };
+        let points = r.errors_over_time(&est);
+        let label = format!("{} {}", label_of(&i.est), align_title(i.align));
+        let series = [ErrorSeries {
+            label: &label,
+            points: &points,
+        }];
+        plot_error_over_time(plot, "ATE over time", &series, &shaded)
+            .context("writing the ATE-over-time plot")?;
+        tracing::info!(
+            "plot written to {} ({} moving periods shaded)",
+            plot.display(),
+            shaded.len()
+        );
     }
     if i.json {
         let mut v = stats_json(&r.stats);
@@ -180,6 +208,13 @@ fn run_ate(a: AteArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// A file's name, for titles and legends.
+fn label_of(path: &Path) -> String {
+    path.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
 }
 
 fn run_rpe(a: RpeArgs) -> Result<()> {

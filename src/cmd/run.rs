@@ -39,6 +39,11 @@ pub struct Args {
     /// the movers' pixels left out; `--set dense.voxel_m=...`) as PLY.
     #[arg(long)]
     pub dense_cloud: Option<PathBuf>,
+    /// Record the run as an MCAP file for Foxglove: each frame's image with its keypoints and
+    /// boxes, the camera's pose and path, the map's points and keyframes, the culled keypoints
+    /// lifted into 3D (`[record]` settings: `--set record.image=png`).
+    #[arg(long)]
+    pub record: Option<PathBuf>,
     /// A ROS recording to run on instead of a folder: ROS 2 (`.mcap`, or the `ros2 bag` folder
     /// holding one) or ROS 1 (`.bag`); colour from `--rgb-topic`, depth from `--depth-topic`
     /// or a stereo pair's right images from `--right-topic` (monocular without), the camera
@@ -267,6 +272,7 @@ pub fn summary_json(s: &RunSummary) -> serde_json::Value {
         "map_file": map_files_json(s),
         "dense_points": s.dense.map(|d| d.points),
         "dense_points_on_movers": s.dense.and_then(|d| d.on_movers),
+        "record": s.record.as_ref().map(|r| serde_json::json!({"bytes": r.bytes, "messages": r.messages})),
         "ate_keyframes": ate_keyframes.map(|a| serde_json::json!({"rmse": a.stats.rmse, "pairs": a.stats.count})),
         "loop_closing": loops_json(s),
         "realtime": s.realtime.as_ref().map(|r| realtime_json(r, acc.as_ref().map(|(a, _)| a.stats.rmse))),
@@ -421,6 +427,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         overlay: args.overlay.clone(),
         map_cloud: args.map_cloud.clone(),
         dense_cloud: args.dense_cloud.clone(),
+        record: args.record.clone(),
         overrides: Overrides {
             config: args.layers.config.clone(),
             sets: args.layers.sets.clone(),

@@ -2,7 +2,7 @@
 //! front-end off and on, and compare the ATEs. Needs nothing but the binary (the gt detector
 //! reads the boxes the generator wrote).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
 use stillpoint_run::{Event, RunOptions, RunSummary, run_sequence};
@@ -39,6 +39,8 @@ pub struct DemoReport {
     pub ate_on: Option<f64>,
     /// How much lower the ATE is with the front-end, percent of the baseline's.
     pub improvement_percent: Option<f64>,
+    /// When a moving object was in view (the generator's boxes), seconds.
+    pub moving_intervals: Vec<stillpoint_eval::periods::Interval>,
 }
 
 /// Render the sequence, run it twice (sequential local mapping, so deterministic) and compare.
@@ -65,6 +67,7 @@ pub fn demo(o: &DemoOptions, progress: &mut dyn FnMut(Event)) -> Result<DemoRepo
             source,
         }
     })?;
+    let moving_intervals = stillpoint_eval::periods::dataset_moving_intervals(&dir)?;
     let base = RunOptions {
         sequential: true,
         stop: o.stop,
@@ -95,5 +98,56 @@ pub fn demo(o: &DemoOptions, progress: &mut dyn FnMut(Event)) -> Result<DemoRepo
         ate_off,
         ate_on,
         improvement_percent,
+        moving_intervals,
     })
+}
+
+/// The demo's plots in `dir` (created): each run's top view against the ground truth
+/// (`top_view_off.png`, `top_view_on.png`) and both runs' ATE over time with the periods a
+/// moving object was in view shaded (`ate_over_time.png`). Returns the files written; a run
+/// without an ATE has no plot.
+pub fn write_plots(
+    report: &DemoReport,
+    title: &str,
+    dir: &Path,
+) -> Result<Vec<PathBuf>, BenchError> {
+    std::fs::create_dir_all(dir).map_err(|source| BenchError::Io {
+        context: format!("creating {}", dir.display()),
+        source,
+    })?;
+    let mut written = Vec::new();
+    let mut curves = Vec::new();
+    for (name, s) in [("off", &report.off), ("on", &report.on)] {
+        let (Some(gt), Some((ate, _))) = (&s.ground_truth, s.accuracy()) else {
+            continue;
+        };
+        let path = dir.join(format!("top_view_{name}.png"));
+        stillpoint_trajectory::plot_top_view(
+            &path,
+            &format!("{title}, front-end {name}"),
+            &gt.positions(),
+            &ate.est_positions,
+            &ate.errors,
+        )?;
+        written.push(path);
+        curves.push((
+            format!("front-end {name} (RMSE {:.2} cm)", 100.0 * ate.stats.rmse),
+            ate.errors_over_time(&s.trajectory),
+        ));
+    }
+    if !curves.is_empty() {
+        let series: Vec<stillpoint_trajectory::ErrorSeries> = curves
+            .iter()
+            .map(|(label, points)| stillpoint_trajectory::ErrorSeries { label, points })
+            .collect();
+        let path = dir.join("ate_over_time.png");
+        stillpoint_trajectory::plot_error_over_time(
+            &path,
+            &format!("{title}: ATE over time"),
+            &series,
+            &report.moving_intervals,
+        )?;
+        written.push(path);
+    }
+    Ok(written)
 }

@@ -104,9 +104,12 @@ pub enum BenchError {
     /// The pipeline stopped on a frame of an in-memory run.
     #[error(transparent)]
     Pipeline(#[from] stillpoint_pipeline::PipelineError),
-    /// Poses that do not make a trajectory.
+    /// Poses that do not make a trajectory, or a plot that cannot be written.
     #[error(transparent)]
     Trajectory(#[from] stillpoint_trajectory::TrajectoryError),
+    /// The periods a moving object was in view cannot be had.
+    #[error(transparent)]
+    Periods(#[from] stillpoint_eval::periods::PeriodsError),
 }
 
 pub use stillpoint_run::error_chain;

@@ -7,6 +7,8 @@
 //!   two instants truly were (for judging loop closures);
 //! - [`movers`]: the generator's per-pixel masks of moving objects (`stillpoint synth --masks`),
 //!   keypoints kept on them and map points observed on them;
+//! - [`periods`]: when a moving object was in view (from a sequence's boxes or a text file),
+//!   for shading plots of the error over time;
 //! - [`keypoints`]: confusion counts, precision and recall of a per-keypoint dynamic decision
 //!   against those masks (strict, occlusion-aware and straddle-free ground truths).
 //!
@@ -25,6 +27,7 @@
 pub mod accuracy;
 pub mod keypoints;
 pub mod movers;
+pub mod periods;
 pub mod stats;
 
 pub use accuracy::{EvalError, accuracy, alignment, read_ground_truth};

@@ -354,6 +354,9 @@ pub struct DynamicFrontEnd {
     last_world: Option<WorldSource>,
     /// ... and the camera motion it found (previous to current camera).
     last_world_motion: Option<Se3>,
+    /// The frame last judged and the boxes the memory carried into it (the detector missed
+    /// them there), for the overlays and recordings that tell them apart.
+    last_carried: (usize, Vec<stillpoint_geometry::BBox>),
 }
 
 impl DynamicFrontEnd {
@@ -389,6 +392,7 @@ impl DynamicFrontEnd {
             poses: Vec::new(),
             last_world: None,
             last_world_motion: None,
+            last_carried: (usize::MAX, Vec::new()),
         }
     }
 
@@ -419,6 +423,17 @@ impl DynamicFrontEnd {
             .iter()
             .filter(|o| o.last_seen == index)
             .collect()
+    }
+
+    /// The boxes the box memory carried into frame `index` because the detector missed their
+    /// objects there (judged moving, as the frame before judged them). Empty for any frame but
+    /// the last judged one.
+    pub fn carried_in_view(&self, index: usize) -> &[stillpoint_geometry::BBox] {
+        if self.last_carried.0 == index {
+            &self.last_carried.1
+        } else {
+            &[]
+        }
     }
 
     /// The boxes of the objects judged moving in the last judged frame, grown by
@@ -1075,6 +1090,7 @@ impl DynamicFrontEnd {
                     .collect::<Vec<_>>()
             );
         }
+        self.last_carried = (frame.index, carried.iter().map(|c| c.bbox).collect());
         states.extend(stillpoint_dynamic::carried_states(
             &carried,
             &check.points,

@@ -34,6 +34,18 @@ pub enum ImageError {
         /// Why.
         source: Box<dyn std::error::Error + Send + Sync>,
     },
+    /// An image cannot be encoded in memory.
+    #[error("cannot encode a {width}x{height} image as {format}: {source}")]
+    Encode {
+        /// `png` or `jpeg`.
+        format: &'static str,
+        /// The image's size.
+        width: usize,
+        /// The image's size.
+        height: usize,
+        /// Why.
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
     /// A depth image that is not 16-bit, one channel.
     #[error("{path}: expected a 16-bit single-channel depth PNG, found {found}")]
     NotDepth16 {
@@ -313,6 +325,60 @@ pub fn write_rgb(path: &Path, img: &Rgb8) -> Result<(), ImageError> {
     .map_err(|e| write_err(path, e))
 }
 
+/// An 8-bit RGB image as the bytes of a PNG file (fast compression: for streams of frames).
+pub fn encode_png(img: &Rgb8) -> Result<Vec<u8>, ImageError> {
+    use image::ImageEncoder;
+    let mut out = Vec::new();
+    let enc = image::codecs::png::PngEncoder::new_with_quality(
+        &mut out,
+        image::codecs::png::CompressionType::Fast,
+        image::codecs::png::FilterType::Adaptive,
+    );
+    enc.write_image(
+        &flat_rgb(img),
+        img.width as u32,
+        img.height as u32,
+        image::ExtendedColorType::Rgb8,
+    )
+    .map_err(|e| encode_err("png", img, e))?;
+    Ok(out)
+}
+
+/// An 8-bit RGB image as the bytes of a JPEG file of `quality` (1..=100). The jpeg-encoder
+/// crate (AVX2 where the CPU has it) takes half the time of image's own encoder: 8 against
+/// 16 ms for 640x480.
+pub fn encode_jpeg(img: &Rgb8, quality: u8) -> Result<Vec<u8>, ImageError> {
+    let (Ok(w), Ok(h)) = (u16::try_from(img.width), u16::try_from(img.height)) else {
+        return Err(encode_err(
+            "jpeg",
+            img,
+            std::io::Error::other("larger than 65535 pixels a side"),
+        ));
+    };
+    let mut out = Vec::new();
+    jpeg_encoder::Encoder::new(&mut out, quality.clamp(1, 100))
+        .encode(&flat_rgb(img), w, h, jpeg_encoder::ColorType::Rgb)
+        .map_err(|e| encode_err("jpeg", img, e))?;
+    Ok(out)
+}
+
+fn flat_rgb(img: &Rgb8) -> Vec<u8> {
+    img.data.iter().flat_map(|p| p.iter().copied()).collect()
+}
+
+fn encode_err(
+    format: &'static str,
+    img: &Rgb8,
+    e: impl std::error::Error + Send + Sync + 'static,
+) -> ImageError {
+    ImageError::Encode {
+        format,
+        width: img.width,
+        height: img.height,
+        source: Box::new(e),
+    }
+}
+
 /// Write raw 16-bit values as a single-channel PNG (big-endian, as PNG requires).
 pub fn write_depth16(path: &Path, img: &ImageBuf<u16>) -> Result<(), ImageError> {
     let file = std::fs::File::create(path).map_err(|e| write_err(path, e))?;
@@ -374,6 +440,21 @@ mod tests {
             remap_bilinear(&Gray8::new(0, 0, 0), &[[0.0, 0.0]], 1, 1)
                 .is_some_and(|o| o.data == [0])
         );
+    }
+
+    #[test]
+    fn encoded_png_decodes_to_the_same_pixels_and_jpeg_to_a_jpeg() {
+        let img = Rgb8::from_vec(5, 3, (0..15u8).map(|i| [i * 10, 255 - i, i]).collect()).unwrap();
+        let png = encode_png(&img).unwrap();
+        let back = image::load_from_memory(&png).unwrap().to_rgb8();
+        assert_eq!(back.dimensions(), (5, 3));
+        assert_eq!(back.pixels().map(|p| p.0).collect::<Vec<_>>(), img.data);
+        let jpeg = encode_jpeg(&img, 90).unwrap();
+        assert_eq!(&jpeg[..2], &[0xFF, 0xD8]);
+        assert!(matches!(
+            image::guess_format(&jpeg),
+            Ok(image::ImageFormat::Jpeg)
+        ));
     }
 
     #[test]

@@ -49,6 +49,45 @@ pub struct SettingsTree {
     /// The dense static cloud (`run --dense-cloud`).
     #[serde(default)]
     pub dense: crate::dense::DenseSettings,
+    /// The MCAP recording (`run --record`).
+    #[serde(default)]
+    pub record: RecordSettings,
+}
+
+/// What `run --record` puts in its MCAP file (`[record]` in the settings tree).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RecordSettings {
+    /// How each frame's colour image is stored: `jpeg` (small, fast), `png` (lossless, about
+    /// ten times the bytes) or `none`.
+    pub image: RecordImage,
+    /// JPEG quality, 1..=100.
+    pub jpeg_quality: u8,
+    /// The map's points and keyframes are recorded after every this-many new keyframes (0:
+    /// only at the end).
+    pub map_every_keyframes: usize,
+}
+
+/// How `run --record` stores the frames' images.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RecordImage {
+    /// foxglove.CompressedImage, JPEG.
+    Jpeg,
+    /// foxglove.CompressedImage, PNG.
+    Png,
+    /// No images (annotations, poses and points only).
+    None,
+}
+
+impl Default for RecordSettings {
+    fn default() -> Self {
+        Self {
+            image: RecordImage::Jpeg,
+            jpeg_quality: 90,
+            map_every_keyframes: 1,
+        }
+    }
 }
 
 /// Where a value of the tree came from.
@@ -144,6 +183,7 @@ impl SettingsTree {
             front_end: FrontEndSettings::default(),
             detect: DetectSettings::default(),
             dense: Default::default(),
+            record: Default::default(),
         }
     }
 

@@ -31,6 +31,7 @@
 
 mod output;
 pub mod overlay;
+pub mod record;
 mod replay;
 mod session;
 
@@ -85,6 +86,9 @@ pub struct RunOptions {
     /// A PLY file for the dense static cloud: keyframe depth fused without the movers' pixels
     /// (RGB-D; `[dense]` settings).
     pub dense_cloud: Option<PathBuf>,
+    /// An MCAP file of the run for Foxglove: images, keypoints and boxes, poses, the map
+    /// ([`record`]; `[record]` settings).
+    pub record: Option<PathBuf>,
     /// Set (from another thread or a signal handler) to stop taking frames; the map and the
     /// files are still finished.
     pub stop: Option<&'static AtomicBool>,
@@ -116,6 +120,7 @@ impl RunOptions {
             overlay: None,
             map_cloud: None,
             dense_cloud: None,
+            record: None,
             stop: None,
             load_map: None,
             localize: false,
@@ -200,6 +205,8 @@ pub struct RunSummary {
     pub first_relocalisation: Option<usize>,
     /// The map loaded and the map saved, when asked for.
     pub map_files: MapFilesReport,
+    /// The MCAP recording written, when one was asked for.
+    pub record: Option<record::RecordReport>,
 }
 
 /// What `load_map` read and `save_map` wrote.

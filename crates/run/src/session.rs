@@ -222,6 +222,12 @@ pub fn run_sequence(
             source,
         })?;
     }
+    let mut recorder = o
+        .record
+        .as_deref()
+        .map(|p| crate::record::Recorder::create(p, &tree.record))
+        .transpose()?;
+    let camera_model = pipeline_settings.slam.camera;
     let mut writer = match &o.out {
         Some(p) => Some(TumWriter::create(p).map_err(|source| RunError::Trajectory {
             context: format!("creating {}", p.display()),
@@ -263,6 +269,7 @@ pub fn run_sequence(
     // A live source has no known end (len usize::MAX): frames are counted as they come.
     let live = seq.len() == usize::MAX;
     let mut times: Vec<FrameTimings> = Vec::with_capacity(n.min(1 << 16));
+    let mut record_ms = Vec::new();
     let mut written: Option<f64> = None;
     let mut culled = Vec::with_capacity(n.min(1 << 16));
     let (mut tracked, mut relocs, mut new_maps) = (0, 0, 0);
@@ -391,6 +398,28 @@ pub fn run_sequence(
                 source: std::io::Error::other(e.to_string()),
             })?;
         }
+        if let Some(rec) = recorder.as_mut() {
+            let t0 = Instant::now();
+            let front = pipeline.front_end();
+            let objects = front
+                .map(|f| f.objects_in_view(frame.index))
+                .unwrap_or_default();
+            let carried = front.map_or(&[][..], |f| f.carried_in_view(frame.index));
+            rec.frame(&crate::record::FrameRecord {
+                frame: &frame,
+                result: &r,
+                objects: &objects,
+                carried,
+                camera: &camera_model,
+            })?;
+            if r.new_keyframe {
+                let map = pipeline.system().map();
+                if let Ok(map) = map.lock() {
+                    rec.keyframe(&map)?;
+                }
+            }
+            record_ms.push(ms_since(t0));
+        }
         progress(Event::Tracked {
             result: &r,
             keyframes: pipeline.system().keyframe_count(),
@@ -504,6 +533,23 @@ pub fn run_sequence(
         );
         map_files.saved = Some(report);
     }
+    let record = match recorder {
+        Some(rec) => {
+            let map = fin.system.map();
+            let map = map.lock().ok();
+            let report = rec.finish(map.as_deref(), &fin.trajectory)?;
+            if let Some(p) = &o.record {
+                tracing::info!(
+                    "recording written to {} ({:.1} MB, {} messages)",
+                    p.display(),
+                    report.bytes as f64 / 1e6,
+                    report.messages.values().sum::<usize>()
+                );
+            }
+            Some(report)
+        }
+        None => None,
+    };
     // A loaded map's keyframes carry another sequence's timestamps: no masks to judge them by.
     let moving_map_points = (has_masks && !map_loaded).then(|| {
         fin.system.map().lock().map_or(Default::default(), |map| {
@@ -525,6 +571,9 @@ pub fn run_sequence(
     timings.push(("tracking", pick(|t| t.tracking_ms)));
     let loops = fin.loops;
     timings.push(("local mapping (per keyframe)", fin.mapping_ms));
+    if o.record.is_some() {
+        timings.push(("recording", record_ms));
+    }
     if let Some(l) = &loops {
         timings.push(("loop detection (per keyframe)", l.detection_ms.clone()));
         timings.push(("loop correction", l.correction_ms.clone()));
@@ -554,6 +603,7 @@ pub fn run_sequence(
         dense: dense_report,
         first_relocalisation,
         map_files,
+        record,
         untracked_reason: (tracked == 0).then(|| {
             let init = &pipeline_settings_init;
             if frames_read == 0 {

@@ -33,7 +33,7 @@ pub use kitti::{KittiOptions, KittiResult, kitti_odometry};
 pub use metrics::{
     Alignment, AteOptions, AteResult, DeltaUnit, ErrorStats, RpeOptions, RpeResult, ate, rpe,
 };
-pub use plot::plot_top_view;
+pub use plot::{ErrorSeries, plot_error_over_time, plot_top_view};
 
 use stillpoint_geometry::{Se3, Vec3};
 

@@ -114,6 +114,18 @@ pub struct AteResult {
     pub est_positions: Vec<Vec3>,
 }
 
+impl AteResult {
+    /// (stamp of the estimate's pose, its error) of each pair: the error over time. `est` is
+    /// the trajectory the result was computed for.
+    pub fn errors_over_time(&self, est: &Trajectory) -> Vec<(f64, f64)> {
+        self.pairs
+            .iter()
+            .zip(&self.errors)
+            .filter_map(|(&(_, e), &err)| Some((*est.stamps.get(e)?, err)))
+            .collect()
+    }
+}
+
 /// Associated pairs, the matched ground truth, the matched and aligned estimate, the alignment.
 type Aligned = (Vec<(usize, usize)>, Trajectory, Trajectory, Sim3);
 

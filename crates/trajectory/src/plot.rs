@@ -1,5 +1,10 @@
-//! A top-view plot of an estimate against its ground truth, the estimate coloured by its error.
-//! PNG or SVG, chosen by the file extension.
+//! A top-view plot of an estimate against its ground truth, the estimate coloured by its error,
+//! and the error over time with the periods a moving object was in view shaded. PNG or SVG,
+//! chosen by the file extension.
+//!
+//! Text (captions, axis labels, legends) needs a system font (plotters' `ttf` feature finds one
+//! through fontconfig); where none is installed the plots are drawn without text rather than
+//! not at all ([`text_renders`]).
 
 use crate::TrajectoryError;
 use plotters::coord::Shift;
@@ -42,12 +47,30 @@ fn top_axes(points: &[Vec3]) -> (usize, usize) {
     (a, b)
 }
 
+/// Whether text can be drawn: a sans-serif font is installed (checked once).
+pub fn text_renders() -> bool {
+    static FOUND: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *FOUND.get_or_init(|| {
+        let found = ("sans-serif", 12).into_font().box_size("0.5 m").is_ok();
+        if !found {
+            tracing_free_warning();
+        }
+        found
+    })
+}
+
+/// Said once on stderr: this crate logs nothing else.
+fn tracing_free_warning() {
+    eprintln!("warning: no font found (fontconfig): plots are drawn without text");
+}
+
 fn draw<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     title: &str,
     gt: &[Vec3],
     est: &[Vec3],
     errors: &[f64],
+    text: bool,
 ) -> Result<(), String>
 where
     DB::ErrorType: 'static,
@@ -78,19 +101,27 @@ where
         });
     let names = ["x", "y", "z"];
     let caption = format!("{title}  (error {lo:.4} blue .. {hi:.4} m red)");
-    let mut chart = ChartBuilder::on(&root)
-        .caption(caption, ("sans-serif", 18))
-        .margin(12)
-        .x_label_area_size(36)
-        .y_label_area_size(56)
+    let mut builder = ChartBuilder::on(&root);
+    builder.margin(12);
+    if text {
+        builder
+            .caption(caption, ("sans-serif", 18))
+            .x_label_area_size(36)
+            .y_label_area_size(56);
+    }
+    let mut chart = builder
         .build_cartesian_2d(cx - half..cx + half, cy - half..cy + half)
         .map_err(e)?;
-    chart
-        .configure_mesh()
-        .x_desc(format!("{} [m]", names[a]))
-        .y_desc(format!("{} [m]", names[b]))
-        .draw()
-        .map_err(e)?;
+    if text {
+        chart
+            .configure_mesh()
+            .x_desc(format!("{} [m]", names[a]))
+            .y_desc(format!("{} [m]", names[b]))
+            .draw()
+            .map_err(e)?;
+    } else {
+        frame_plot(&mut chart).map_err(e)?;
+    }
     chart
         .draw_series(LineSeries::new(
             gt.iter().map(|p| (p[a], p[b])),
@@ -108,14 +139,32 @@ where
         .map_err(e)?
         .label("estimate (aligned)")
         .legend(|(x, y)| Circle::new((x + 8, y), 3, RED.filled()));
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(e)?;
+    if text {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(e)?;
+    }
     root.present().map_err(e)?;
     Ok(())
+}
+
+/// The plotting area's border, for plots drawn without text (no mesh, whose labels need a font).
+fn frame_plot<DB: DrawingBackend>(
+    chart: &mut ChartContext<
+        DB,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let (x, y) = (chart.x_range(), chart.y_range());
+    chart
+        .draw_series(std::iter::once(Rectangle::new(
+            [(x.start, y.start), (x.end, y.end)],
+            BLACK.stroke_width(1),
+        )))
+        .map(|_| ())
 }
 
 /// Plot the ground-truth path (black line) and the aligned estimate (dots coloured by error) seen
@@ -140,17 +189,16 @@ pub fn plot_top_view(
             errors.len()
         )));
     }
-    let is_svg = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("svg"));
     let size = (900, 900);
-    if is_svg {
+    let text = text_renders();
+    if is_svg(path) {
         draw(
             SVGBackend::new(path, size).into_drawing_area(),
             title,
             gt,
             est,
             errors,
+            text,
         )
         .map_err(fail)
     } else {
@@ -160,9 +208,142 @@ pub fn plot_top_view(
             gt,
             est,
             errors,
+            text,
         )
         .map_err(fail)
     }
+}
+
+fn is_svg(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("svg"))
+}
+
+/// One curve of [`plot_error_over_time`]: a name for the legend and (stamp s, error m) points.
+pub struct ErrorSeries<'a> {
+    /// Legend text.
+    pub label: &'a str,
+    /// (stamp in seconds, error in metres), in time order.
+    pub points: &'a [(f64, f64)],
+}
+
+/// Size of [`plot_error_over_time`]'s picture, pixels.
+pub const ERROR_PLOT_SIZE: (u32, u32) = (1200, 500);
+
+/// Shading of the moving periods.
+const SHADE: RGBColor = RGBColor(255, 200, 140);
+/// Colours of the curves, in order.
+const CURVES: [RGBColor; 4] = [
+    RGBColor(90, 90, 90),
+    RGBColor(0, 90, 220),
+    RGBColor(220, 30, 30),
+    RGBColor(0, 150, 60),
+];
+
+/// Plot each series' error over time (seconds from the earliest stamp, metres), the intervals
+/// in `shaded` (stamps on the same clock: when a moving object was in view) shaded orange,
+/// to `path` (`.svg` -> SVG, anything else -> PNG, [`ERROR_PLOT_SIZE`]).
+pub fn plot_error_over_time(
+    path: &Path,
+    title: &str,
+    series: &[ErrorSeries],
+    shaded: &[(f64, f64)],
+) -> Result<(), TrajectoryError> {
+    let fail = |msg: String| TrajectoryError::Plot {
+        path: path.display().to_string(),
+        msg,
+    };
+    let all = || series.iter().flat_map(|s| s.points.iter());
+    if all().next().is_none() {
+        return Err(fail("no errors to plot".into()));
+    }
+    let text = text_renders();
+    if is_svg(path) {
+        let root = SVGBackend::new(path, ERROR_PLOT_SIZE).into_drawing_area();
+        draw_error_over_time(root, title, series, shaded, text).map_err(fail)
+    } else {
+        let root = BitMapBackend::new(path, ERROR_PLOT_SIZE).into_drawing_area();
+        draw_error_over_time(root, title, series, shaded, text).map_err(fail)
+    }
+}
+
+fn draw_error_over_time<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    title: &str,
+    series: &[ErrorSeries],
+    shaded: &[(f64, f64)],
+    text: bool,
+) -> Result<(), String>
+where
+    DB::ErrorType: 'static,
+{
+    let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
+    root.fill(&WHITE).map_err(e)?;
+    let points = || series.iter().flat_map(|s| s.points.iter());
+    let t0 = points().map(|p| p.0).fold(f64::INFINITY, f64::min);
+    let t1 = points().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max);
+    let top = points().map(|p| p.1).fold(0.0, f64::max).max(1e-6) * 1.1;
+    let end = (t1 - t0).max(1e-6);
+    let mut builder = ChartBuilder::on(&root);
+    builder.margin(12);
+    if text {
+        builder
+            .caption(title, ("sans-serif", 18))
+            .x_label_area_size(36)
+            .y_label_area_size(64);
+    }
+    let mut chart = builder.build_cartesian_2d(0.0..end, 0.0..top).map_err(e)?;
+    // The mesh, then the shading over it, then the curves; the shading clipped to the
+    // plotted time.
+    if text {
+        chart
+            .configure_mesh()
+            .light_line_style(TRANSPARENT)
+            .x_desc("time [s]")
+            .y_desc("translation error after alignment [m]")
+            .draw()
+            .map_err(e)?;
+    } else {
+        frame_plot(&mut chart).map_err(e)?;
+    }
+    let spans: Vec<(f64, f64)> = shaded
+        .iter()
+        .map(|&(a, b)| ((a - t0).max(0.0), (b - t0).min(end)))
+        .filter(|(a, b)| a < b)
+        .collect();
+    chart
+        .draw_series(
+            spans
+                .iter()
+                .map(|&(a, b)| Rectangle::new([(a, 0.0), (b, top)], SHADE.mix(0.5).filled())),
+        )
+        .map_err(e)?
+        .label("moving object in view")
+        .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 16, y + 5)], SHADE.filled()));
+    for (i, s) in series.iter().enumerate() {
+        let colour = CURVES[i % CURVES.len()];
+        chart
+            .draw_series(LineSeries::new(
+                s.points.iter().map(|&(t, v)| (t - t0, v)),
+                colour.stroke_width(2),
+            ))
+            .map_err(e)?
+            .label(s.label)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2))
+            });
+    }
+    if text {
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(e)?;
+    }
+    root.present().map_err(e)?;
+    Ok(())
 }
 
 #[cfg(test)]
@@ -188,5 +369,62 @@ mod tests {
         let bad = plot_top_view(&dir.path().join("x.png"), "t", &gt, &est, &errors[1..]);
         assert!(bad.unwrap_err().to_string().contains("x.png"));
         assert_eq!(top_axes(&gt), (0, 1));
+    }
+
+    /// A PNG's size, and the share of the pixels in x0..x1 by y0..y1 that are the shading's
+    /// orange (red well over blue).
+    fn png_orange(path: &Path, (x0, x1): (u32, u32), (y0, y1): (u32, u32)) -> ((u32, u32), f64) {
+        let file = std::io::BufReader::new(std::fs::File::open(path).unwrap());
+        let mut reader = png::Decoder::new(file).read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        assert_eq!(info.color_type, png::ColorType::Rgb);
+        let mut orange = 0;
+        for y in y0..y1 {
+            for x in x0..x1 {
+                let i = ((y * info.width + x) * 3) as usize;
+                orange += usize::from(buf[i] > 200 && buf[i] as i32 - buf[i + 2] as i32 > 40);
+            }
+        }
+        let n = ((x1 - x0) * (y1 - y0)) as f64;
+        ((info.width, info.height), orange as f64 / n)
+    }
+
+    #[test]
+    fn error_over_time_shades_the_moving_periods_with_and_without_text() {
+        let dir = tempfile::tempdir().unwrap();
+        // Two flat curves, one near the bottom and one near the top: the middle rows are free.
+        let a: Vec<(f64, f64)> = (0..100).map(|i| (100.0 + i as f64 * 0.1, 0.001)).collect();
+        let b: Vec<(f64, f64)> = a.iter().map(|&(t, _)| (t, 0.02)).collect();
+        let series = [
+            ErrorSeries {
+                label: "off",
+                points: &a,
+            },
+            ErrorSeries {
+                label: "on",
+                points: &b,
+            },
+        ];
+        // From half the time on.
+        let shaded = [(104.95, 120.0)];
+        let path = dir.path().join("t.png");
+        plot_error_over_time(&path, "test", &series, &shaded).unwrap();
+        let (w, h) = ERROR_PLOT_SIZE;
+        let rows = (h * 2 / 5, h * 3 / 5);
+        let (size, right) = png_orange(&path, (w * 3 / 5, w * 9 / 10), rows);
+        assert_eq!(size, ERROR_PLOT_SIZE);
+        assert!(right > 0.8, "{right}");
+        for text in [true, false] {
+            let path = dir.path().join(format!("t{text}.png"));
+            let root = BitMapBackend::new(&path, ERROR_PLOT_SIZE).into_drawing_area();
+            draw_error_over_time(root, "test", &series, &shaded, text).unwrap();
+            let (_, right) = png_orange(&path, (w * 3 / 5, w * 9 / 10), rows);
+            let (_, left) = png_orange(&path, (w / 8, w * 2 / 5), rows);
+            assert!(right > 0.8 && left == 0.0, "text {text}: {left} {right}");
+        }
+        plot_error_over_time(&dir.path().join("t.svg"), "test", &series, &[]).unwrap();
+        let empty = plot_error_over_time(&dir.path().join("e.png"), "t", &[], &shaded);
+        assert!(empty.unwrap_err().to_string().contains("e.png"));
     }
 }
