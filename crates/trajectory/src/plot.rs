@@ -2,9 +2,10 @@
 //! and the error over time with the periods a moving object was in view shaded. PNG or SVG,
 //! chosen by the file extension.
 //!
-//! Text (captions, axis labels, legends) needs a system font (plotters' `ttf` feature finds one
-//! through fontconfig); where none is installed the plots are drawn without text rather than
-//! not at all ([`text_renders`]).
+//! Text (captions, axis labels, legends) needs a TrueType font file from the system's font
+//! folders, read at run time and drawn by plotters' pure-Rust `ab_glyph` feature, so the binary
+//! links no fontconfig or freetype and starts on a machine without them; where no font is
+//! installed the plots are drawn without text rather than not at all ([`text_renders`]).
 
 use crate::TrajectoryError;
 use plotters::coord::Shift;
@@ -47,10 +48,15 @@ fn top_axes(points: &[Vec3]) -> (usize, usize) {
     (a, b)
 }
 
-/// Whether text can be drawn: a sans-serif font is installed (checked once).
+/// Whether text can be drawn: a font was found and registered as "sans-serif" (checked once).
 pub fn text_renders() -> bool {
     static FOUND: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     *FOUND.get_or_init(|| {
+        if let Some(bytes) = system_font() {
+            // plotters keeps fonts for the program's life: the bytes are leaked once.
+            let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+            let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, bytes);
+        }
         let found = ("sans-serif", 12).into_font().box_size("0.5 m").is_ok();
         if !found {
             tracing_free_warning();
@@ -59,9 +65,62 @@ pub fn text_renders() -> bool {
     })
 }
 
+/// A sans-serif TrueType font from the usual font folders (Linux, macOS, Windows): a
+/// well-known one first, else the first `.ttf` found.
+fn system_font() -> Option<Vec<u8>> {
+    const PREFERRED: [&str; 5] = [
+        "DejaVuSans.ttf",
+        "LiberationSans-Regular.ttf",
+        "NotoSans-Regular.ttf",
+        "FreeSans.ttf",
+        "Arial.ttf",
+    ];
+    let mut roots = vec![
+        std::path::PathBuf::from("/usr/share/fonts"),
+        std::path::PathBuf::from("/usr/local/share/fonts"),
+        std::path::PathBuf::from("/Library/Fonts"),
+        std::path::PathBuf::from("/System/Library/Fonts"),
+        std::path::PathBuf::from("C:\\Windows\\Fonts"),
+    ];
+    if let Some(home) = std::env::var_os("HOME") {
+        roots.push(Path::new(&home).join(".fonts"));
+        roots.push(Path::new(&home).join(".local/share/fonts"));
+    }
+    let mut found = Vec::new();
+    for root in &roots {
+        collect_ttf(root, 4, &mut found);
+    }
+    let name = |p: &std::path::PathBuf| p.file_name().and_then(|n| n.to_str()).map(str::to_owned);
+    let best = PREFERRED
+        .iter()
+        .find_map(|want| found.iter().find(|p| name(p).as_deref() == Some(*want)))
+        .or_else(|| found.first())?;
+    std::fs::read(best).ok()
+}
+
+/// The `.ttf` files under `dir`, at most `depth` folders down, in name order.
+fn collect_ttf(dir: &Path, depth: usize, out: &mut Vec<std::path::PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let mut paths: Vec<_> = entries.filter_map(|e| e.ok().map(|e| e.path())).collect();
+    paths.sort();
+    for p in paths {
+        if p.is_dir() {
+            if depth > 0 {
+                collect_ttf(&p, depth - 1, out);
+            }
+        } else if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("ttf")) {
+            out.push(p);
+        }
+    }
+}
+
 /// Said once on stderr: this crate logs nothing else.
 fn tracing_free_warning() {
-    eprintln!("warning: no font found (fontconfig): plots are drawn without text");
+    eprintln!(
+        "warning: no TrueType font found in the system's font folders: plots are drawn without text"
+    );
 }
 
 fn draw<DB: DrawingBackend>(
