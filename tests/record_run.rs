@@ -2,7 +2,7 @@
 //! reader; every message checked against the JSON schema the file embeds for its channel.
 
 mod common;
-use common::{assert_ok, ok_json, stillpoint};
+use common::{ok_json, stillpoint, synth_walking};
 use serde_json::Value;
 use std::collections::BTreeMap;
 
@@ -103,19 +103,7 @@ fn base64_decode(s: &str) -> Vec<u8> {
 fn the_recording_opens_with_the_reference_reader_and_every_message_fits_its_schema() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("seq");
-    let st = stillpoint()
-        .args([
-            "synth",
-            "--preset",
-            "walking_xyz",
-            "--frames",
-            "12",
-            "--out",
-        ])
-        .arg(&seq)
-        .output()
-        .unwrap();
-    assert_ok(&st);
+    synth_walking(&seq, 12, &[]);
     let file = tmp.path().join("run.mcap");
     let out = stillpoint()
         .args([

@@ -3,7 +3,7 @@
 //! the map's points as a PLY cloud; `--dense-cloud FILE`: keyframe depth without the walkers.
 
 mod common;
-use common::{assert_ok, ok_json, stillpoint};
+use common::{ok_json, stillpoint, synth_walking};
 
 /// Pixels of exactly `colour` in an overlay.
 fn count(img: &stillpoint_image::Rgb8, colour: [u8; 3]) -> usize {
@@ -14,20 +14,7 @@ fn count(img: &stillpoint_image::Rgb8, colour: [u8; 3]) -> usize {
 fn each_frame_gets_a_picture_and_the_map_a_point_cloud() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("seq");
-    let st = stillpoint()
-        .args([
-            "synth",
-            "--preset",
-            "walking_xyz",
-            "--frames",
-            "12",
-            "--masks",
-            "--out",
-        ])
-        .arg(&seq)
-        .output()
-        .unwrap();
-    assert_ok(&st);
+    synth_walking(&seq, 12, &["--masks"]);
     let dir = tmp.path().join("overlay");
     let out = stillpoint()
         .args(["run", "--detector", "gt", "--sequential", "--dataset"])

@@ -36,6 +36,19 @@ pub fn synth_static(dir: &Path, frames: usize, seed: u64) {
     assert_ok(&st);
 }
 
+/// `stillpoint synth --preset walking_xyz --frames N [EXTRA...] --out DIR`; must succeed.
+pub fn synth_walking(dir: &Path, frames: usize, extra: &[&str]) {
+    let st = stillpoint()
+        .args(["synth", "--preset", "walking_xyz", "--frames"])
+        .arg(frames.to_string())
+        .args(extra)
+        .arg("--out")
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert_ok(&st);
+}
+
 /// A synthetic static sequence whose depth PNGs hold millimetres (factor 1000), as a 16UC1
 /// recording does, so the folder and the recording hold the same depth values.
 pub fn synth_in_millimetres(dir: &Path, frames: usize) {
