@@ -2,36 +2,13 @@
 //! here: localisation finds its place by bag of words and leaves the map bit for bit as it was;
 //! mapping on adds keyframes with the ids that follow the saved ones.
 
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
 use stillpoint_slam::map_file::{decode, encode};
 use stillpoint_slam::{LoadedMapMode, SlamSettings, System};
 
 mod common;
-use common::{Scene, observe};
-
-/// Points on the four walls of a 5 x 5 m room (y is down, the camera height is 0).
-fn room(seed: u64, n: usize) -> Scene {
-    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
-    let (mut points, mut descriptors) = (Vec::new(), Vec::new());
-    for _ in 0..n {
-        let along = rng.random_range(-2.5..2.5);
-        let y = rng.random_range(-1.2..1.2);
-        points.push(match rng.random_range(0..4) {
-            0 => Vec3::new(along, y, 2.5),
-            1 => Vec3::new(along, y, -2.5),
-            2 => Vec3::new(2.5, y, along),
-            _ => Vec3::new(-2.5, y, along),
-        });
-        let mut d = [0u8; 32];
-        rng.fill(&mut d[..]);
-        descriptors.push(d);
-    }
-    Scene {
-        points,
-        descriptors,
-    }
-}
+use common::{Scene, observe, room};
 
 /// Camera-to-world pose on a circle of `radius` round the room's centre, looking outwards,
 /// at angle `a` (radians).

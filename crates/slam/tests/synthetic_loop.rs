@@ -3,7 +3,7 @@
 //! +-0.3 px of noise, which is enough for tracking to drift by centimetres and a degree or two
 //! over a lap; loop closing must find the revisit, correct it and lower the error.
 
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3, umeyama};
 use stillpoint_slam::{SlamSettings, System};
 
@@ -11,31 +11,7 @@ use stillpoint_slam::{SlamSettings, System};
 const LAP: usize = 300;
 
 mod common;
-use common::{Scene, observe};
-
-/// Points on the four walls of a 5 x 5 m room (y is down, the camera height is 0).
-fn scene(seed: u64, n: usize) -> Scene {
-    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
-    let (mut points, mut descriptors) = (Vec::new(), Vec::new());
-    for _ in 0..n {
-        let along = rng.random_range(-2.5..2.5);
-        let y = rng.random_range(-1.2..1.2);
-        let p = match rng.random_range(0..4) {
-            0 => Vec3::new(along, y, 2.5),
-            1 => Vec3::new(along, y, -2.5),
-            2 => Vec3::new(2.5, y, along),
-            _ => Vec3::new(-2.5, y, along),
-        };
-        points.push(p);
-        let mut d = [0u8; 32];
-        rng.fill(&mut d[..]);
-        descriptors.push(d);
-    }
-    Scene {
-        points,
-        descriptors,
-    }
-}
+use common::{observe, room};
 
 /// Camera-to-world pose at frame i: on a 1 m circle, looking outwards, a lap every `LAP`.
 fn truth(i: usize) -> Se3 {
@@ -63,7 +39,7 @@ fn run(frames: usize, loop_closing: bool) -> Outcome {
     let mut s = SlamSettings::rgbd(cam, 40.0, 30.0);
     s.local_mapping_thread = false;
     s.loop_closing.enabled = loop_closing;
-    let sc = scene(5, 16_000);
+    let sc = room(5, 16_000);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
     let mut sys = System::new(s);
     let mut online = Vec::new();

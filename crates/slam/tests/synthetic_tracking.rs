@@ -10,34 +10,21 @@ mod common;
 use common::{Scene, observe};
 
 fn scene(seed: u64, n: usize) -> Scene {
-    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
-    let mut points = Vec::new();
-    let mut descriptors = Vec::new();
-    for _ in 0..n {
-        // A room: back wall, floor and side walls around the camera path.
-        let p = match rng.random_range(0..4) {
-            0 => Vec3::new(
-                rng.random_range(-3.0..3.0),
-                rng.random_range(-2.0..2.0),
-                4.0,
-            ),
-            1 => Vec3::new(rng.random_range(-3.0..3.0), 1.5, rng.random_range(0.5..4.0)),
-            2 => Vec3::new(
-                -2.5,
-                rng.random_range(-2.0..2.0),
-                rng.random_range(0.5..4.0),
-            ),
-            _ => Vec3::new(2.5, rng.random_range(-2.0..2.0), rng.random_range(0.5..4.0)),
-        };
-        points.push(p);
-        let mut d = [0u8; 32];
-        rng.fill(&mut d[..]);
-        descriptors.push(d);
-    }
-    Scene {
-        points,
-        descriptors,
-    }
+    // A room: back wall, floor and side walls around the camera path.
+    common::scene_of(seed, n, |rng| match rng.random_range(0..4) {
+        0 => Vec3::new(
+            rng.random_range(-3.0..3.0),
+            rng.random_range(-2.0..2.0),
+            4.0,
+        ),
+        1 => Vec3::new(rng.random_range(-3.0..3.0), 1.5, rng.random_range(0.5..4.0)),
+        2 => Vec3::new(
+            -2.5,
+            rng.random_range(-2.0..2.0),
+            rng.random_range(0.5..4.0),
+        ),
+        _ => Vec3::new(2.5, rng.random_range(-2.0..2.0), rng.random_range(0.5..4.0)),
+    })
 }
 
 /// Camera-to-world pose at frame i: a slow sideways/forward wobble with some yaw.

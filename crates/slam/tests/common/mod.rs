@@ -1,7 +1,7 @@
 //! What the projected-scene tests share: the scene (3D points with descriptors) and its
 //! observation by a camera (keypoints with +-0.3 px noise, depth, descriptors with 3 bits flipped).
 
-use rand::Rng;
+use rand::{Rng, SeedableRng};
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
 use stillpoint_image::DepthMetres;
 use stillpoint_slam::{Descriptor, Feature};
@@ -10,6 +10,38 @@ use stillpoint_slam::{Descriptor, Feature};
 pub struct Scene {
     pub points: Vec<Vec3>,
     pub descriptors: Vec<Descriptor>,
+}
+
+/// `n` points drawn by `point` from a generator seeded with `seed`, each with a random
+/// descriptor drawn after it.
+pub fn scene_of(seed: u64, n: usize, mut point: impl FnMut(&mut rand_pcg::Pcg64) -> Vec3) -> Scene {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+    let (mut points, mut descriptors) = (Vec::new(), Vec::new());
+    for _ in 0..n {
+        points.push(point(&mut rng));
+        let mut d = [0u8; 32];
+        rng.fill(&mut d[..]);
+        descriptors.push(d);
+    }
+    Scene {
+        points,
+        descriptors,
+    }
+}
+
+/// Points on the four walls of a 5 x 5 m room (y is down, the camera height is 0).
+#[allow(dead_code)] // not every test binary that includes this module uses it
+pub fn room(seed: u64, n: usize) -> Scene {
+    scene_of(seed, n, |rng| {
+        let along = rng.random_range(-2.5..2.5);
+        let y = rng.random_range(-1.2..1.2);
+        match rng.random_range(0..4) {
+            0 => Vec3::new(along, y, 2.5),
+            1 => Vec3::new(along, y, -2.5),
+            2 => Vec3::new(2.5, y, along),
+            _ => Vec3::new(-2.5, y, along),
+        }
+    })
 }
 
 /// The scene's points seen from `pose_wc`: features, descriptors and a sparse depth image.
