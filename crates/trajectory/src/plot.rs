@@ -123,6 +123,25 @@ fn tracing_free_warning() {
     );
 }
 
+/// Both plots' frame: a margin and, when text renders, the caption and room for the axis
+/// labels (`y_labels` px wide).
+fn chart_builder<'a, 'b, DB: DrawingBackend>(
+    root: &'a DrawingArea<DB, Shift>,
+    caption: &str,
+    text: bool,
+    y_labels: u32,
+) -> ChartBuilder<'a, 'b, DB> {
+    let mut builder = ChartBuilder::on(root);
+    builder.margin(12);
+    if text {
+        builder
+            .caption(caption, ("sans-serif", 18))
+            .x_label_area_size(36)
+            .y_label_area_size(y_labels);
+    }
+    builder
+}
+
 fn draw<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     title: &str,
@@ -160,15 +179,7 @@ where
         });
     let names = ["x", "y", "z"];
     let caption = format!("{title}  (error {lo:.4} blue .. {hi:.4} m red)");
-    let mut builder = ChartBuilder::on(&root);
-    builder.margin(12);
-    if text {
-        builder
-            .caption(caption, ("sans-serif", 18))
-            .x_label_area_size(36)
-            .y_label_area_size(56);
-    }
-    let mut chart = builder
+    let mut chart = chart_builder(&root, &caption, text, 56)
         .build_cartesian_2d(cx - half..cx + half, cy - half..cy + half)
         .map_err(e)?;
     if text {
@@ -343,15 +354,9 @@ where
     let t1 = points().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max);
     let top = points().map(|p| p.1).fold(0.0, f64::max).max(1e-6) * 1.1;
     let end = (t1 - t0).max(1e-6);
-    let mut builder = ChartBuilder::on(&root);
-    builder.margin(12);
-    if text {
-        builder
-            .caption(title, ("sans-serif", 18))
-            .x_label_area_size(36)
-            .y_label_area_size(64);
-    }
-    let mut chart = builder.build_cartesian_2d(0.0..end, 0.0..top).map_err(e)?;
+    let mut chart = chart_builder(&root, title, text, 64)
+        .build_cartesian_2d(0.0..end, 0.0..top)
+        .map_err(e)?;
     // The mesh, then the shading over it, then the curves; the shading clipped to the
     // plotted time.
     if text {
