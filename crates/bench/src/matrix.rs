@@ -8,6 +8,7 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use serde::Serialize;
+use stillpoint_eval::surface::CloudDistance;
 use stillpoint_run::{RunOptions, run_sequence};
 use stillpoint_synth::{Noise, Preset, SynthConfig, WriteOptions};
 
@@ -40,6 +41,9 @@ pub struct MatrixOptions {
     pub jobs: usize,
     /// Local mapping in its own thread (sequential otherwise, so that tables are reproducible).
     pub threaded: bool,
+    /// Also write each run's dense cloud (RGB-D) and measure it: points on movers and the
+    /// distance to the scene's true static surfaces.
+    pub dense: bool,
     /// Set to stop the runs early.
     pub stop: Option<&'static AtomicBool>,
 }
@@ -67,8 +71,25 @@ pub struct Row {
     pub map_points_on_movers: Option<usize>,
     /// Of those, seen on a moving object by one keyframe or more.
     pub map_points_seen_on_movers: Option<usize>,
+    /// With `dense`: the dense cloud's points, those mostly on movers, and its distance to the
+    /// scene's true static surfaces (the cloud aligned as the ATE aligns the trajectory).
+    pub dense: Option<DenseRow>,
     /// Why the run failed (its error chain).
     pub error: Option<String>,
+}
+
+/// The dense cloud of one run, measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct DenseRow {
+    /// Points (voxels) in the cloud.
+    pub points: usize,
+    /// Of those, made mostly of pixels the generator marks as moving.
+    pub on_movers: Option<usize>,
+    /// Distance of the cloud to the static scene's triangles (within 10 cm looked for).
+    pub distance: Option<stillpoint_eval::surface::CloudDistance>,
+    /// The same for the cloud the same keyframes' depth gives with true poses and every pixel
+    /// of a non-static object left out: what sensor noise and the voxels alone cost.
+    pub distance_true_poses: Option<stillpoint_eval::surface::CloudDistance>,
 }
 
 impl Row {
@@ -79,18 +100,22 @@ impl Row {
     }
 }
 
-fn generate(o: &MatrixOptions, preset: Preset, seed: u64, dir: &Path) -> Result<(), BenchError> {
-    if dir.join("groundtruth.txt").is_file() && dir.join("mask").is_dir() {
-        return Ok(());
-    }
-    let cfg = SynthConfig {
+fn config(o: &MatrixOptions, preset: Preset, seed: u64) -> SynthConfig {
+    SynthConfig {
         preset,
         frames: o.frames,
         seed,
         noise: o.noise,
         textures: o.textures.clone(),
         ..SynthConfig::default()
-    };
+    }
+}
+
+fn generate(o: &MatrixOptions, preset: Preset, seed: u64, dir: &Path) -> Result<(), BenchError> {
+    if dir.join("groundtruth.txt").is_file() && dir.join("mask").is_dir() {
+        return Ok(());
+    }
+    let cfg = config(o, preset, seed);
     let opts = WriteOptions {
         stereo: false,
         masks: true,
@@ -111,9 +136,11 @@ fn run_one(
     (preset, seed, dir, mode): &(String, u64, PathBuf, String),
     out: PathBuf,
 ) -> Result<Row, BenchError> {
+    let cloud = o.dense.then(|| out.with_extension("ply"));
     let s = run_sequence(
         &RunOptions {
             out: Some(out),
+            dense_cloud: cloud.clone(),
             detector: (mode != "off").then(|| mode.to_string()),
             sequential: !o.threaded,
             model: o.model.clone(),
@@ -127,6 +154,26 @@ fn run_one(
         .ground_truth
         .as_ref()
         .and_then(|gt| stillpoint_eval::accuracy::frames_before_first_pose(gt, &s.trajectory));
+    let dense = match (&cloud, &s.dense) {
+        (Some(path), Some(report)) => {
+            let alignment = s.accuracy().map(|a| a.0.alignment);
+            let (distance, distance_true_poses) = match alignment {
+                Some(a) => {
+                    let (run, truth) =
+                        dense_distance(o, preset, *seed, path, &a, &s.keyframe_trajectory.stamps)?;
+                    (Some(run), Some(truth))
+                }
+                None => (None, None),
+            };
+            Some(DenseRow {
+                points: report.points,
+                on_movers: report.on_movers,
+                distance,
+                distance_true_poses,
+            })
+        }
+        _ => None,
+    };
     Ok(Row {
         preset: preset.clone(),
         seed: *seed,
@@ -138,8 +185,64 @@ fn run_one(
         map_points: s.map_points,
         map_points_on_movers: s.moving_map_points.map(|m| m.lying),
         map_points_seen_on_movers: s.moving_map_points.map(|m| m.seen),
+        dense,
         error: None,
     })
+}
+
+/// The cloud at `path`, moved into the generator's world with `alignment` (the trajectory's),
+/// against the scene's static triangles; and the cloud of the keyframes at `keyframe_stamps`
+/// fused with true poses and true masks (non-static objects' pixels left out).
+fn dense_distance(
+    o: &MatrixOptions,
+    preset: &str,
+    seed: u64,
+    path: &Path,
+    alignment: &stillpoint_geometry::Sim3,
+    keyframe_stamps: &[f64],
+) -> Result<(CloudDistance, CloudDistance), BenchError> {
+    use stillpoint_eval::surface::{SurfaceGrid, cloud_to_surface};
+    use stillpoint_pipeline::dense::{DenseFusion, DenseSettings};
+    let text = std::fs::read_to_string(path)
+        .map_err(crate::io_error(format!("reading {}", path.display())))?;
+    let cloud = stillpoint_pipeline::dense::read_dense_ply_positions(&text)
+        .ok_or_else(|| BenchError::Invalid(format!("{}: not a dense cloud", path.display())))?;
+    let preset = Preset::from_name(preset)
+        .ok_or_else(|| BenchError::Invalid(format!("unknown preset {preset}")))?;
+    let generator =
+        stillpoint_synth::Generator::new(&config(o, preset, seed)).map_err(|source| {
+            BenchError::Synth {
+                context: format!("rebuilding {} seed {seed}", preset.name()),
+                source,
+            }
+        })?;
+    let surface = SurfaceGrid::new(generator.static_triangles(), 0.1, 0.1);
+    let aligned: Vec<_> = cloud.iter().map(|p| alignment.transform_point(p)).collect();
+    let run = cloud_to_surface(&aligned, &surface);
+    let config = generator.config();
+    let mut fusion = DenseFusion::new(DenseSettings::default(), config.camera);
+    let mut poses = Vec::new();
+    for &t in keyframe_stamps {
+        let i = ((t - config.start_time) * config.fps).round();
+        if !(i >= 0.0 && (i as usize) < generator.len()) {
+            continue;
+        }
+        let f = generator.frame(i as usize);
+        let mut not_static = stillpoint_image::Gray8::new(f.depth.width, f.depth.height, 0);
+        for (m, &id) in not_static.data.iter_mut().zip(&f.object_ids.data) {
+            if id > 0 && !generator.object_is_static(id as usize - 1) {
+                *m = 255;
+            }
+        }
+        fusion.add_keyframe(t, &f.depth, None, Some(&not_static), None);
+        poses.push((t, f.pose_wc));
+    }
+    let truth: Vec<_> = fusion
+        .fuse(|t| poses.iter().find(|p| p.0 == t).map(|p| p.1))
+        .iter()
+        .map(|p| p.position)
+        .collect();
+    Ok((run, cloud_to_surface(&truth, &surface)))
 }
 
 /// Generate the sequences (or reuse those in `out`), run every preset x seed x mode, `jobs` at a
@@ -194,6 +297,7 @@ pub fn run_matrix(o: &MatrixOptions) -> Result<Vec<Row>, BenchError> {
                         map_points: 0,
                         map_points_on_movers: None,
                         map_points_seen_on_movers: None,
+                        dense: None,
                         error: Some(crate::error_chain(&e)),
                     });
                     if let Ok(mut r) = rows.lock() {
@@ -224,6 +328,7 @@ mod tests {
             map_points,
             map_points_on_movers: movers,
             map_points_seen_on_movers: movers,
+            dense: None,
             error: None,
         }
     }
@@ -250,6 +355,7 @@ mod tests {
             model: None,
             jobs: 1,
             threaded: false,
+            dense: false,
             stop: None,
         };
         let err = run_matrix(&o).unwrap_err().to_string();

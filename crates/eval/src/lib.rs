@@ -9,6 +9,7 @@
 //!   keypoints kept on them and map points observed on them;
 //! - [`periods`]: when a moving object was in view (from a sequence's boxes or a text file),
 //!   for shading plots of the error over time;
+//! - [`surface`]: a point cloud's distance to a known surface (a synthetic scene's triangles);
 //! - [`keypoints`]: confusion counts, precision and recall of a per-keypoint dynamic decision
 //!   against those masks (strict, occlusion-aware and straddle-free ground truths).
 //!
@@ -29,6 +30,7 @@ pub mod keypoints;
 pub mod movers;
 pub mod periods;
 pub mod stats;
+pub mod surface;
 
 pub use accuracy::{EvalError, accuracy, alignment, read_ground_truth};
 pub use keypoints::Counts;

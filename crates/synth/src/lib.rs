@@ -385,6 +385,25 @@ impl Generator {
             .is_some_and(|ob| matches!(ob.motion, scene::Motion::Static(_)))
     }
 
+    /// The triangles of everything that never moves (the room and its furniture; not seated
+    /// people, nor objects carried and then put down), in the world frame: the true static
+    /// scene a map of it should match.
+    pub fn static_triangles(&self) -> Vec<[stillpoint_geometry::Vec3; 3]> {
+        let mut out = Vec::new();
+        for ob in &self.scene.objects {
+            let scene::Motion::Static(pose) = &ob.motion else {
+                continue;
+            };
+            for part in &ob.parts {
+                out.extend(part.mesh.tris.iter().map(|t| {
+                    t.p.map(|p| pose * nalgebra::Point3::from(p))
+                        .map(|p| p.coords)
+                }));
+            }
+        }
+        out
+    }
+
     /// Settings for the dataset reader: RGB-D with TUM3's `bf` 40 and `ThDepth` 40 (ORB-SLAM's
     /// TUM3.yaml), or stereo with the configured baseline.
     pub fn settings(&self, sensor: Sensor) -> Settings {
@@ -763,6 +782,40 @@ mod tests {
             }
         }
         (checked, max_err, occluded)
+    }
+
+    #[test]
+    fn the_static_triangles_are_where_the_static_pixels_depth_puts_them() {
+        use stillpoint_eval::surface::{SurfaceGrid, cloud_to_surface};
+        for preset in [Preset::WalkingXyz, Preset::SittingHalfsphere] {
+            let g = Generator::new(&small(preset)).unwrap();
+            let grid = SurfaceGrid::new(g.static_triangles(), 0.1, 0.05);
+            let f = g.frame(30);
+            let cam = &g.config().camera;
+            let (mut on_static, mut elsewhere) = (Vec::new(), Vec::new());
+            for v in (0..f.depth.height).step_by(3) {
+                for u in (0..f.depth.width).step_by(3) {
+                    let z = f.depth.get(u, v) as f64;
+                    let id = f.object_ids.get(u, v);
+                    if z <= 0.0 || id == 0 {
+                        continue;
+                    }
+                    let px = stillpoint_geometry::Vec2::new(u as f64, v as f64);
+                    let w = f.pose_wc * nalgebra::Point3::from(cam.unproject(&px, z));
+                    if g.object_is_static(id as usize - 1) {
+                        on_static.push(w.coords);
+                    } else {
+                        elsewhere.push(w.coords);
+                    }
+                }
+            }
+            let d = cloud_to_surface(&on_static, &grid);
+            assert!(d.points > 5000, "{preset:?}: {d:?}");
+            assert!(d.p95_m < 1e-4 && d.beyond_reach == 0.0, "{preset:?}: {d:?}");
+            // The people are not part of it.
+            let d = cloud_to_surface(&elsewhere, &grid);
+            assert!(d.points > 100 && d.median_m > 0.02, "{preset:?}: {d:?}");
+        }
     }
 
     #[test]

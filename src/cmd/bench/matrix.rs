@@ -49,6 +49,10 @@ pub struct Args {
     /// that tables are reproducible.
     #[arg(long)]
     pub threaded: bool,
+    /// Also write each run's dense cloud and measure it: points on movers and distance to the
+    /// scene's true static surfaces.
+    #[arg(long)]
+    pub dense: bool,
     #[arg(long)]
     pub json: bool,
 }
@@ -97,6 +101,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         model: args.model.clone(),
         jobs: args.jobs,
         threaded: args.threaded,
+        dense: args.dense,
         stop: Some(crate::interrupt_flag()),
     })?;
     if args.json {
@@ -151,6 +156,38 @@ fn print_table(rows: &[Row], modes: &[String]) {
             print!(" {:>15}", cell(of(m)));
         }
         println!();
+    }
+    if rows.iter().any(|r| r.dense.is_some()) {
+        println!(
+            "\ndense cloud: points, on movers, distance to the static scene (median / p95 cm, \
+             share within 2 cm; with true poses and masks)"
+        );
+        for r in rows {
+            let Some(d) = &r.dense else { continue };
+            print!(
+                "{:<16} {:>4} {:<6} {:>9}",
+                r.preset, r.seed, r.mode, d.points
+            );
+            match d.on_movers {
+                Some(m) => print!(" {m:>7}"),
+                None => print!(" {:>7}", "-"),
+            }
+            match &d.distance {
+                Some(x) => {
+                    let cell = |x: &stillpoint_eval::surface::CloudDistance| {
+                        format!(
+                            "{:6.2} / {:6.2}  {:5.1}%",
+                            100.0 * x.median_m,
+                            100.0 * x.p95_m,
+                            100.0 * x.within_2cm
+                        )
+                    };
+                    let truth = d.distance_true_poses.as_ref().map(cell).unwrap_or_default();
+                    println!(" {}   ({truth})", cell(x));
+                }
+                None => println!("  (no ground truth)"),
+            }
+        }
     }
     // Per preset: the worst seed of each mode.
     let mut presets: Vec<&str> = rows.iter().map(|r| r.preset.as_str()).collect();
