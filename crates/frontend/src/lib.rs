@@ -193,6 +193,9 @@ pub struct FrontEndSettings {
     /// are carried by the corners' flow. Ours: 0.1 (every third frame at 30 Hz); on walking_xyz
     /// with YOLOX-nano 480x640, 2 cores: 282 -> 290 of 300 frames processed, ATE 0.40 -> 0.38 cm.
     pub background_detect_interval_s: f64,
+    /// Nice steps (Linux) the background detector runs below tracking, as local mapping does
+    /// (`slam.background_nice`): its boxes may come a little later, a frame may not.
+    pub background_detect_nice: i32,
 }
 
 impl Default for FrontEndSettings {
@@ -215,6 +218,7 @@ impl Default for FrontEndSettings {
             erase_recent_mover_points_frames: 60,
             detector_in_background: false,
             background_detect_interval_s: 0.1,
+            background_detect_nice: 10,
         }
     }
 }
@@ -366,7 +370,11 @@ impl DynamicFrontEnd {
     /// run); `run --realtime` uses it.
     pub fn detect_in_background(mut self) -> Result<Self, DetectError> {
         let detector = std::mem::replace(&mut self.detector, Box::new(NoDetector));
-        let thread = DetectorThread::spawn(move || Ok(detector))?;
+        let nice = self.settings.background_detect_nice;
+        let thread = DetectorThread::spawn(move || {
+            stillpoint_detect::lower_this_thread_priority(nice);
+            Ok(detector)
+        })?;
         self.background = Some(BackgroundDetector {
             thread,
             busy: false,

@@ -46,12 +46,21 @@ impl LocalMapper {
             if m.keyframes.get(&kf).is_none_or(|k| k.bad) {
                 return;
             }
+            let t0 = Instant::now();
             self.process_new_keyframe(&mut m, kf);
             self.cull_points(&mut m, kf);
+            let t1 = Instant::now();
             if self.s.triangulate_new_points {
                 self.create_new_points(&mut m, kf);
             }
+            let t2 = Instant::now();
             self.fuse_with_neighbours(&mut m, kf);
+            debug!(
+                associate_ms = (t1 - t0).as_secs_f64() * 1e3,
+                triangulate_ms = (t2 - t1).as_secs_f64() * 1e3,
+                fuse_ms = t2.elapsed().as_secs_f64() * 1e3,
+                "local mapping: map locked"
+            );
         }
         self.local_ba(map, kf);
         if let Ok(mut m) = map.lock() {
