@@ -116,7 +116,8 @@ pub struct SlamSettings {
     pub trajectory_settle_min_inliers: usize,
     /// ... and at most this many frames wait to settle: older ones settle on the map as it is
     /// (a camera lapping a mapped room makes no keyframes, and the waiting frames' observations
-    /// grew memory by 20 KiB a frame).
+    /// grew memory by 20 KiB a frame). 100 (3.3 s at 30 Hz): a mapped room then holds 2 MB of
+    /// waiting frames, not 6 (300 before).
     #[serde(default = "default_settle_max_pending")]
     pub trajectory_settle_max_pending: usize,
     /// ... "well behind": by more than this many pixels of virtual disparity (`bf / z`) and
@@ -327,5 +328,5 @@ fn default_settle_min_inliers() -> usize {
 }
 
 fn default_settle_max_pending() -> usize {
-    300
+    100
 }

@@ -53,14 +53,17 @@ impl<'a> From<Option<&'a DepthMetres>> for KeypointDepth<'a> {
 }
 
 /// Keypoints bucketed in cells so that projection searches only look nearby (ORB-SLAM's
-/// 64 x 48 `FRAME_GRID`).
+/// 64 x 48 `FRAME_GRID`). The cells are one index list cut by offsets: a list per cell
+/// (3,072 allocations) cost every keyframe ~100 KB more, which a long run's map keeps.
 #[derive(Clone, Debug)]
 pub struct KeypointGrid {
     cols: usize,
     rows: usize,
     cell_w: f64,
     cell_h: f64,
-    cells: Vec<Vec<u32>>,
+    /// Cell `c` holds `indices[starts[c]..starts[c + 1]]`, in keypoint order.
+    starts: Vec<u32>,
+    indices: Vec<u32>,
 }
 
 impl KeypointGrid {
@@ -69,14 +72,27 @@ impl KeypointGrid {
         let (cols, rows) = (64usize, 48usize);
         let cell_w = (width / cols as f64).max(1e-6);
         let cell_h = (height / rows as f64).max(1e-6);
-        let mut cells = vec![Vec::new(); cols * rows];
-        for (i, p) in points.iter().enumerate() {
+        let cell_of = |p: &Vec2| {
             if !(p.x >= 0.0 && p.y >= 0.0) {
-                continue;
+                return None;
             }
             let (cx, cy) = ((p.x / cell_w) as usize, (p.y / cell_h) as usize);
-            if cx < cols && cy < rows {
-                cells[cy * cols + cx].push(i as u32);
+            (cx < cols && cy < rows).then_some(cy * cols + cx)
+        };
+        // Counting sort: sizes, then offsets, then the indices in keypoint order.
+        let mut starts = vec![0u32; cols * rows + 1];
+        for c in points.iter().filter_map(cell_of) {
+            starts[c + 1] += 1;
+        }
+        for c in 0..cols * rows {
+            starts[c + 1] += starts[c];
+        }
+        let mut next = starts.clone();
+        let mut indices = vec![0u32; starts[cols * rows] as usize];
+        for (i, p) in points.iter().enumerate() {
+            if let Some(c) = cell_of(p) {
+                indices[next[c] as usize] = i as u32;
+                next[c] += 1;
             }
         }
         Self {
@@ -84,7 +100,8 @@ impl KeypointGrid {
             rows,
             cell_w,
             cell_h,
-            cells,
+            starts,
+            indices,
         }
     }
 
@@ -116,7 +133,9 @@ impl KeypointGrid {
         let y1 = (y1 as usize).min(self.rows - 1);
         for cy in y0..=y1 {
             for cx in x0..=x1 {
-                for &i in &self.cells[cy * self.cols + cx] {
+                let c = cy * self.cols + cx;
+                let cell = &self.indices[self.starts[c] as usize..self.starts[c + 1] as usize];
+                for &i in cell {
                     let i = i as usize;
                     let o = octaves[i] as i32;
                     if o < min_octave || o > max_octave {

@@ -22,3 +22,15 @@ pub(crate) fn lower_this_thread_priority(nice: i32) {
     #[cfg(not(target_os = "linux"))]
     let _ = nice;
 }
+
+/// Give the heap that large, short-lived work (a loop correction and its global bundle
+/// adjustment, a vocabulary training) freed back to the system. glibc keeps freed memory for
+/// reuse, and after such a peak a long run's resident memory stayed ~3 MB higher for good
+/// (the soak run, 320x240). Only with glibc; elsewhere nothing.
+pub(crate) fn return_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only releases free heap pages; it touches no live allocation.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}

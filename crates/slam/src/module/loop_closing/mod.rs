@@ -295,6 +295,8 @@ impl LoopCloser {
                 ms,
                 "loop closing: vocabulary trained"
             );
+            drop(docs);
+            crate::module::return_freed_memory();
         }
         let t0 = Instant::now();
         let verified = {
@@ -337,6 +339,7 @@ impl LoopCloser {
             }
         }
         drop(busy);
+        crate::module::return_freed_memory();
         event.correction_ms = ms;
         info!(
             keyframe = kf,
