@@ -77,7 +77,8 @@ impl KeypointGrid {
                 return None;
             }
             let (cx, cy) = ((p.x / cell_w) as usize, (p.y / cell_h) as usize);
-            (cx < cols && cy < rows).then_some(cy * cols + cx)
+            // Lazily: a huge coordinate saturates the casts, and their product would overflow.
+            (cx < cols && cy < rows).then(|| cy * cols + cx)
         };
         // Counting sort: sizes, then offsets, then the indices in keypoint order.
         let mut starts = vec![0u32; cols * rows + 1];
