@@ -236,7 +236,11 @@ pub fn run_sequence(
         None => None,
     };
     let mut camera = if o.realtime {
-        Some(ReplayCamera::start(open_sequence(o)?, n))
+        Some(ReplayCamera::start(
+            open_sequence(o)?,
+            n,
+            tree.realtime.preload_mib.saturating_mul(1024 * 1024),
+        ))
     } else {
         None
     };
