@@ -149,14 +149,16 @@ fn run_one(
         },
         &mut |_| {},
     )?;
-    let ate = s.accuracy().map(|a| a.0.stats.rmse * 100.0);
+    // ATE and alignment come from one evaluation (it associates and aligns every pose).
+    let ate_result = s.accuracy().map(|a| a.0);
+    let ate = ate_result.as_ref().map(|a| a.stats.rmse * 100.0);
     let first_tracked = s
         .ground_truth
         .as_ref()
         .and_then(|gt| stillpoint_eval::accuracy::frames_before_first_pose(gt, &s.trajectory));
     let dense = match (&cloud, &s.dense) {
         (Some(path), Some(report)) => {
-            let alignment = s.accuracy().map(|a| a.0.alignment);
+            let alignment = ate_result.as_ref().map(|a| a.alignment);
             let (distance, distance_true_poses) = match alignment {
                 Some(a) => {
                     let (run, truth) =
