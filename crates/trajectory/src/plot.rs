@@ -272,15 +272,7 @@ pub fn plot_top_view(
         )
         .map_err(fail)
     } else {
-        draw(
-            BitMapBackend::new(path, size).into_drawing_area(),
-            title,
-            gt,
-            est,
-            errors,
-            text,
-        )
-        .map_err(fail)
+        draw_png(path, size, |root| draw(root, title, gt, est, errors, text)).map_err(fail)
     }
 }
 
@@ -332,9 +324,29 @@ pub fn plot_error_over_time(
         let root = SVGBackend::new(path, ERROR_PLOT_SIZE).into_drawing_area();
         draw_error_over_time(root, title, series, shaded, text).map_err(fail)
     } else {
-        let root = BitMapBackend::new(path, ERROR_PLOT_SIZE).into_drawing_area();
-        draw_error_over_time(root, title, series, shaded, text).map_err(fail)
+        draw_png(path, ERROR_PLOT_SIZE, |root| {
+            draw_error_over_time(root, title, series, shaded, text)
+        })
+        .map_err(fail)
     }
+}
+
+/// Draw into an RGB buffer with `draw`, then write it to `path` as a PNG with the `png` crate
+/// (plotters' own PNG encoder would bring a second version of `image` into the build).
+fn draw_png(
+    path: &Path,
+    (width, height): (u32, u32),
+    draw: impl FnOnce(DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), String>,
+) -> Result<(), String> {
+    let mut rgb = vec![0u8; width as usize * height as usize * 3];
+    draw(BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area())?;
+    let file = std::fs::File::create(path).map_err(|e| e.to_string())?;
+    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), width, height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header().map_err(|e| e.to_string())?;
+    writer.write_image_data(&rgb).map_err(|e| e.to_string())?;
+    writer.finish().map_err(|e| e.to_string())
 }
 
 fn draw_error_over_time<DB: DrawingBackend>(
@@ -481,8 +493,10 @@ mod tests {
         assert!(right > 0.8, "{right}");
         for text in [true, false] {
             let path = dir.path().join(format!("t{text}.png"));
-            let root = BitMapBackend::new(&path, ERROR_PLOT_SIZE).into_drawing_area();
-            draw_error_over_time(root, "test", &series, &shaded, text).unwrap();
+            draw_png(&path, ERROR_PLOT_SIZE, |root| {
+                draw_error_over_time(root, "test", &series, &shaded, text)
+            })
+            .unwrap();
             let (_, right) = png_orange(&path, (w * 3 / 5, w * 9 / 10), rows);
             let (_, left) = png_orange(&path, (w / 8, w * 2 / 5), rows);
             assert!(right > 0.8 && left == 0.0, "text {text}: {left} {right}");
