@@ -22,7 +22,8 @@ pub struct Args {
     /// TOML settings file whose `[detect]` table sets model, backend, threads, thresholds.
     #[arg(long)]
     settings: Option<PathBuf>,
-    /// Inference backend: tract (pure Rust) or ort (ONNX Runtime; needs ORT_DYLIB_PATH).
+    /// Inference backend: ort (ONNX Runtime; scripts/setup-onnxruntime.sh) or tract (pure Rust; a
+    /// build with `--features tract`, whose default it is).
     #[arg(long)]
     backend: Option<Backend>,
     /// Intra-op threads of the backend.

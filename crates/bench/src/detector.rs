@@ -21,7 +21,7 @@ pub struct DetectorOptions {
     pub warmup: usize,
     /// Thread counts to time.
     pub threads: Vec<usize>,
-    /// Backends to time; empty: tract, and ort when its library is found.
+    /// Backends to time; empty: those available (`backend::available`).
     pub backends: Vec<Backend>,
 }
 
@@ -89,13 +89,18 @@ pub fn measure(o: &DetectorOptions) -> Result<DetectorReport, BenchError> {
         source,
     })?;
     let backends = if o.backends.is_empty() {
-        let mut b = vec![Backend::Tract];
-        if backend::ort_dylib_available(None) {
-            b.push(Backend::Ort);
-        } else {
+        let b = backend::available(None);
+        if !b.contains(&Backend::Ort) {
             tracing::warn!(
-                "ONNX Runtime not found (scripts/setup-onnxruntime.sh, ORT_DYLIB_PATH): timing tract only"
+                "ONNX Runtime not found (scripts/setup-onnxruntime.sh, ORT_DYLIB_PATH): not timed"
             );
+        }
+        if b.is_empty() {
+            return Err(BenchError::Invalid(
+                "no inference backend: build with --features tract, or run \
+                 scripts/setup-onnxruntime.sh and set ORT_DYLIB_PATH"
+                    .into(),
+            ));
         }
         b
     } else {

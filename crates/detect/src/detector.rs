@@ -1,7 +1,6 @@
 //! The YOLOX detector (any backend) and a factory for every detector by name.
 
 use crate::backend::InferenceBackend;
-use crate::backend::tract::TractBackend;
 use crate::settings::{Backend, DetectSettings};
 use crate::yolox::{self, PostParams};
 use crate::{
@@ -33,12 +32,11 @@ impl YoloxDetector {
     /// settings' own `model` entry is ignored here; see [`crate::model::resolve_model`]).
     pub fn load(model: &Path, settings: &DetectSettings) -> Result<Self, DetectError> {
         settings.validate()?;
+        // A bad file is refused the same way whichever engine was asked for, and before that
+        // engine's own availability is looked at (each backend checks it again on its own).
+        crate::backend::guard::read_checked(model)?;
         let backend: Box<dyn InferenceBackend> = match settings.backend {
-            Backend::Tract => Box::new(TractBackend::load(
-                model,
-                settings.threads,
-                settings.fallback_input_size,
-            )?),
+            Backend::Tract => load_tract(model, settings)?,
             Backend::Ort => load_ort(model, settings)?,
         };
         Ok(Self::from_backend(backend, model, settings))
@@ -72,6 +70,24 @@ impl YoloxDetector {
     pub fn model(&self) -> &Path {
         &self.model
     }
+}
+
+#[cfg(feature = "tract")]
+fn load_tract(model: &Path, s: &DetectSettings) -> Result<Box<dyn InferenceBackend>, DetectError> {
+    use crate::backend::tract::TractBackend;
+    Ok(Box::new(TractBackend::load(
+        model,
+        s.threads,
+        s.fallback_input_size,
+    )?))
+}
+
+#[cfg(not(feature = "tract"))]
+fn load_tract(
+    _model: &Path,
+    _s: &DetectSettings,
+) -> Result<Box<dyn InferenceBackend>, DetectError> {
+    Err(DetectError::BackendUnavailable("tract".into()))
 }
 
 #[cfg(feature = "ort")]

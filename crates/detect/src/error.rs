@@ -78,14 +78,15 @@ pub enum DetectError {
     #[error(
         "ONNX Runtime library not found ({msg}); run scripts/setup-onnxruntime.sh and set \
          ORT_DYLIB_PATH to the libonnxruntime.so it prints (or `ort_dylib_path` in the [detect] \
-         settings), or use --backend tract"
+         settings), or use the tract backend (`--set detect.backend=tract`, in a build with \
+         `--features tract`)"
     )]
     OrtLibrary {
         /// The loader's message.
         msg: String,
     },
     /// The backend was asked for but not compiled in.
-    #[error("backend `{0}` is not compiled into this build (rebuild with `--features ort`)")]
+    #[error("backend `{0}` is not compiled into this build (rebuild with `--features {0}`)")]
     BackendUnavailable(String),
     /// An unknown backend or detector name.
     #[error("unknown {what} `{name}` (expected one of: {expected})")]

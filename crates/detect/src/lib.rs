@@ -2,8 +2,10 @@
 //!
 //! A [`Detector`] turns one RGB frame into [`Detection`]s (COCO class, score, box in the frame's
 //! pixels). Implementations: [`NoDetector`] (no boxes), [`GtDetector`] (ground-truth boxes from
-//! `boxes.jsonl`, written by `stillpoint synth`), and YOLOX through ONNX (`yolox`), with
-//! the pure-Rust `tract` backend by default and ONNX Runtime behind the `ort` feature.
+//! `boxes.jsonl`, written by `stillpoint synth`), and YOLOX through ONNX (`yolox`), on ONNX
+//! Runtime (feature `ort`, on by default: its library is loaded at run time) or the pure-Rust
+//! tract (feature `tract`, off by default: it is most of a cold build's time).
+//! [`onnx_proto`] reads a model file's graph without either, for the checks made before loading.
 //! [`DetectorThread`] runs any of them on its own thread, frames in and boxes out over channels.
 //!
 //! ```
@@ -22,6 +24,7 @@ pub mod draw;
 pub mod error;
 pub mod gt;
 pub mod model;
+pub mod onnx_proto;
 pub mod settings;
 pub mod thread;
 pub mod yolox;

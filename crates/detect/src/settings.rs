@@ -4,15 +4,26 @@ use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
 /// Which inference engine runs the YOLOX ONNX model.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Backend {
-    /// tract-onnx: pure Rust, always compiled in, needs nothing on the machine.
-    #[default]
+    /// tract-onnx (cargo feature `tract`, off by default): pure Rust, needs nothing on the
+    /// machine, but adds ~7 minutes to a cold build on two cores.
     Tract,
-    /// ONNX Runtime through the `ort` crate (cargo feature `ort`), loaded at run time from
-    /// `libonnxruntime.so` (`scripts/setup-onnxruntime.sh`). About 3x faster than tract here.
+    /// ONNX Runtime through the `ort` crate (cargo feature `ort`, on by default), loaded at run
+    /// time from `libonnxruntime.so` (`scripts/setup-onnxruntime.sh`). About 2x faster than tract.
     Ort,
+}
+
+impl Default for Backend {
+    /// tract when it is compiled in (a fresh machine needs nothing else), else ONNX Runtime.
+    fn default() -> Self {
+        if cfg!(feature = "tract") {
+            Backend::Tract
+        } else {
+            Backend::Ort
+        }
+    }
 }
 
 impl Backend {
@@ -52,7 +63,8 @@ pub const MAX_THREADS: usize = 256;
 pub struct DetectSettings {
     /// YOLOX ONNX file; `None` searches the default places (see `model::resolve_model`).
     pub model: Option<PathBuf>,
-    /// Inference engine; tract by default so a fresh machine needs nothing else.
+    /// Inference engine: tract in a build with it (a fresh machine needs nothing else), else
+    /// ONNX Runtime.
     pub backend: Backend,
     /// Intra-op threads of the inference engine. 1 by default: the paper runs detection beside
     /// tracking, and on a 2-core laptop the other core must stay free for tracking.
@@ -76,7 +88,7 @@ impl Default for DetectSettings {
     fn default() -> Self {
         Self {
             model: None,
-            backend: Backend::Tract,
+            backend: Backend::default(),
             threads: 1,
             conf_threshold: 0.3,
             nms_threshold: 0.45,

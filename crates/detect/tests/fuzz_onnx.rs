@@ -9,7 +9,9 @@
 //!
 //! `cargo test` runs 256 cases a property. The `#[ignore]`d `long_*` variants run
 //! `STILLPOINT_FUZZ_CASES` cases (default 20,000):
-//! `STILLPOINT_FUZZ_CASES=100000 cargo test -p stillpoint-detect --test fuzz_onnx -- --ignored --nocapture`.
+//! `STILLPOINT_FUZZ_CASES=100000 cargo test -p stillpoint-detect --features tract --test fuzz_onnx -- --ignored --nocapture`.
+//! It runs the models on tract, so it needs the `tract` feature.
+#![cfg(feature = "tract")]
 
 mod common;
 
@@ -18,9 +20,9 @@ use proptest::prelude::*;
 use proptest::test_runner::Config;
 use std::collections::BTreeMap;
 use std::sync::Mutex;
+use stillpoint_detect::onnx_proto as pb;
 use stillpoint_detect::{DetectError, DetectInput, DetectSettings, Detector, YoloxDetector};
 use stillpoint_image::Rgb8;
-use tract_onnx::pb;
 
 fn long_cases() -> u32 {
     std::env::var("STILLPOINT_FUZZ_CASES")

@@ -1,14 +1,12 @@
-//! Self-contained checks of model loading: tiny ONNX files are written to a temp dir with
-//! tract-onnx's protobuf types, so no model download is needed.
+//! Self-contained checks of model loading: tiny ONNX files are written to a temp dir with the
+//! crate's ONNX protobuf types, so no model download is needed. Running one needs a backend:
+//! tract (`--features tract`) or ONNX Runtime's library.
 
 mod common;
 
-use common::constant_model;
+use common::{checked_backends, constant_model};
 use std::path::{Path, PathBuf};
-use stillpoint_detect::{
-    Backend, DetectError, DetectInput, DetectSettings, Detector, YoloxDetector, yolox,
-};
-use stillpoint_image::Rgb8;
+use stillpoint_detect::{Backend, DetectError, DetectSettings, YoloxDetector};
 
 /// A 64x64 YOLOX-shaped model (84 anchors, 1 class) with one confident anchor at the
 /// stride-16 cell (gx 2, gy 1): box centre (40, 20), size 32x16 in network pixels.
@@ -22,20 +20,6 @@ fn planted_yolox(dir: &Path) -> PathBuf {
     path
 }
 
-fn ort_available() -> bool {
-    cfg!(feature = "ort") && stillpoint_detect::backend::ort_dylib_available(None)
-}
-
-fn backends() -> Vec<Backend> {
-    let mut b = vec![Backend::Tract];
-    if ort_available() {
-        b.push(Backend::Ort);
-    } else {
-        eprintln!("ONNX Runtime library not found: checking tract only");
-    }
-    b
-}
-
 fn settings(backend: Backend) -> DetectSettings {
     DetectSettings {
         backend,
@@ -44,14 +28,16 @@ fn settings(backend: Backend) -> DetectSettings {
 }
 
 #[test]
+#[cfg(feature = "tract")]
 fn planted_detection_comes_through_every_backend() {
+    use stillpoint_detect::{DetectInput, Detector};
+    let rgb = stillpoint_image::Rgb8::new(128, 128, [90, 120, 30]);
     let dir = tempfile::tempdir().unwrap();
     let model = planted_yolox(dir.path());
-    for backend in backends() {
+    for backend in stillpoint_detect::backend::available(None) {
         let mut det = YoloxDetector::load(&model, &settings(backend)).unwrap();
         assert_eq!(det.input_size(), (64, 64));
         // A 128x128 image is letterboxed at ratio 0.5, so the box doubles.
-        let rgb = Rgb8::new(128, 128, [90, 120, 30]);
         let dets = det
             .detect(&DetectInput {
                 index: 3,
@@ -76,7 +62,7 @@ fn planted_detection_comes_through_every_backend() {
 fn missing_file_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let missing = dir.path().join("nope.onnx");
-    for backend in backends() {
+    for backend in checked_backends() {
         let err = YoloxDetector::load(&missing, &settings(backend)).unwrap_err();
         assert!(matches!(err, DetectError::ModelIo { .. }), "{err}");
         assert!(err.to_string().contains("nope.onnx"), "{err}");
@@ -90,7 +76,7 @@ fn non_onnx_file_is_a_clear_error() {
     std::fs::write(&text, "this is not an ONNX model, just some text\n").unwrap();
     let empty = dir.path().join("empty.onnx");
     std::fs::write(&empty, b"").unwrap();
-    for backend in backends() {
+    for backend in checked_backends() {
         for path in [&text, &empty] {
             let err = YoloxDetector::load(path, &settings(backend)).unwrap_err();
             assert!(
@@ -107,12 +93,13 @@ fn non_onnx_file_is_a_clear_error() {
 }
 
 #[test]
+#[cfg(feature = "tract")]
 fn wrong_output_shape_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     // 50 rows instead of the 84 anchors of a 64x64 YOLOX.
     let path = dir.path().join("classifier.onnx");
     std::fs::write(&path, constant_model(64, &[1, 50, 6], vec![0.0; 300])).unwrap();
-    for backend in backends() {
+    for backend in stillpoint_detect::backend::available(None) {
         let err = YoloxDetector::load(&path, &settings(backend)).unwrap_err();
         assert!(
             matches!(err, DetectError::ModelShape { .. }),
@@ -125,18 +112,18 @@ fn wrong_output_shape_is_a_clear_error() {
         );
     }
     // And the same check on the decode function directly.
-    assert!(yolox::check_output_shape(&[1, 50, 6], 64, 64).is_err());
+    assert!(stillpoint_detect::yolox::check_output_shape(&[1, 50, 6], 64, 64).is_err());
 }
 
 #[test]
 fn ort_without_its_library_names_the_script() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = planted_yolox(dir.path());
     if !cfg!(feature = "ort") {
-        let err = YoloxDetector::load(Path::new("x.onnx"), &settings(Backend::Ort)).unwrap_err();
+        let err = YoloxDetector::load(&model, &settings(Backend::Ort)).unwrap_err();
         assert!(err.to_string().contains("--features ort"), "{err}");
         return;
     }
-    let dir = tempfile::tempdir().unwrap();
-    let model = planted_yolox(dir.path());
     let s = DetectSettings {
         backend: Backend::Ort,
         ort_dylib_path: Some(dir.path().join("libonnxruntime.so")),

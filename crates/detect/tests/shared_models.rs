@@ -1,5 +1,6 @@
 //! Checks against the real YOLOX-nano models and photos in `../shared` (ignored by default:
-//! `cargo test -p stillpoint-detect -- --ignored`; set ORT_DYLIB_PATH to check ONNX Runtime too).
+//! `cargo test -p stillpoint-detect --features tract -- --ignored`; set ORT_DYLIB_PATH to check
+//! ONNX Runtime too).
 
 use std::path::PathBuf;
 use stillpoint_detect::{Backend, DetectInput, DetectSettings, Detection, Detector, YoloxDetector};
@@ -26,12 +27,11 @@ fn detect(model: &str, backend: Backend, image: &std::path::Path) -> Vec<Detecti
 }
 
 fn backends() -> Vec<Backend> {
-    let mut b = vec![Backend::Tract];
-    if stillpoint_detect::backend::ort_dylib_available(None) {
-        b.push(Backend::Ort);
-    } else {
-        eprintln!("ONNX Runtime not available (set ORT_DYLIB_PATH): checking tract only");
-    }
+    let b = stillpoint_detect::backend::available(None);
+    assert!(
+        !b.is_empty(),
+        "no inference backend: build with --features tract, or set ORT_DYLIB_PATH"
+    );
     b
 }
 
@@ -76,6 +76,7 @@ fn two_people_and_two_tvs_as_the_models_readme_lists() {
 }
 
 #[test]
+#[cfg(feature = "tract")]
 #[ignore = "needs ../shared/data and ORT_DYLIB_PATH"]
 fn tract_and_ort_agree_on_every_detector_image() {
     if !stillpoint_detect::backend::ort_dylib_available(None) {
@@ -123,16 +124,18 @@ fn tract_and_ort_agree_on_every_detector_image() {
 #[ignore = "needs ../shared/data"]
 fn detector_thread_gives_the_same_boxes_as_a_direct_call() {
     let image = shared().join("data/detector_images/tum_fr3_two_people.png");
-    let direct = detect("yolox_nano_256x320.onnx", Backend::Tract, &image);
+    let backend = backends()[0];
+    let direct = detect("yolox_nano_256x320.onnx", backend, &image);
     let settings = DetectSettings {
         model: Some(shared().join("models/yolox_nano_256x320.onnx")),
+        backend,
         ..Default::default()
     };
     let worker = stillpoint_detect::DetectorThread::spawn(move || {
         stillpoint_detect::open_detector("yolox", &settings, None, Default::default())
     })
     .unwrap();
-    assert_eq!(worker.name(), "yolox-tract");
+    assert_eq!(worker.name(), format!("yolox-{}", backend.as_str()));
     let rgb = std::sync::Arc::new(stillpoint_image::read_rgb(&image).unwrap());
     for i in 0..3 {
         worker.send(i, i as f64 / 30.0, rgb.clone()).unwrap();

@@ -1,7 +1,7 @@
 //! `stillpoint bench detect`: per-frame detector latency (letterbox + inference + decode/NMS) for
 //! each backend, 1 and 2 intra-op threads, and each model size; median of N runs after warm-up
 //! (`stillpoint_bench::detector`). Speed is also given as a ratio to the reference measured in
-//! the same run (tract, 1 thread, first model).
+//! the same run (the first row: first backend, first thread count, first model).
 
 use anyhow::Result;
 use serde_json::json;
@@ -28,7 +28,8 @@ pub struct Args {
     /// Thread counts to time.
     #[arg(long, num_args = 1.., default_values_t = [1usize, 2])]
     threads: Vec<usize>,
-    /// Backends to time (default: tract, and ort when its library is found).
+    /// Backends to time (default: those available: tract in a build with it, ort when its
+    /// library is found).
     #[arg(long, num_args = 1..)]
     backends: Vec<Backend>,
     /// Print one JSON object instead of the table.

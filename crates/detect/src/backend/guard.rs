@@ -10,11 +10,11 @@
 //! that cannot be YOLOX's. [`guarded`] turns any remaining panic of the engine into an error.
 
 use crate::DetectError;
+use crate::onnx_proto as pb;
+use prost::Message;
 use std::cell::{Cell, RefCell};
 use std::collections::HashMap;
 use std::path::Path;
-use tract_onnx::pb;
-use tract_onnx::prelude::Framework;
 
 /// Largest network input side (height or width) a model may declare: YOLOX is trained at 416 to
 /// 1280; 4096 leaves room and keeps one input tensor at 200 MB.
@@ -49,19 +49,19 @@ fn refused(path: &Path, msg: String) -> DetectError {
 }
 
 /// Read `path` as an ONNX model and check it (see the module's text); every refusal names the
-/// file.
-pub(crate) fn read_checked(path: &Path) -> Result<pb::ModelProto, DetectError> {
+/// file. Returns the file's bytes, for the engine to parse.
+pub(crate) fn read_checked(path: &Path) -> Result<Vec<u8>, DetectError> {
     super::check_model_file(path)?;
-    let proto = guarded(path, "tract", "reading the protobuf", || {
-        tract_onnx::onnx()
-            .proto_model_for_path(path)
-            .map_err(|e| DetectError::NotOnnx {
-                path: path.to_path_buf(),
-                msg: format!("{e:#}"),
-            })
+    let bytes = std::fs::read(path).map_err(|error| DetectError::ModelIo {
+        path: path.to_path_buf(),
+        error,
+    })?;
+    let proto = pb::ModelProto::decode(bytes.as_slice()).map_err(|e| DetectError::NotOnnx {
+        path: path.to_path_buf(),
+        msg: format!("not an ONNX protobuf: {e}"),
     })?;
     check_model(&proto).map_err(|msg| refused(path, msg))?;
-    Ok(proto)
+    Ok(bytes)
 }
 
 /// What [`read_checked`] checks, on a decoded model; the message says which node or tensor and

@@ -2,6 +2,7 @@
 //! one float output (with its shape) out. YOLOX pre/post-processing lives in [`crate::yolox`].
 
 pub mod guard;
+#[cfg(feature = "tract")]
 pub mod tract;
 
 #[cfg(feature = "ort")]
@@ -97,6 +98,19 @@ pub(crate) fn check_model_file(path: &Path) -> Result<(), DetectError> {
         });
     }
     Ok(())
+}
+
+/// The backends that can run a model here: tract when compiled in, ort when compiled in and
+/// its library is found (`configured`: the settings' `ort_dylib_path`).
+pub fn available(configured: Option<&Path>) -> Vec<crate::Backend> {
+    let mut backends = Vec::new();
+    if cfg!(feature = "tract") {
+        backends.push(crate::Backend::Tract);
+    }
+    if ort_dylib_available(configured) {
+        backends.push(crate::Backend::Ort);
+    }
+    backends
 }
 
 /// Whether the `ort` backend can run here: compiled in and its library found (see

@@ -1,4 +1,4 @@
-//! tract-onnx backend: pure Rust, always available. The model is parsed once, given a fixed
+//! tract-onnx backend (feature `tract`): pure Rust, nothing needed on the machine. The model is parsed once, given a fixed
 //! input shape and optimised (`into_optimized`), so each frame only runs the plan.
 
 use super::{InferenceBackend, choose_input_size, guard};
@@ -36,8 +36,13 @@ impl TractBackend {
         threads: usize,
         fallback_size: (usize, usize),
     ) -> Result<Self, DetectError> {
-        let proto = guard::read_checked(path)?;
+        let bytes = guard::read_checked(path)?;
         let (state, input_size) = guard::guarded(path, "tract", "loading it", || {
+            let proto = <tract_onnx::pb::ModelProto as prost::Message>::decode(bytes.as_slice())
+                .map_err(|e| DetectError::NotOnnx {
+                    path: path.to_path_buf(),
+                    msg: format!("not an ONNX protobuf: {e}"),
+                })?;
             prepare(path, &proto, threads, fallback_size)
         })?;
         Ok(Self {

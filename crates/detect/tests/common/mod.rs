@@ -1,8 +1,21 @@
-//! Tiny ONNX models built in the test, with tract-onnx's own protobuf types (no model download).
+//! Tiny ONNX models built in the test, with the crate's own ONNX protobuf types (no model download).
 #![allow(dead_code)] // each test binary uses its own part
 
 use prost::Message;
-use tract_onnx::pb;
+use stillpoint_detect::onnx_proto as pb;
+
+/// The backends to load models with: those that can run one here (tract in a build with it, ort
+/// with its library), or the default one when there is neither, since the model checks refuse a
+/// bad file before any engine is needed.
+pub fn checked_backends() -> Vec<stillpoint_detect::Backend> {
+    let available = stillpoint_detect::backend::available(None);
+    if available.is_empty() {
+        eprintln!("no inference backend here: checking the model checks only");
+        vec![stillpoint_detect::Backend::default()]
+    } else {
+        available
+    }
+}
 
 /// ONNX `TensorProto.DataType` FLOAT.
 pub const FLOAT: i32 = 1;
