@@ -66,8 +66,8 @@ fn the_loop_is_closed_at_the_revisit_and_the_ate_drops() {
     // Before the camera is back (a lap is 600 frames), loop closing changes nothing.
     let part = 500;
     let (a, b) = (dir.path().join("on.txt"), dir.path().join("off.txt"));
-    let on = run(&seq, &a, part, true);
-    run(&seq, &b, part, false);
+    // Each pair of runs side by side: two processes for the machine's two cores.
+    let (on, _) = both(|| run(&seq, &a, part, true), || run(&seq, &b, part, false));
     assert_eq!(on["loop_closing"]["loops"].as_u64(), Some(0), "{on}");
     assert!(
         on["keyframes"].as_u64().unwrap() >= 10,
@@ -75,8 +75,10 @@ fn the_loop_is_closed_at_the_revisit_and_the_ate_drops() {
     );
     assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
 
-    let on = run(&seq, &a, frames, true);
-    let off = run(&seq, &b, frames, false);
+    let (on, off) = both(
+        || run(&seq, &a, frames, true),
+        || run(&seq, &b, frames, false),
+    );
     eprintln!("loop closing: {}", on["loop_closing"]);
     assert_eq!(on["tracked"].as_u64(), Some(frames as u64), "{on}");
     assert_eq!(off["tracked"].as_u64(), Some(frames as u64), "{off}");
@@ -100,6 +102,15 @@ fn the_loop_is_closed_at_the_revisit_and_the_ate_drops() {
         "{threaded}"
     );
     assert_true_revisit(&threaded["loop_closing"]["events"][0]);
+}
+
+/// `first` and `second` at the same time, on two threads.
+fn both<A: Send, B: Send>(first: impl FnOnce() -> A + Send, second: impl FnOnce() -> B) -> (A, B) {
+    std::thread::scope(|s| {
+        let first = s.spawn(first);
+        let second = second();
+        (first.join().unwrap(), second)
+    })
 }
 
 /// A lap apart, and the two keyframes' true poses close.

@@ -1,7 +1,7 @@
 //! Plain image buffers shared by every stillpoint crate, and the PNG/JPEG IO they need.
 //!
 //! An image is a row-major `Vec` of pixels with its size; nothing more. Crates that call into
-//! other libraries (kornia, tract) convert at their border.
+//! other libraries (the detector's engines) convert at their border.
 //!
 //! ```
 //! use stillpoint_image::{Gray8, ImageBuf};
