@@ -2,8 +2,7 @@
 //! a non-zero exit, no trajectory file. A file that is not a camera is refused as such with the
 //! `camera` feature (V4L2), and without it the line says how to build with camera support.
 
-mod common;
-use common::{error_line, stillpoint};
+use crate::common::{error_line, stillpoint};
 
 fn run_camera(device: &std::path::Path, traj: &std::path::Path) -> std::process::Output {
     stillpoint()

@@ -1,8 +1,7 @@
 //! `run --record FILE`: an MCAP file of Foxglove JSON messages, read back with the mcap crate's
 //! reader; every message checked against the JSON schema the file embeds for its channel.
 
-mod common;
-use common::{ok_json, stillpoint, synth_walking};
+use crate::common::{ok_json, stillpoint, synth_walking};
 use serde_json::Value;
 use std::collections::BTreeMap;
 
@@ -242,7 +241,7 @@ fn the_recording_opens_with_the_reference_reader_and_every_message_fits_its_sche
 fn an_unwritable_recording_is_one_clear_error() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("seq");
-    common::synth_static(&seq, 3, 0);
+    crate::common::synth_static(&seq, 3, 0);
     let bad = tmp.path().join("no-such-dir").join("run.mcap");
     let out = stillpoint()
         .args(["run", "--detector", "none", "--sequential", "--dataset"])

@@ -7,8 +7,7 @@
 //! are carried into the world with the alignment of the mapping run to its ground truth, and
 //! compared with the second sequence's ground truth without aligning again.
 
-mod common;
-use common::{error_line, ok_json, stillpoint};
+use crate::common::{error_line, ok_json, stillpoint};
 
 use std::path::Path;
 use stillpoint_synth::{Preset, SynthConfig, WriteOptions, tum_fr3_camera_sized};

@@ -8,8 +8,7 @@ use std::process::Output;
 
 use stillpoint_datasets::mcap::{DepthEncoding, McapTopics, RecordingWriter};
 
-mod common;
-use common::{stillpoint, synth_in_millimetres};
+use crate::common::{stillpoint, synth_in_millimetres};
 
 const RGB: &str = "/camera/color/image_raw";
 const DEPTH: &str = "/camera/aligned_depth_to_color/image_raw";
@@ -93,7 +92,7 @@ fn a_recording_runs_as_its_folder_does() {
     for k in ["tracked", "keyframes", "map_points"] {
         assert_eq!(recording[k], folder[k], "{k}");
     }
-    common::assert_same_trajectory(&a, &b);
+    crate::common::assert_same_trajectory(&a, &b);
 
     // `info` names the topics, the types, the counts and the first images.
     let out = stillpoint()

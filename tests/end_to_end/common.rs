@@ -1,5 +1,4 @@
 //! What the command-line tests share: the binary and its plainest run.
-#![allow(dead_code)] // each test binary uses its own part
 
 use std::path::Path;
 use std::process::{Command, Output};

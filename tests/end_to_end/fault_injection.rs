@@ -9,8 +9,7 @@ use std::process::{Output, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
-mod common;
-use common::{stillpoint, synth_static};
+use crate::common::{stillpoint, synth_static};
 
 /// Longest a case may run; a case that takes longer has hung.
 const HANG: Duration = Duration::from_secs(300);

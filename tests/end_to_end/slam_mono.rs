@@ -83,8 +83,7 @@ fn monocular_static_sequence_initialises_tracks_and_matches_the_truth_up_to_scal
     assert!(rmse < 0.012, "ATE {rmse} m");
 }
 
-mod common;
-use common::stillpoint;
+use crate::common::stillpoint;
 
 /// `stillpoint synth --preset static --frames N` into `dir`, then depth.txt removed: a TUM folder
 /// that reads as monocular.
@@ -106,7 +105,7 @@ fn synth_mono(dir: &Path, frames: usize) {
 
 /// `stillpoint run --detector none --sequential --json` on `seq`: (success, stdout, stderr).
 fn run(seq: &Path, traj: &Path) -> (bool, String, String) {
-    let out = common::run_without_detector(seq, traj);
+    let out = crate::common::run_without_detector(seq, traj);
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stdout).into_owned(),

@@ -6,7 +6,7 @@
 //! in TUM) and the visible fraction at least `min_visible` (0.95 for walkers; 0.5 for sitters,
 //! whom the desk always hides in part, as in TUM fr3 sitting_*).
 //!
-//! Run with `cargo test --release --test synth_detector_rate -- --ignored --nocapture`.
+//! Run with `cargo test --release --features tract --test end_to_end synth_detector_rate:: -- --ignored --nocapture`.
 
 use std::path::PathBuf;
 use stillpoint_detect::{DetectInput, DetectSettings, Detector, YoloxDetector};

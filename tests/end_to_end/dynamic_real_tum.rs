@@ -8,7 +8,7 @@
 //! hand-held camera's epipolar outliers cluster; the other culls are in boxes judged moving
 //! (the monitor behind the man who stands up).
 //!
-//! Run with `cargo test --release --test dynamic_real_tum -- --ignored --nocapture`.
+//! Run with `cargo test --release --features tract --test end_to_end dynamic_real_tum:: -- --ignored --nocapture`.
 
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};

@@ -3,8 +3,7 @@
 
 use std::path::Path;
 
-mod common;
-use common::synth_static;
+use crate::common::synth_static;
 
 /// File names in `dir`, sorted (the synth stamps sort in time order).
 fn sorted_names(dir: &Path) -> Vec<String> {
@@ -134,7 +133,7 @@ fn frames_from_another_place_are_lost_then_relocalised() {
 
 /// `stillpoint run --detector none --sequential --json` on `seq`; must succeed; its JSON summary.
 fn run_without_detector(seq: &std::path::Path, traj: &std::path::Path) -> serde_json::Value {
-    let out = common::run_without_detector(seq, traj);
+    let out = crate::common::run_without_detector(seq, traj);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     serde_json::from_slice(&out.stdout).unwrap()

@@ -9,8 +9,7 @@ use std::process::Output;
 
 use stillpoint_datasets::video::write::{VideoOptions, VideoWriter};
 
-mod common;
-use common::{error_line, ok_json, stillpoint, synth_static};
+use crate::common::{error_line, ok_json, stillpoint, synth_static};
 
 /// Every frame of the sequence at `seq` as an MP4 at `fps`.
 fn encode(seq: &Path, out: &Path, fps: f64, faststart: bool) -> usize {
@@ -62,7 +61,7 @@ fn a_synthetic_sequence_tracks_from_its_video_and_a_cut_video_keeps_its_first_po
     assert_eq!(summary["sequence"], "clip");
     assert_eq!(summary["sensor"], "mono");
     assert_eq!(summary["frames"], 75);
-    // The folder, monocular, tracks 54 of 75 frames (tests/slam_mono.rs); the H.264 frames
+    // The folder, monocular, tracks 54 of 75 frames (slam_mono.rs); the H.264 frames
     // (20 Mbit/s) 54 too.
     let tracked = summary["tracked"].as_u64().unwrap();
     assert!(tracked >= 40, "{summary}");

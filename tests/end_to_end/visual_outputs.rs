@@ -2,8 +2,7 @@
 //! boxes judged moving, the static scene's keypoints kept (green or yellow); `--map-cloud FILE`:
 //! the map's points as a PLY cloud; `--dense-cloud FILE`: keyframe depth without the walkers.
 
-mod common;
-use common::{ok_json, stillpoint, synth_walking};
+use crate::common::{ok_json, stillpoint, synth_walking};
 
 /// Pixels of exactly `colour` in an overlay.
 fn count(img: &stillpoint_image::Rgb8, colour: [u8; 3]) -> usize {
