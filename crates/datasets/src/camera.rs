@@ -204,20 +204,11 @@ mod v4l2 {
                 .map_or(0.0, |d| d.as_secs_f64());
             let bytes = &buf[..(meta.bytesused as usize).min(buf.len())];
             let rgb = match self.pixels {
-                Pixels::Mjpeg => {
-                    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Jpeg)
-                        .map_err(|e| {
-                            device_err(&self.path, format!("frame {}: MJPEG: {e}", meta.sequence))
-                        })?
-                        .to_rgb8();
-                    let (w, h) = (img.width() as usize, img.height() as usize);
-                    let data = img.pixels().map(|p| p.0).collect();
-                    Rgb8 {
-                        width: w,
-                        height: h,
-                        data,
-                    }
-                }
+                Pixels::Mjpeg => stillpoint_image::codec::decode(bytes)
+                    .map_err(|e| {
+                        device_err(&self.path, format!("frame {}: MJPEG: {e}", meta.sequence))
+                    })?
+                    .to_rgb8(),
                 Pixels::Yuyv => {
                     super::yuyv_to_rgb(bytes, self.size.0, self.size.1).ok_or_else(|| {
                         device_err(

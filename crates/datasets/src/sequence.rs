@@ -186,14 +186,7 @@ pub(crate) fn check_index(i: usize, len: usize) -> Result<(), DatasetError> {
 /// An image's size from its file header, without decoding the pixels; `None` when the header
 /// cannot be read (the decoder then says why).
 pub(crate) fn header_size(path: &Path) -> Option<(usize, usize)> {
-    let mut reader = image::ImageReader::open(path)
-        .ok()?
-        .with_guessed_format()
-        .ok()?;
-    // Only the header is read; the decoder's memory limit would refuse to even size a huge one.
-    reader.no_limits();
-    let (w, h) = reader.into_dimensions().ok()?;
-    Some((w as usize, h as usize))
+    stillpoint_image::codec::dimensions(&std::fs::read(path).ok()?).ok()
 }
 
 /// [`check_size`] from the file's header, before the image is decoded: a small file can declare

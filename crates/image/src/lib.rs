@@ -13,6 +13,8 @@
 
 #![deny(missing_docs)]
 
+pub mod codec;
+
 use std::path::{Path, PathBuf};
 
 /// Errors from building or reading images.
@@ -223,71 +225,29 @@ fn write_err(path: &Path, e: impl std::error::Error + Send + Sync + 'static) -> 
     }
 }
 
+fn decode_file(path: &Path) -> Result<codec::Decoded, ImageError> {
+    let bytes = std::fs::read(path).map_err(|e| read_err(path, e))?;
+    codec::decode(&bytes).map_err(|e| read_err(path, e))
+}
+
 /// Read any PNG/JPEG as 8-bit RGB (16-bit input is scaled down, gray is replicated).
 pub fn read_rgb(path: &Path) -> Result<Rgb8, ImageError> {
-    let img = image::ImageReader::open(path)
-        .map_err(|e| read_err(path, e))?
-        .with_guessed_format()
-        .map_err(|e| read_err(path, e))?
-        .decode()
-        .map_err(|e| read_err(path, e))?
-        .to_rgb8();
-    let (w, h) = img.dimensions();
-    let data = img.pixels().map(|p| p.0).collect();
-    Ok(ImageBuf {
-        width: w as usize,
-        height: h as usize,
-        data,
-    })
+    Ok(decode_file(path)?.to_rgb8())
 }
 
 /// Read any PNG/JPEG as 8-bit grayscale (colour is converted with [`luma`]).
 pub fn read_gray(path: &Path) -> Result<Gray8, ImageError> {
-    let dynimg = image::ImageReader::open(path)
-        .map_err(|e| read_err(path, e))?
-        .with_guessed_format()
-        .map_err(|e| read_err(path, e))?
-        .decode()
-        .map_err(|e| read_err(path, e))?;
-    if let image::DynamicImage::ImageLuma8(g) = dynimg {
-        let (w, h) = g.dimensions();
-        return Ok(ImageBuf {
-            width: w as usize,
-            height: h as usize,
-            data: g.into_raw(),
-        });
-    }
-    let rgb = dynimg.to_rgb8();
-    let (w, h) = rgb.dimensions();
-    Ok(ImageBuf {
-        width: w as usize,
-        height: h as usize,
-        data: rgb.pixels().map(|p| luma(p.0)).collect(),
-    })
+    Ok(decode_file(path)?.to_gray8())
 }
 
 /// Read a 16-bit single-channel depth PNG as raw values.
 pub fn read_depth16(path: &Path) -> Result<ImageBuf<u16>, ImageError> {
-    let dynimg = image::ImageReader::open(path)
-        .map_err(|e| read_err(path, e))?
-        .with_guessed_format()
-        .map_err(|e| read_err(path, e))?
-        .decode()
-        .map_err(|e| read_err(path, e))?;
-    match dynimg {
-        image::DynamicImage::ImageLuma16(g) => {
-            let (w, h) = g.dimensions();
-            Ok(ImageBuf {
-                width: w as usize,
-                height: h as usize,
-                data: g.into_raw(),
-            })
-        }
-        other => Err(ImageError::NotDepth16 {
+    decode_file(path)?
+        .into_gray16()
+        .map_err(|other| ImageError::NotDepth16 {
             path: path.to_path_buf(),
-            found: format!("{:?}", other.color()),
-        }),
-    }
+            found: other.color_name().to_string(),
+        })
 }
 
 /// Read a 16-bit depth PNG and divide by `factor` (TUM: 5000 units per metre). Zero stays zero.
@@ -302,46 +262,21 @@ pub fn read_depth_metres(path: &Path, factor: f32) -> Result<DepthMetres, ImageE
 
 /// Write an 8-bit grayscale PNG.
 pub fn write_gray(path: &Path, img: &Gray8) -> Result<(), ImageError> {
-    image::save_buffer(
-        path,
-        &img.data,
-        img.width as u32,
-        img.height as u32,
-        image::ExtendedColorType::L8,
-    )
-    .map_err(|e| write_err(path, e))
+    let png = codec::encode_png8(&img.data, img.width, img.height, png::ColorType::Grayscale)
+        .map_err(|e| write_err(path, e))?;
+    std::fs::write(path, png).map_err(|e| write_err(path, e))
 }
 
 /// Write an 8-bit RGB PNG.
 pub fn write_rgb(path: &Path, img: &Rgb8) -> Result<(), ImageError> {
-    let flat: Vec<u8> = img.data.iter().flat_map(|p| p.iter().copied()).collect();
-    image::save_buffer(
-        path,
-        &flat,
-        img.width as u32,
-        img.height as u32,
-        image::ExtendedColorType::Rgb8,
-    )
-    .map_err(|e| write_err(path, e))
+    let png = encode_png(img).map_err(|e| write_err(path, e))?;
+    std::fs::write(path, png).map_err(|e| write_err(path, e))
 }
 
 /// An 8-bit RGB image as the bytes of a PNG file (fast compression: for streams of frames).
 pub fn encode_png(img: &Rgb8) -> Result<Vec<u8>, ImageError> {
-    use image::ImageEncoder;
-    let mut out = Vec::new();
-    let enc = image::codecs::png::PngEncoder::new_with_quality(
-        &mut out,
-        image::codecs::png::CompressionType::Fast,
-        image::codecs::png::FilterType::Adaptive,
-    );
-    enc.write_image(
-        &flat_rgb(img),
-        img.width as u32,
-        img.height as u32,
-        image::ExtendedColorType::Rgb8,
-    )
-    .map_err(|e| encode_err("png", img, e))?;
-    Ok(out)
+    codec::encode_png8(&flat_rgb(img), img.width, img.height, png::ColorType::Rgb)
+        .map_err(|e| encode_err("png", img, e))
 }
 
 /// An 8-bit RGB image as the bytes of a JPEG file of `quality` (1..=100). The jpeg-encoder
@@ -446,15 +381,9 @@ mod tests {
     fn encoded_png_decodes_to_the_same_pixels_and_jpeg_to_a_jpeg() {
         let img = Rgb8::from_vec(5, 3, (0..15u8).map(|i| [i * 10, 255 - i, i]).collect()).unwrap();
         let png = encode_png(&img).unwrap();
-        let back = image::load_from_memory(&png).unwrap().to_rgb8();
-        assert_eq!(back.dimensions(), (5, 3));
-        assert_eq!(back.pixels().map(|p| p.0).collect::<Vec<_>>(), img.data);
+        assert_eq!(codec::decode(&png).unwrap().to_rgb8(), img);
         let jpeg = encode_jpeg(&img, 90).unwrap();
-        assert_eq!(&jpeg[..2], &[0xFF, 0xD8]);
-        assert!(matches!(
-            image::guess_format(&jpeg),
-            Ok(image::ImageFormat::Jpeg)
-        ));
+        assert_eq!(codec::format_of(&jpeg), Some(codec::Format::Jpeg));
     }
 
     #[test]

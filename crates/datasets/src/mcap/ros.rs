@@ -4,7 +4,7 @@
 
 use super::cdr::{DecodeError, MessageReader, Wire};
 use stillpoint_geometry::{PinholeCamera, RadTan};
-use stillpoint_image::{DepthMetres, ImageBuf, Rgb8};
+use stillpoint_image::{DepthMetres, ImageBuf, Rgb8, codec};
 
 /// The message types read, whatever their package path (`sensor_msgs/msg/Image` in ROS 2,
 /// `sensor_msgs/Image` in ROS 1).
@@ -102,23 +102,17 @@ impl<'a> ImageMsg<'a> {
             return Ok((self.width, self.height));
         }
         let (_, payload) = self.compressed_payload()?;
-        image::ImageReader::new(std::io::Cursor::new(payload))
-            .with_guessed_format()
-            .map_err(|e| e.to_string())?
-            .into_dimensions()
-            .map_err(|e| format!("{}: {e}", self.encoding))
+        let (w, h) = codec::dimensions(payload).map_err(|e| format!("{}: {e}", self.encoding))?;
+        Ok((w as u32, h as u32))
     }
 
     /// The pixels as 8-bit RGB (`rgb8`, `bgr8`, `rgba8`, `bgra8`, `mono8`; PNG / JPEG).
     pub fn to_rgb(&self) -> Result<Rgb8, String> {
         if self.compressed {
             let (_, payload) = self.compressed_payload()?;
-            let img = image::load_from_memory(payload)
-                .map_err(|e| format!("{}: {e}", self.encoding))?
-                .to_rgb8();
-            let (w, h) = img.dimensions();
-            let data = img.pixels().map(|p| p.0).collect();
-            return ImageBuf::from_vec(w as usize, h as usize, data).map_err(|e| e.to_string());
+            return codec::decode(payload)
+                .map(|img| img.to_rgb8())
+                .map_err(|e| format!("{}: {e}", self.encoding));
         }
         // Channel order, bytes per pixel.
         let (order, bpp): (PixelToRgb, usize) = match self.encoding.as_str() {
@@ -197,18 +191,16 @@ impl<'a> ImageMsg<'a> {
                 self.encoding
             ));
         }
-        let img =
-            image::load_from_memory(payload).map_err(|e| format!("{}: {e}", self.encoding))?;
-        let image::DynamicImage::ImageLuma16(g) = img else {
-            return Err(format!(
-                "{:?}: expected a 16-bit single-channel PNG for depth, found {:?}",
+        let img = codec::decode(payload).map_err(|e| format!("{}: {e}", self.encoding))?;
+        let g = img.into_gray16().map_err(|img| {
+            format!(
+                "{:?}: expected a 16-bit single-channel PNG for depth, found {}",
                 self.encoding,
-                img.color()
-            ));
-        };
-        let (w, h) = g.dimensions();
-        let data = g.into_raw().iter().map(|&v| v as f32 / 1000.0).collect();
-        let img = ImageBuf::from_vec(w as usize, h as usize, data).map_err(|e| e.to_string())?;
+                img.color_name()
+            )
+        })?;
+        let data = g.data.iter().map(|&v| v as f32 / 1000.0).collect();
+        let img = ImageBuf::from_vec(g.width, g.height, data).map_err(|e| e.to_string())?;
         Ok((img, 1000.0))
     }
 
@@ -419,10 +411,8 @@ mod tests {
 
     #[test]
     fn compressed_images_decode_png() {
-        let img = image::RgbImage::from_fn(3, 2, |x, y| image::Rgb([x as u8, y as u8, 7]));
-        let mut png = Vec::new();
-        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-            .unwrap();
+        let img = ImageBuf::from_vec(3, 2, (0..6).map(|i| [i % 3, i / 3, 7]).collect()).unwrap();
+        let png = stillpoint_image::encode_png(&img).unwrap();
         let mut m = CdrWriter::new();
         m.header(1.0, "").string("png").bytes(&png);
         let m = m.finish();
