@@ -51,8 +51,12 @@ fn the_front_end_keeps_walkers_out_and_the_baseline_is_pulled() {
         ..SynthConfig::default()
     };
     write_sequence(&config, WriteOptions::default(), tmp.path()).unwrap();
-    let (on, tracked, culled) = run(tmp.path(), true);
-    let (off, _, none_culled) = run(tmp.path(), false);
+    // Side by side: two runs for the machine's two cores.
+    let ((on, tracked, culled), (off, _, none_culled)) = std::thread::scope(|s| {
+        let on = s.spawn(|| run(tmp.path(), true));
+        let off = run(tmp.path(), false);
+        (on.join().unwrap(), off)
+    });
     eprintln!(
         "ATE front-end on {:.2} cm, off {:.2} cm",
         on * 100.0,
