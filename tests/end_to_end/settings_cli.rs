@@ -1,11 +1,7 @@
 //! `stillpoint settings` and `run --config/--set`: the effective tree with sources, and errors
 //! that name the file and line or the override, with a non-zero exit.
 
-use std::process::Command;
-
-fn stillpoint() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_stillpoint"))
-}
+use crate::common::stillpoint;
 
 #[test]
 fn settings_shows_each_value_with_its_source() {

@@ -4,11 +4,8 @@
 //! while no loop is closed. 320x240 keeps it to a couple of minutes in the debug profile.
 
 use std::path::Path;
-use std::process::Command;
 
-fn stillpoint() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_stillpoint"))
-}
+use crate::common::stillpoint;
 
 /// `stillpoint run --sequential --json` without the dynamic front-end (nothing moves); the JSON
 /// summary.

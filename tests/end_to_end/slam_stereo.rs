@@ -2,15 +2,11 @@
 //! `stillpoint synth --stereo` writes: tracks every frame from stereo depth alone, and reads the
 //! KITTI ground truth (12 numbers a line, stamps from times.txt) to report an ATE.
 
+use crate::common::stillpoint;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_slam::Feature;
 use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths};
-
-fn stillpoint() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_stillpoint"))
-}
 
 /// `stillpoint synth --preset static --frames N --stereo` into `dir/seq`; must succeed.
 fn synth_static_stereo(dir: &std::path::Path, frames: usize) -> std::path::PathBuf {
