@@ -186,7 +186,7 @@ pub(crate) fn check_index(i: usize, len: usize) -> Result<(), DatasetError> {
 /// An image's size from its file header, without decoding the pixels; `None` when the header
 /// cannot be read (the decoder then says why).
 pub(crate) fn header_size(path: &Path) -> Option<(usize, usize)> {
-    stillpoint_image::codec::dimensions(&std::fs::read(path).ok()?).ok()
+    stillpoint_image::codec::file_dimensions(path).ok()?
 }
 
 /// [`check_size`] from the file's header, before the image is decoded: a small file can declare

@@ -115,6 +115,25 @@ pub fn dimensions(bytes: &[u8]) -> Result<(usize, usize), DecodeError> {
     }
 }
 
+/// Width and height from a file's header, reading only its first 64 KiB unless the header
+/// lies further in (a JPEG with large metadata segments): frames are sized before they are
+/// decoded, and reading them whole twice would double the IO a frame.
+pub fn file_dimensions(path: &std::path::Path) -> std::io::Result<Option<(usize, usize)>> {
+    use std::io::Read;
+    const PREFIX: u64 = 64 << 10;
+    let mut file = std::fs::File::open(path)?;
+    let mut head = Vec::new();
+    (&mut file).take(PREFIX).read_to_end(&mut head)?;
+    if let Ok(size) = dimensions(&head) {
+        return Ok(Some(size));
+    }
+    if (head.len() as u64) < PREFIX {
+        return Ok(None);
+    }
+    file.read_to_end(&mut head)?;
+    Ok(dimensions(&head).ok())
+}
+
 fn check_size(
     width: usize,
     height: usize,
@@ -254,13 +273,10 @@ impl Decoded {
         };
         let data = match &self.samples {
             Samples::U8(v) => v.chunks_exact(c).map(pixel).collect(),
-            Samples::U16(v) => v
-                .chunks_exact(c)
-                .map(|s| {
-                    let s8: Vec<u8> = s.iter().map(|&x| to_u8(x)).collect();
-                    pixel(&s8)
-                })
-                .collect(),
+            Samples::U16(v) => {
+                let v8: Vec<u8> = v.iter().map(|&x| to_u8(x)).collect();
+                v8.chunks_exact(c).map(pixel).collect()
+            }
         };
         ImageBuf {
             width: self.width,
@@ -272,11 +288,13 @@ impl Decoded {
     /// 8-bit gray: an 8-bit gray image as it is, anything else through [`Decoded::to_rgb8`]
     /// and [`luma`].
     pub fn to_gray8(self) -> Gray8 {
-        if let (1, Samples::U8(data)) = (self.channels, &self.samples) {
+        if self.channels == 1
+            && let Samples::U8(data) = self.samples
+        {
             return ImageBuf {
                 width: self.width,
                 height: self.height,
-                data: data.clone(),
+                data,
             };
         }
         let rgb = self.to_rgb8();
@@ -369,6 +387,27 @@ mod tests {
         let d = decode(&rgb).unwrap();
         assert_eq!((d.width, d.height, d.channels), (16, 8, 3));
         assert!(d.to_rgb8().data.iter().all(|p| p[0] > 180 && p[1] < 40));
+    }
+
+    #[test]
+    fn file_dimensions_reads_past_large_metadata() {
+        let dir = tempfile::tempdir().unwrap();
+        let png = dir.path().join("a.png");
+        crate::write_rgb(&png, &Rgb8::new(7, 5, [1, 2, 3])).unwrap();
+        assert_eq!(file_dimensions(&png).unwrap(), Some((7, 5)));
+        // Two 60 KB APP15 segments before the frame header push it past the first read.
+        let jpeg = crate::encode_jpeg(&Rgb8::new(9, 4, [9, 9, 9]), 90).unwrap();
+        let mut big = jpeg[..2].to_vec();
+        for _ in 0..2 {
+            big.extend_from_slice(&[0xFF, 0xEF, 0xEA, 0x62]); // length 60002
+            big.extend(std::iter::repeat_n(0u8, 60000));
+        }
+        big.extend_from_slice(&jpeg[2..]);
+        let path = dir.path().join("b.jpg");
+        std::fs::write(&path, &big).unwrap();
+        assert_eq!(file_dimensions(&path).unwrap(), Some((9, 4)));
+        std::fs::write(&path, b"neither").unwrap();
+        assert_eq!(file_dimensions(&path).unwrap(), None);
     }
 
     #[test]
