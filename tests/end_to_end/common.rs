@@ -1,6 +1,6 @@
 //! What the command-line tests share: the binary and its plainest run.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use stillpoint_synth::{Preset, SynthConfig, WriteOptions};
 
@@ -11,14 +11,31 @@ pub fn stillpoint() -> Command {
 
 /// `stillpoint run --detector none --sequential --json --dataset SEQ --out TRAJ`.
 pub fn run_without_detector(seq: &Path, traj: &Path) -> Output {
+    run_without_detector_on(&["--dataset", path_str(seq)], traj)
+}
+
+/// `stillpoint run --detector none --sequential --json SOURCE.. --out TRAJ`, the source being
+/// `--dataset D` or `--bag F --rgb-topic ..`.
+pub fn run_without_detector_on(source: &[&str], traj: &Path) -> Output {
     stillpoint()
         .args(["run", "--detector", "none", "--sequential", "--json"])
-        .arg("--dataset")
-        .arg(seq)
+        .args(source)
         .arg("--out")
         .arg(traj)
         .output()
         .unwrap()
+}
+
+/// A path as the `&str` argument lists want (the tests' temporary paths are UTF-8).
+pub fn path_str(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// `../shared` beside the workspace, or `$STILLPOINT_SHARED`.
+pub fn shared() -> PathBuf {
+    std::env::var_os("STILLPOINT_SHARED")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
 }
 
 /// `stillpoint synth --preset static --frames N --seed S --out DIR`; must succeed.

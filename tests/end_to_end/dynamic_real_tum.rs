@@ -10,7 +10,7 @@
 //!
 //! Run with `cargo test --release --features tract --test end_to_end dynamic_real_tum:: -- --ignored --nocapture`.
 
-use std::path::PathBuf;
+use crate::common::shared;
 use std::sync::{Arc, Mutex};
 use stillpoint_detect::{
     DetectError, DetectInput, DetectSettings, Detection, Detector, YoloxDetector,
@@ -18,12 +18,6 @@ use stillpoint_detect::{
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
 use stillpoint_frontend::{FilterInput, KeypointFilter};
-
-fn shared() -> PathBuf {
-    std::env::var_os("STILLPOINT_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
-}
 
 /// YOLOX that also hands its boxes to the test.
 struct Recording {

@@ -4,11 +4,12 @@
 //! recording, a wrong topic and a recording given as `--dataset` are one clear error line.
 
 use std::path::{Path, PathBuf};
-use std::process::Output;
 
 use stillpoint_datasets::mcap::{DepthEncoding, McapTopics, RecordingWriter};
 
-use crate::common::{stillpoint, synth_in_millimetres};
+use crate::common::{
+    error_line, ok_json, path_str, run_without_detector_on, stillpoint, synth_in_millimetres,
+};
 
 const RGB: &str = "/camera/color/image_raw";
 const DEPTH: &str = "/camera/aligned_depth_to_color/image_raw";
@@ -31,38 +32,6 @@ fn write_recording(seq_dir: &Path, out: &Path) {
     w.finish().unwrap();
 }
 
-/// `stillpoint run --detector none --sequential --json` with `source` (`--dataset D` or
-/// `--bag F --rgb-topic ..`).
-fn run(source: &[&str], traj: &Path) -> Output {
-    stillpoint()
-        .args(["run", "--detector", "none", "--sequential", "--json"])
-        .args(source)
-        .arg("--out")
-        .arg(traj)
-        .output()
-        .unwrap()
-}
-
-fn ok_json(out: &Output) -> serde_json::Value {
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
-    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {stderr}"))
-}
-
-/// The one error line of a failed command (`error: ...`), with no panic.
-fn error_line(out: &Output) -> String {
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!out.status.success(), "{stderr}");
-    assert!(!stderr.contains("panicked"), "{stderr}");
-    let errors: Vec<&str> = stderr.lines().filter(|l| l.starts_with("error")).collect();
-    assert_eq!(errors.len(), 1, "{stderr}");
-    errors[0].to_string()
-}
-
-fn path_str(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
 #[test]
 fn a_recording_runs_as_its_folder_does() {
     let tmp = tempfile::tempdir().unwrap();
@@ -72,9 +41,9 @@ fn a_recording_runs_as_its_folder_does() {
     write_recording(&seq, &bag);
 
     let (a, b) = (tmp.path().join("folder.txt"), tmp.path().join("bag.txt"));
-    let folder = ok_json(&run(&["--dataset", path_str(&seq)], &a));
+    let folder = ok_json(&run_without_detector_on(&["--dataset", path_str(&seq)], &a));
     // The camera comes from the recording's CameraInfo (no --settings).
-    let recording = ok_json(&run(
+    let recording = ok_json(&run_without_detector_on(
         &[
             "--bag",
             path_str(&bag),
@@ -116,7 +85,7 @@ fn a_recording_runs_as_its_folder_does() {
     assert!(text.contains("640x480 rgb8"), "{text}");
 
     // A wrong topic lists the topics there are.
-    let e = error_line(&run(
+    let e = error_line(&run_without_detector_on(
         &[
             "--bag",
             path_str(&bag),
@@ -131,7 +100,7 @@ fn a_recording_runs_as_its_folder_does() {
     let bytes = std::fs::read(&bag).unwrap();
     let cut = tmp.path().join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    let e = error_line(&run(
+    let e = error_line(&run_without_detector_on(
         &[
             "--bag",
             path_str(&cut),
@@ -148,7 +117,7 @@ fn a_recording_runs_as_its_folder_does() {
     assert!(e.contains("truncated"), "{e}");
 
     // A recording given as a folder says how to give it.
-    let e = error_line(&run(
+    let e = error_line(&run_without_detector_on(
         &["--dataset", path_str(&bag)],
         &tmp.path().join("d.txt"),
     ));

@@ -10,7 +10,8 @@ use stillpoint_datasets::mcap::{DepthEncoding, McapTopics};
 use stillpoint_datasets::rosbag::write::{BagCompression, BagWriter};
 
 use crate::common::{
-    assert_same_trajectory, error_line, ok_json, stillpoint, synth_in_millimetres,
+    assert_same_trajectory, error_line, ok_json, path_str, run_without_detector_on, stillpoint,
+    synth_in_millimetres,
 };
 
 const RGB: &str = "/camera/rgb/image_color";
@@ -40,20 +41,6 @@ fn write_bag(seq_dir: &Path, out: &Path, compression: BagCompression) {
     w.finish().unwrap();
 }
 
-fn run(source: &[&str], traj: &Path) -> std::process::Output {
-    stillpoint()
-        .args(["run", "--detector", "none", "--sequential", "--json"])
-        .args(source)
-        .arg("--out")
-        .arg(traj)
-        .output()
-        .unwrap()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
 #[test]
 fn a_ros1_bag_runs_as_its_folder_does() {
     let tmp = tempfile::tempdir().unwrap();
@@ -63,10 +50,17 @@ fn a_ros1_bag_runs_as_its_folder_does() {
     write_bag(&seq, &bag, BagCompression::Bz2);
 
     let (a, b) = (tmp.path().join("folder.txt"), tmp.path().join("bag.txt"));
-    let folder = ok_json(&run(&["--dataset", s(&seq)], &a));
+    let folder = ok_json(&run_without_detector_on(&["--dataset", path_str(&seq)], &a));
     // The camera comes from the bag's CameraInfo (no --settings).
-    let recording = ok_json(&run(
-        &["--bag", s(&bag), "--rgb-topic", RGB, "--depth-topic", DEPTH],
+    let recording = ok_json(&run_without_detector_on(
+        &[
+            "--bag",
+            path_str(&bag),
+            "--rgb-topic",
+            RGB,
+            "--depth-topic",
+            DEPTH,
+        ],
         &b,
     ));
     assert_eq!(recording["sequence"], "rec");
@@ -103,8 +97,13 @@ fn a_ros1_bag_runs_as_its_folder_does() {
     assert!(text.contains("640x480 rgb8"), "{text}");
 
     // A wrong topic lists the topics there are.
-    let e = error_line(&run(
-        &["--bag", s(&bag), "--rgb-topic", "/camera/color/image_raw"],
+    let e = error_line(&run_without_detector_on(
+        &[
+            "--bag",
+            path_str(&bag),
+            "--rgb-topic",
+            "/camera/color/image_raw",
+        ],
         &tmp.path().join("wrong.txt"),
     ));
     assert!(
@@ -116,8 +115,8 @@ fn a_ros1_bag_runs_as_its_folder_does() {
     let bytes = std::fs::read(&bag).unwrap();
     let cut = tmp.path().join("cut.bag");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    let e = error_line(&run(
-        &["--bag", s(&cut), "--rgb-topic", RGB],
+    let e = error_line(&run_without_detector_on(
+        &["--bag", path_str(&cut), "--rgb-topic", RGB],
         &tmp.path().join("cut.txt"),
     ));
     assert!(e.contains(&format!("{}: byte ", cut.display())), "{e}");
@@ -174,12 +173,15 @@ fn a_stereo_bag_runs_as_its_kitti_folder_does() {
     w.finish().unwrap();
 
     let (a, b) = (tmp.path().join("folder.txt"), tmp.path().join("bag.txt"));
-    let folder = ok_json(&run(&["--dataset", s(&seq), "--kind", "kitti"], &a));
+    let folder = ok_json(&run_without_detector_on(
+        &["--dataset", path_str(&seq), "--kind", "kitti"],
+        &a,
+    ));
     // No --settings: the camera from the left CameraInfo, the baseline from the right one.
-    let recording = ok_json(&run(
+    let recording = ok_json(&run_without_detector_on(
         &[
             "--bag",
-            s(&bag),
+            path_str(&bag),
             "--rgb-topic",
             LEFT,
             "--right-topic",
@@ -197,10 +199,10 @@ fn a_stereo_bag_runs_as_its_kitti_folder_does() {
     assert_same_trajectory(&a, &b);
 
     // A right topic the bag has not: one line naming the file, the flag and the topics there are.
-    let e = error_line(&run(
+    let e = error_line(&run_without_detector_on(
         &[
             "--bag",
-            s(&bag),
+            path_str(&bag),
             "--rgb-topic",
             LEFT,
             "--right-topic",
@@ -219,18 +221,25 @@ fn a_stereo_bag_runs_as_its_kitti_folder_does() {
 
     // A right image topic without its camera info (the left info given as the right images'
     // neighbour is missing): no baseline, one line saying to pass --settings.
-    let e = error_line(&run(
-        &["--bag", s(&bag), "--rgb-topic", LEFT, "--right-topic", LEFT],
+    let e = error_line(&run_without_detector_on(
+        &[
+            "--bag",
+            path_str(&bag),
+            "--rgb-topic",
+            LEFT,
+            "--right-topic",
+            LEFT,
+        ],
         &tmp.path().join("same.txt"),
     ));
     assert!(e.contains("no baseline"), "{e}");
     assert!(e.contains("--settings"), "{e}");
 
     // Depth and right images are two different sensors.
-    let e = error_line(&run(
+    let e = error_line(&run_without_detector_on(
         &[
             "--bag",
-            s(&bag),
+            path_str(&bag),
             "--rgb-topic",
             LEFT,
             "--right-topic",

@@ -4,8 +4,7 @@
 //! as relocalisation does (descriptor matching, RANSAC, pose optimisation) and the relative pose
 //! is compared with pose.txt.
 
-use std::path::PathBuf;
-
+use crate::common::shared;
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_geometry::{PinholeCamera, Se3};
 use stillpoint_slam::data::Map;
@@ -13,12 +12,6 @@ use stillpoint_slam::matching::search_by_descriptors;
 use stillpoint_slam::optimize::{PoseObservation, optimize_pose};
 use stillpoint_slam::solve::{Correspondence, RansacParams, ransac_pose};
 use stillpoint_slam::{Feature, Frame, SlamSettings};
-
-fn shared() -> PathBuf {
-    std::env::var_os("STILLPOINT_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
-}
 
 fn load(dir: &std::path::Path, i: usize, s: &SlamSettings, orb: &mut OrbExtractor) -> Frame {
     let rgb = stillpoint_image::read_rgb(&dir.join(format!("color/{i}.png"))).unwrap();

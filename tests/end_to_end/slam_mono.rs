@@ -4,7 +4,7 @@
 //! after a Sim(3) alignment. Then `stillpoint run` on monocular folders: a synthetic TUM folder
 //! without depth.txt, and black frames (no panic, clear errors, valid trajectory files).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_geometry::{Vec3, umeyama};
@@ -83,6 +83,7 @@ fn monocular_static_sequence_initialises_tracks_and_matches_the_truth_up_to_scal
     assert!(rmse < 0.012, "ATE {rmse} m");
 }
 
+use crate::common::shared;
 use crate::common::stillpoint;
 
 /// `stillpoint synth --preset static --frames N` into `dir`, then depth.txt removed: a TUM folder
@@ -169,12 +170,6 @@ fn run_on_a_monocular_folder_reports_a_sim3_ate_and_survives_black_frames() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     let written = std::fs::read_to_string(&traj).unwrap();
     assert!(written.lines().all(|l| l.starts_with('#')), "{written}");
-}
-
-fn shared() -> PathBuf {
-    std::env::var_os("STILLPOINT_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
 }
 
 /// Real data: KITTI odometry 01 (highway), the first 51 left frames, monocular. Fast forward

@@ -8,15 +8,10 @@
 //!
 //! Run with `cargo test --release --features tract --test end_to_end synth_detector_rate:: -- --ignored --nocapture`.
 
+use crate::common::shared;
 use std::path::PathBuf;
 use stillpoint_detect::{DetectInput, DetectSettings, Detector, YoloxDetector};
 use stillpoint_synth::{Preset, SynthConfig, generate};
-
-fn shared() -> PathBuf {
-    std::env::var_os("STILLPOINT_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
-}
 
 /// (people scored, people found) over every `step`-th of `frames` frames.
 fn rate(

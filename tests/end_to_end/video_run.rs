@@ -4,12 +4,12 @@
 //! the frames before the cut and ends with one error line naming the file, the sample and its
 //! byte. Real hand-held video with people (../shared/data): ignored without it.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Output;
 
 use stillpoint_datasets::video::write::{VideoOptions, VideoWriter};
 
-use crate::common::{error_line, ok_json, stillpoint, synth_static};
+use crate::common::{error_line, ok_json, path_str, shared, stillpoint, synth_static};
 
 /// Every frame of the sequence at `seq` as an MP4 at `fps`.
 fn encode(seq: &Path, out: &Path, fps: f64, faststart: bool) -> usize {
@@ -40,10 +40,6 @@ fn run(args: &[&str], traj: &Path) -> Output {
         .unwrap()
 }
 
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
 #[test]
 fn a_synthetic_sequence_tracks_from_its_video_and_a_cut_video_keeps_its_first_poses() {
     let tmp = tempfile::tempdir().unwrap();
@@ -55,7 +51,12 @@ fn a_synthetic_sequence_tracks_from_its_video_and_a_cut_video_keeps_its_first_po
     let no_detector = ["--detector", "none", "--sequential"];
 
     let traj = tmp.path().join("video.txt");
-    let mut args = vec!["--video", s(&clip), "--settings", s(&settings)];
+    let mut args = vec![
+        "--video",
+        path_str(&clip),
+        "--settings",
+        path_str(&settings),
+    ];
     args.extend(no_detector);
     let summary = ok_json(&run(&args, &traj));
     assert_eq!(summary["sequence"], "clip");
@@ -76,7 +77,13 @@ fn a_synthetic_sequence_tracks_from_its_video_and_a_cut_video_keeps_its_first_po
     // Without settings: a guessed camera, and a warning saying so (monocular needs a few dozen
     // frames of parallax before its map starts).
     let out = run(
-        &["--video", s(&clip), "--detector", "none", "--sequential"],
+        &[
+            "--video",
+            path_str(&clip),
+            "--detector",
+            "none",
+            "--sequential",
+        ],
         &tmp.path().join("guess.txt"),
     );
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -93,7 +100,7 @@ fn a_synthetic_sequence_tracks_from_its_video_and_a_cut_video_keeps_its_first_po
     let cut = tmp.path().join("cut.mp4");
     std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
     let cut_traj = tmp.path().join("cut.txt");
-    let mut args = vec!["--video", s(&cut), "--settings", s(&settings)];
+    let mut args = vec!["--video", path_str(&cut), "--settings", path_str(&settings)];
     args.extend(no_detector);
     let e = error_line(&run(&args, &cut_traj));
     let prefix = format!("error: {}: sample ", cut.display());
@@ -115,14 +122,11 @@ fn a_synthetic_sequence_tracks_from_its_video_and_a_cut_video_keeps_its_first_po
     assert!(kept.stamps.iter().all(|&t| t < sample as f64 / 30.0), "{e}");
 
     // A video given as a folder says how to give it.
-    let e = error_line(&run(&["--dataset", s(&clip)], &tmp.path().join("d.txt")));
+    let e = error_line(&run(
+        &["--dataset", path_str(&clip)],
+        &tmp.path().join("d.txt"),
+    ));
     assert!(e.contains("give it as --video FILE"), "{e}");
-}
-
-fn shared() -> PathBuf {
-    std::env::var_os("STILLPOINT_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
 }
 
 /// Real hand-held video with people: the 200 JPEG frames of SAM 2's bedroom clip (960x540,
@@ -139,9 +143,9 @@ fn real_hand_held_video_with_people_initialises_and_tracks() {
     assert_eq!(n, 200);
     let model = shared().join("models/yolox_nano_480x640.onnx");
     let traj = tmp.path().join("bedroom.txt");
-    let mut args = vec!["--video", s(&clip), "--sequential"];
+    let mut args = vec!["--video", path_str(&clip), "--sequential"];
     if model.is_file() {
-        args.extend(["--detector", "yolox", "--model", s(&model)]);
+        args.extend(["--detector", "yolox", "--model", path_str(&model)]);
     } else {
         args.extend(["--detector", "none"]);
     }
