@@ -63,12 +63,11 @@ pub fn fundamental_8point(p1: &[Vec2], p2: &[Vec2]) -> Option<Mat3> {
     }
     let t1 = normalising_transform(p1.iter())?;
     let t2 = normalising_transform(p2.iter())?;
-    let mut ata = SMatrix::<f64, 9, 9>::zeros();
-    for (a, b) in p1.iter().zip(p2) {
+    // Row of p2ᵀ F p1 = 0 in the unknowns F00 F01 F02 F10 .. F22 (row-major).
+    let row = |a: &Vec2, b: &Vec2| {
         let a = apply(&t1, a);
         let b = apply(&t2, b);
-        // Row of p2ᵀ F p1 = 0 in the unknowns F00 F01 F02 F10 .. F22 (row-major).
-        let row = SMatrix::<f64, 9, 1>::from_column_slice(&[
+        [
             b.x * a.x,
             b.x * a.y,
             b.x,
@@ -78,10 +77,24 @@ pub fn fundamental_8point(p1: &[Vec2], p2: &[Vec2]) -> Option<Mat3> {
             a.x,
             a.y,
             1.0,
-        ]);
-        ata += row * row.transpose();
-    }
-    let f_normalised = smallest_null_vector(&ata)?;
+        ]
+    };
+    let f_normalised = if p1.len() == 8 {
+        // RANSAC's minimal samples: eight equations have one null vector, found exactly by
+        // elimination at a fraction of the eigen-solve's cost.
+        let mut rows = [[0.0; 9]; 8];
+        for ((r, a), b) in rows.iter_mut().zip(p1).zip(p2) {
+            *r = row(a, b);
+        }
+        null_vector_8x9(rows)?
+    } else {
+        let mut ata = SMatrix::<f64, 9, 9>::zeros();
+        for (a, b) in p1.iter().zip(p2) {
+            let r = SMatrix::<f64, 9, 1>::from_column_slice(&row(a, b));
+            ata += r * r.transpose();
+        }
+        smallest_null_vector(&ata)?
+    };
     let f = Mat3::from_row_slice(f_normalised.as_slice());
     let f = enforce_rank2(&f)?;
     let f = t2.transpose() * f * t1;
@@ -109,7 +122,6 @@ pub fn fundamental_ransac(
         return None;
     }
     let threshold2 = params.threshold_px * params.threshold_px;
-    let error = |f: &Mat3, a: &Vec2, b: &Vec2| symmetric_epipolar_error2(f, a, b);
     let fit = |s1: &[Vec2], s2: &[Vec2]| fundamental_8point(s1, s2);
     ransac(
         p1,
@@ -120,8 +132,64 @@ pub fn fundamental_ransac(
         params.max_iterations,
         params.seed,
         fit,
-        error,
+        symmetric_epipolar_errors2,
     )
+}
+
+/// [`symmetric_epipolar_error2`] of every pair into `out` (same length), with the same
+/// arithmetic, a point at a time, so the values are bit for bit the same; written so the
+/// compiler can vectorise it, since RANSAC scores every pair against every sample's F.
+pub fn symmetric_epipolar_errors2(f: &Mat3, p1: &[Vec2], p2: &[Vec2], out: &mut [f64]) {
+    #[inline(always)]
+    fn inner(f: &Mat3, p1: &[Vec2], p2: &[Vec2], out: &mut [f64]) {
+        let m = |r: usize, c: usize| f[(r, c)];
+        let (f00, f01, f02, f10, f11, f12, f20, f21, f22) = (
+            m(0, 0),
+            m(0, 1),
+            m(0, 2),
+            m(1, 0),
+            m(1, 1),
+            m(1, 2),
+            m(2, 0),
+            m(2, 1),
+            m(2, 2),
+        );
+        for ((a, b), e) in p1.iter().zip(p2).zip(out.iter_mut()) {
+            // l2 = F p1 and l1 = Fᵀ p2, each row summed left to right as nalgebra does.
+            let (l2x, l2y, l2z) = (
+                f00 * a.x + f01 * a.y + f02,
+                f10 * a.x + f11 * a.y + f12,
+                f20 * a.x + f21 * a.y + f22,
+            );
+            let (l1x, l1y, l1z) = (
+                f00 * b.x + f10 * b.y + f20,
+                f01 * b.x + f11 * b.y + f21,
+                f02 * b.x + f12 * b.y + f22,
+            );
+            let n2 = l2x * l2x + l2y * l2y;
+            let n1 = l1x * l1x + l1y * l1y;
+            let d2 = b.x * l2x + b.y * l2y + l2z;
+            let d1 = a.x * l1x + a.y * l1y + l1z;
+            let v = (d2 * d2 / n2).max(d1 * d1 / n1);
+            *e = if n1 > 1e-300 && n2 > 1e-300 {
+                v
+            } else {
+                f64::INFINITY
+            };
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2")]
+        unsafe fn avx2(f: &Mat3, p1: &[Vec2], p2: &[Vec2], out: &mut [f64]) {
+            inner(f, p1, p2, out)
+        }
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, the one feature `avx2` is compiled for.
+            return unsafe { avx2(f, p1, p2, out) };
+        }
+    }
+    inner(f, p1, p2, out)
 }
 
 /// The squared symmetric epipolar distance: `max(d(p2, F p1)², d(p1, Fᵀ p2)²)` (OpenCV's score).
@@ -156,7 +224,7 @@ pub(crate) fn ransac<F, E>(
 ) -> Option<(Mat3, Vec<bool>)>
 where
     F: Fn(&[Vec2], &[Vec2]) -> Option<Mat3>,
-    E: Fn(&Mat3, &Vec2, &Vec2) -> f64,
+    E: Fn(&Mat3, &[Vec2], &[Vec2], &mut [f64]),
 {
     if p1.len() != p2.len() || !(threshold2.is_finite() && threshold2 >= 0.0) {
         return None;
@@ -170,15 +238,16 @@ where
     if finite.len() < sample_size {
         return None;
     }
-    let score = |m: &Mat3| -> (usize, f64) {
-        let mut count = 0;
-        let mut sum = 0.0;
-        for &i in &finite {
-            let e = error(m, &p1[i], &p2[i]);
-            if e <= threshold2 {
-                count += 1;
-                sum += e;
-            }
+    // The finite pairs, contiguous, and a buffer for their errors under each model.
+    let q1: Vec<Vec2> = finite.iter().map(|&i| p1[i]).collect();
+    let q2: Vec<Vec2> = finite.iter().map(|&i| p2[i]).collect();
+    let mut errors = vec![0.0; finite.len()];
+    let score = |m: &Mat3, errors: &mut [f64]| -> (usize, f64) {
+        error(m, &q1, &q2, errors);
+        let (mut count, mut sum) = (0, 0.0);
+        for &e in errors.iter().filter(|&&e| e <= threshold2) {
+            count += 1;
+            sum += e;
         }
         (count, sum)
     };
@@ -197,11 +266,11 @@ where
         iteration += 1;
         draw_distinct(&mut rng, finite.len(), &mut sample);
         for (k, &j) in sample.iter().enumerate() {
-            s1[k] = p1[finite[j]];
-            s2[k] = p2[finite[j]];
+            s1[k] = q1[j];
+            s2[k] = q2[j];
         }
         let Some(m) = fit(&s1, &s2) else { continue };
-        let s = score(&m);
+        let s = score(&m, &mut errors);
         if best.as_ref().is_none_or(|(_, b)| better(s, *b)) {
             best = Some((m, s));
             let outlier_ratio = 1.0 - s.0 as f64 / finite.len() as f64;
@@ -216,13 +285,12 @@ where
     let (mut model, mut best_score) = best?;
     // Refit on the inliers while that gains inliers.
     for _ in 0..3 {
-        let (r1, r2): (Vec<Vec2>, Vec<Vec2>) = finite
-            .iter()
-            .filter(|&&i| error(&model, &p1[i], &p2[i]) <= threshold2)
-            .map(|&i| (p1[i], p2[i]))
-            .unzip();
+        error(&model, &q1, &q2, &mut errors);
+        let inliers = || (0..errors.len()).filter(|&k| errors[k] <= threshold2);
+        let r1: Vec<Vec2> = inliers().map(|k| q1[k]).collect();
+        let r2: Vec<Vec2> = inliers().map(|k| q2[k]).collect();
         let Some(refit) = fit(&r1, &r2) else { break };
-        let s = score(&refit);
+        let s = score(&refit, &mut errors);
         if better(s, best_score) {
             model = refit;
             best_score = s;
@@ -230,9 +298,10 @@ where
             break;
         }
     }
+    error(&model, &q1, &q2, &mut errors);
     let mut mask = vec![false; p1.len()];
-    for &i in &finite {
-        mask[i] = error(&model, &p1[i], &p2[i]) <= threshold2;
+    for (&i, &e) in finite.iter().zip(&errors) {
+        mask[i] = e <= threshold2;
     }
     Some((model, mask))
 }
@@ -317,6 +386,61 @@ pub(crate) fn smallest_null_vector(ata: &SMatrix<f64, 9, 9>) -> Option<SMatrix<f
     }
     let v = eig.eigenvectors.column(order[0]).into_owned();
     v.iter().all(|x| x.is_finite()).then_some(v)
+}
+
+/// The unit null vector of eight equations in nine unknowns, by Gaussian elimination with full
+/// pivoting, or `None` when the rows are (nearly) rank-deficient: the last pivot at most 1e-5 of
+/// the first, the counterpart of [`smallest_null_vector`]'s test on `AᵀA`'s eigenvalues (which
+/// are the squared singular values).
+fn null_vector_8x9(mut a: [[f64; 9]; 8]) -> Option<SMatrix<f64, 9, 1>> {
+    // column[k]: which unknown the k-th column of `a` holds after column swaps.
+    let mut column: [usize; 9] = std::array::from_fn(|k| k);
+    let mut first_pivot = 0.0;
+    for k in 0..8 {
+        let (mut pr, mut pc, mut best) = (k, k, -1.0);
+        for (i, r) in a.iter().enumerate().skip(k) {
+            for (j, v) in r.iter().enumerate().skip(k) {
+                if v.abs() > best {
+                    (pr, pc, best) = (i, j, v.abs());
+                }
+            }
+        }
+        if k == 0 {
+            if !(best.is_finite() && best > 0.0) {
+                return None;
+            }
+            first_pivot = best;
+        } else if best <= 1e-5 * first_pivot {
+            return None;
+        }
+        a.swap(k, pr);
+        if pc != k {
+            for r in a.iter_mut() {
+                r.swap(k, pc);
+            }
+            column.swap(k, pc);
+        }
+        let pivot_row = a[k];
+        for r in a.iter_mut().skip(k + 1) {
+            let factor = r[k] / pivot_row[k];
+            for j in k + 1..9 {
+                r[j] -= factor * pivot_row[j];
+            }
+        }
+    }
+    // The free unknown is the last column's; back-substitute the others.
+    let mut x = [0.0; 9];
+    x[8] = 1.0;
+    for k in (0..8).rev() {
+        let sum: f64 = (k + 1..9).map(|j| a[k][j] * x[j]).sum();
+        x[k] = -sum / a[k][k];
+    }
+    let mut v = SMatrix::<f64, 9, 1>::zeros();
+    for (k, &unknown) in column.iter().enumerate() {
+        v[unknown] = x[k];
+    }
+    let norm = v.norm();
+    (norm.is_finite() && norm > 0.0).then(|| v / norm)
 }
 
 /// Closest rank-2 matrix in the Frobenius norm.
@@ -422,6 +546,42 @@ mod tests {
         let rotation = Se3::new(Vec3::zeros(), Vec3::new(0.03, -0.05, 0.02));
         let (r1, r2, _) = two_views(50, rotation, 4);
         assert!(fundamental_8point(&r1, &r2).is_none());
+        // The same with exactly eight pairs (RANSAC's samples, solved by elimination).
+        assert!(fundamental_8point(&p1[..8], &p1[..8]).is_none());
+        assert!(fundamental_8point(&r1[..8], &r2[..8]).is_none());
+    }
+
+    #[test]
+    fn eight_pairs_by_elimination_match_the_least_squares_solution() {
+        // Each pair twice: 16 pairs take the eigen-solve, with the same normalisation and the
+        // same exact solution as the eight by elimination.
+        let (p1, mut p2, _) = two_views(8, moving_pose(), 11);
+        p2[2].x += 0.7; // off the true F, so the solution is the sample's own
+        let d1: Vec<Vec2> = p1.iter().chain(&p1).copied().collect();
+        let d2: Vec<Vec2> = p2.iter().chain(&p2).copied().collect();
+        let minimal = fundamental_8point(&p1, &p2).unwrap();
+        let least_squares = fundamental_8point(&d1, &d2).unwrap();
+        let diff = (minimal - least_squares)
+            .norm()
+            .min((minimal + least_squares).norm());
+        assert!(diff < 1e-9, "difference {diff}");
+    }
+
+    #[test]
+    fn batch_errors_are_bit_for_bit_the_single_errors() {
+        let (p1, mut p2, f) = two_views(37, moving_pose(), 12);
+        for (i, p) in p2.iter_mut().enumerate() {
+            p.y += (i % 5) as f64 * 0.3;
+        }
+        // A point whose epipolar line has no direction: infinite error.
+        let f_degenerate = Mat3::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0);
+        for f in [f, f * 3.0, f_degenerate] {
+            let mut batch = vec![0.0; p1.len()];
+            symmetric_epipolar_errors2(&f, &p1, &p2, &mut batch);
+            for ((a, b), e) in p1.iter().zip(&p2).zip(&batch) {
+                assert_eq!(symmetric_epipolar_error2(&f, a, b).to_bits(), e.to_bits());
+            }
+        }
     }
 
     #[test]

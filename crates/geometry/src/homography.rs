@@ -124,7 +124,11 @@ pub fn homography_ransac(
         params.max_iterations,
         params.seed,
         homography_dlt,
-        transfer_error2,
+        |h: &Mat3, p1: &[Vec2], p2: &[Vec2], out: &mut [f64]| {
+            for ((a, b), e) in p1.iter().zip(p2).zip(out.iter_mut()) {
+                *e = transfer_error2(h, a, b);
+            }
+        },
     )
 }
 
