@@ -179,7 +179,7 @@ pub use settings::{
 };
 pub use world_motion::{
     WorldMotion, WorldMotionParams, WorldSource, judge_against_world, keypoint_world_residual,
-    world_motion, world_residuals,
+    lift_keypoint, world_motion, world_residuals,
 };
 
 #[cfg(test)]

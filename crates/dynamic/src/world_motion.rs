@@ -280,29 +280,36 @@ pub fn world_residuals(
         .collect()
 }
 
-/// The residual of a keypoint of the current frame against the static world: lifted with its
-/// (smooth) current depth, moved back by `prev_to_cur`, projected into the previous frame and
-/// compared with `prev_px`, where its backward track found it. `None` without a smooth depth or
-/// where the current patch is no corner ([`is_corner`]).
-pub fn keypoint_world_residual(
+/// A keypoint of the current frame lifted into the current camera with its (smooth) depth, for
+/// [`keypoint_world_residual`]: `None` without a camera or a smooth depth, or where the current
+/// patch is no corner ([`is_corner`]). Such a keypoint gets no residual, so it need not be
+/// tracked at all.
+pub fn lift_keypoint(
     keypoint: [f32; 2],
-    prev_px: [f32; 2],
     cur_gray: &Gray8,
     cur_depth: &DepthMetres,
-    prev_to_cur: &Se3,
     p: &WorldMotionParams,
-) -> Option<f32> {
+) -> Option<Vec3> {
     let cam = p.camera.as_ref()?;
     if !is_corner(cur_gray, keypoint, p) {
         return None;
     }
     let z = smooth_depth_at(cur_depth, keypoint, p.depth_range)?;
-    let r = reprojection(
-        cam,
-        &prev_to_cur.inverse(),
-        &lift(cam, keypoint, z),
-        prev_px,
-    );
+    Some(lift(cam, keypoint, z))
+}
+
+/// The residual of a keypoint of the current frame against the static world: its point
+/// ([`lift_keypoint`]) moved back by `cur_to_prev` (the inverse of the frame's camera motion),
+/// projected into the previous frame and compared with `prev_px`, where its backward track
+/// found it.
+pub fn keypoint_world_residual(
+    lifted: &Vec3,
+    prev_px: [f32; 2],
+    cur_to_prev: &Se3,
+    p: &WorldMotionParams,
+) -> Option<f32> {
+    let cam = p.camera.as_ref()?;
+    let r = reprojection(cam, cur_to_prev, lifted, prev_px);
     r.is_finite().then_some(r as f32)
 }
 

@@ -67,7 +67,7 @@ use stillpoint_dynamic::{
     RememberedBox, SeatedMotionParams, TrackedPoint, Verdict, WorldCheck, WorldSource,
 };
 use stillpoint_features::LkPyramid;
-use stillpoint_geometry::{PinholeCamera, Se3};
+use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
 use stillpoint_image::{DepthMetres, Gray8};
 
 /// COCO's person class: a-priori dynamic when there is no motion evidence yet.
@@ -668,18 +668,30 @@ impl DynamicFrontEnd {
         if !candidates.contains(&true) {
             return;
         }
+        // Only keypoints that can have a residual (a corner with a smooth depth) are tracked.
+        let lifted: Vec<Option<Vec3>> = (0..kps.len())
+            .map(|i| {
+                candidates[i]
+                    .then(|| stillpoint_dynamic::lift_keypoint(kps[i], gray, depth, p))
+                    .flatten()
+            })
+            .collect();
+        let tracked: Vec<bool> = lifted.iter().map(Option::is_some).collect();
         let km = &self.settings.dynamic.keypoint_motion;
         let motion_of =
-            stillpoint_dynamic::keypoint_motion(prev_pyramid, pyramid, kps, &candidates, check, km);
+            stillpoint_dynamic::keypoint_motion(prev_pyramid, pyramid, kps, &tracked, check, km);
         let depths =
             stillpoint_dynamic::depth::keypoint_depths(depth, kps, &self.settings.dynamic.depth);
+        let cur_to_prev = motion.inverse();
         let mut moving: Vec<usize> = Vec::new();
-        for (i, m) in motion_of.iter().enumerate() {
-            let Some(m) = m.filter(|m| candidates[i] && m.fb_error <= km.max_fb_error_px) else {
+        for (i, (m, point)) in motion_of.iter().zip(&lifted).enumerate() {
+            let (Some(m), Some(point)) = (m, point) else {
                 continue;
             };
-            let r =
-                stillpoint_dynamic::keypoint_world_residual(kps[i], m.prev, gray, depth, motion, p);
+            if m.fb_error > km.max_fb_error_px {
+                continue;
+            }
+            let r = stillpoint_dynamic::keypoint_world_residual(point, m.prev, &cur_to_prev, p);
             if r.is_some_and(|r| r > p.new_point_moving_above_px) {
                 moving.push(i);
             }
