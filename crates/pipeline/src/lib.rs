@@ -302,20 +302,27 @@ impl Pipeline {
         let front_end = &mut self.front_end;
         // Left and right images in parallel, as ORB-SLAM does, and beside them the front-end's
         // motion check, which needs no keypoints (on two cores ORB's time leaves the frame's).
+        // The check stays on this thread: its corner and LK buffers are kept per thread, and a
+        // thread spawned a frame would allocate and zero them afresh every frame.
         let (feats, right_feats, measured, orb_ms) = std::thread::scope(|sc| {
             let right = frame
                 .right
                 .as_ref()
                 .map(|r| sc.spawn(|| orb_right.extract(r)));
-            let measured = front_end.as_mut().map(|f| sc.spawn(|| f.measure(&input)));
-            let left = left_orb.extract(&frame.gray);
-            let right = right.and_then(|h| h.join().ok());
-            let orb_ms = ms(t0);
-            let measured = measured.and_then(|h| {
-                h.join()
+            let left = sc.spawn(|| {
+                let left = left_orb.extract(&frame.gray);
+                (left, ms(t0))
+            });
+            let measured = front_end.as_mut().and_then(|f| {
+                std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| f.measure(&input)))
                     .map_err(|_| tracing::warn!("frame {}: the motion check panicked", input.index))
                     .ok()
             });
+            let right = right.and_then(|h| h.join().ok());
+            let (left, orb_ms) = match left.join() {
+                Ok(left) => left,
+                Err(payload) => std::panic::resume_unwind(payload),
+            };
             (left, right, measured, orb_ms)
         });
         timings.orb_ms = orb_ms;
