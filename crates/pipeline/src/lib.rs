@@ -36,6 +36,7 @@ use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::DynamicFrontEnd;
 use stillpoint_frontend::{FilterInput, KeypointFilter};
 use stillpoint_geometry::Se3;
+use stillpoint_slam::data::Map;
 use stillpoint_slam::map_file::{MapFile, MapFileError};
 use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths};
 use stillpoint_slam::module::loop_closing::LoopStats;
@@ -386,15 +387,17 @@ impl Pipeline {
             Some(d) => KeypointDepth::PerKeypoint(d),
             None => frame.depth.as_ref().into(),
         };
+        let hygiene = self.recent_points_on_movers_eraser(frame);
         let report = self
             .system
-            .track_rgbd_masked(
+            .track_rgbd_masked_then(
                 frame.index,
                 frame.timestamp,
                 &features,
                 &descriptors,
                 depth,
                 &kept_no_new_points,
+                hygiene,
             )
             .map_err(|source| PipelineError::Slam {
                 index: frame.index,
@@ -404,7 +407,6 @@ impl Pipeline {
         if let Some(f) = self.front_end.as_mut() {
             f.observe_pose(frame.index, report.pose_wc.as_ref());
         }
-        self.erase_recent_points_on_movers(frame, report.pose_wc.as_ref());
         if let Some(p) = report.pose_wc
             && self.stamps.last().is_none_or(|&l| frame.timestamp > l)
         {
@@ -442,29 +444,32 @@ impl Pipeline {
     /// Map hygiene after tracking (RGB-D; the points the depth image sees through leave in
     /// `slam::System` itself): points made in the last frames on the surface of objects judged
     /// moving in this one leave the map
-    /// (`FrontEndSettings::erase_recent_mover_points_frames`).
-    fn erase_recent_points_on_movers(&mut self, frame: &Frame, pose_wc: Option<&Se3>) {
-        let (Some(f), Some(depth), Some(pose_wc), false) = (
+    /// (`FrontEndSettings::erase_recent_mover_points_frames`). The eraser the system runs once
+    /// the frame has its pose, `None` when there is nothing to erase.
+    fn recent_points_on_movers_eraser<'a>(
+        &self,
+        frame: &'a Frame,
+    ) -> Option<impl FnOnce(&mut Map, &Se3) + 'a> {
+        let (Some(f), Some(depth), false) = (
             self.front_end.as_ref(),
             frame.depth.as_ref(),
-            pose_wc,
             self.system.localizing(),
         ) else {
-            return;
+            return None;
         };
-        let Some(mask) = f.mover_surface_mask(depth) else {
-            return;
-        };
+        let mask = f.mover_surface_mask(depth)?;
         let since = frame
             .index
             .saturating_sub(f.settings().erase_recent_mover_points_frames);
-        let cam = &self.system.settings.camera;
-        let erased = self.system.map().lock().map_or(0, |mut m| {
-            m.erase_recent_points_on_movers(&pose_wc.inverse(), cam, &mask, depth, since)
-        });
-        if erased > 0 {
-            tracing::debug!(frame = frame.index, erased, "map points on movers erased");
-        }
+        let cam = self.system.settings.camera;
+        let index = frame.index;
+        Some(move |m: &mut Map, pose_wc: &Se3| {
+            let erased =
+                m.erase_recent_points_on_movers(&pose_wc.inverse(), &cam, &mask, depth, since);
+            if erased > 0 {
+                tracing::debug!(frame = index, erased, "map points on movers erased");
+            }
+        })
     }
 
     /// Stop local mapping and loop closing (waiting for their queues) and return the

@@ -120,6 +120,12 @@ pub struct SlamSettings {
     /// waiting frames, not 6 (300 before).
     #[serde(default = "default_settle_max_pending")]
     pub trajectory_settle_max_pending: usize,
+    /// ... and with local mapping in its own thread (real time) at most this many settle after
+    /// one frame (0 = no limit), the rest after the next frames or at the end: a batch of frames
+    /// due at once held the tracking thread 10-35 ms. Inline mapping (`run --sequential`)
+    /// settles every due frame at once, as before.
+    #[serde(default = "default_settle_max_per_frame")]
+    pub trajectory_settle_max_per_frame: usize,
     /// ... "well behind": by more than this many pixels of virtual disparity (`bf / z`) and
     /// 10 cm (measured 0.5 / 1 / 2 px: gt mean ATE 1.54 / 1.47 / 1.47 cm, YOLOX worst 1.93 /
     /// 1.96 / 4.11 on the seeds tried).
@@ -282,6 +288,7 @@ impl SlamSettings {
             trajectory_settle_keyframes: default_settle_keyframes(),
             trajectory_settle_min_inliers: default_settle_min_inliers(),
             trajectory_settle_max_pending: default_settle_max_pending(),
+            trajectory_settle_max_per_frame: default_settle_max_per_frame(),
             seen_through_gap_px: 1.0,
             kf_new_points_min: 100,
             covisibility_min_shared: 15,
@@ -329,4 +336,8 @@ fn default_settle_min_inliers() -> usize {
 
 fn default_settle_max_pending() -> usize {
     100
+}
+
+fn default_settle_max_per_frame() -> usize {
+    3
 }

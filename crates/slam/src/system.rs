@@ -321,6 +321,34 @@ impl System {
         depth: impl Into<KeypointDepth<'d>>,
         no_new_points: &[bool],
     ) -> Result<FrameReport, SlamError> {
+        self.track_rgbd_masked_then(
+            index,
+            timestamp,
+            features,
+            descriptors,
+            depth,
+            no_new_points,
+            None::<fn(&mut Map, &Se3)>,
+        )
+    }
+
+    /// [`System::track_rgbd_masked`] and then the caller's own map hygiene, `hygiene(map,
+    /// pose_wc)`, when there is one and the frame has a pose. With local mapping in its own thread it runs before
+    /// this frame's keyframe is handed over, as do the system's own hygiene and settling: the
+    /// mapper's first steps on a keyframe hold the map for several milliseconds at a lower
+    /// priority, and a lock taken after them made the frame wait for them (12-17 ms on a
+    /// keyframe). Inline, the keyframe is mapped first, as before.
+    #[allow(clippy::too_many_arguments)]
+    pub fn track_rgbd_masked_then<'d>(
+        &mut self,
+        index: usize,
+        timestamp: f64,
+        features: &[Feature],
+        descriptors: &[Descriptor],
+        depth: impl Into<KeypointDepth<'d>>,
+        no_new_points: &[bool],
+        hygiene: Option<impl FnOnce(&mut Map, &Se3)>,
+    ) -> Result<FrameReport, SlamError> {
         let t0 = Instant::now();
         if !timestamp.is_finite() {
             return Err(SlamError::BadInput {
@@ -416,11 +444,12 @@ impl System {
             outcome
         };
         let tracking_ms = t0.elapsed().as_secs_f64() * 1e3;
-        if let Some(kf) = outcome.first_keyframe {
-            self.insert_keyframe(kf)?;
-        }
-        if let Some(kf) = outcome.new_keyframe {
-            self.insert_keyframe(kf)?;
+        let new_keyframes = [outcome.first_keyframe, outcome.new_keyframe];
+        let mapping_inline = matches!(self.mapping, Mapping::Inline(_));
+        if mapping_inline {
+            for kf in new_keyframes.into_iter().flatten() {
+                self.insert_keyframe(kf)?;
+            }
         }
         if let (KeypointDepth::Map(image), Some(pose_wc), false) =
             (depth, outcome.pose_wc, self.localize)
@@ -428,6 +457,16 @@ impl System {
             self.erase_points_seen_through(index, &pose_wc.inverse(), image);
         }
         self.settle(false);
+        if let (Some(hygiene), Some(pose_wc)) = (hygiene, &outcome.pose_wc)
+            && let Ok(mut map) = self.map.lock()
+        {
+            hygiene(&mut map, pose_wc);
+        }
+        if !mapping_inline {
+            for kf in new_keyframes.into_iter().flatten() {
+                self.insert_keyframe(kf)?;
+            }
+        }
         Ok(FrameReport {
             index,
             timestamp,
@@ -522,6 +561,11 @@ impl System {
         // every frame.
         let (keyframes_inserted, max_pending) =
             (self.keyframes_inserted, s.trajectory_settle_max_pending);
+        // Bounded per frame only where a frame waits for it: mapping in its own thread.
+        let max_now = match (&self.mapping, s.trajectory_settle_max_per_frame) {
+            (Mapping::Thread(_), n) if !all && n > 0 => n,
+            _ => usize::MAX,
+        };
         let due = |u: &Unsettled, pending: usize| {
             all || pending > max_pending
                 || (mapping_idle
@@ -538,11 +582,14 @@ impl System {
             return;
         };
         let inv_sigma2 = s.inv_level_sigma2();
-        while self
-            .unsettled
-            .front()
-            .is_some_and(|u| due(u, self.unsettled.len()))
+        let mut settled = 0;
+        while settled < max_now
+            && self
+                .unsettled
+                .front()
+                .is_some_and(|u| due(u, self.unsettled.len()))
         {
+            settled += 1;
             let Some(u) = self.unsettled.pop_front() else {
                 break;
             };
