@@ -12,7 +12,8 @@ pub struct FilterOutcome {
     pub dynamic: Vec<bool>,
     /// Detector time (ms), 0 when none ran.
     pub semantic_ms: f64,
-    /// Motion consistency check time (ms).
+    /// The motion consistency check and the judgement and culling that follow it, the world's
+    /// motion and the per-keypoint checks included (ms).
     pub geometry_ms: f64,
     /// Boxes judged dynamic.
     pub dynamic_boxes: usize,

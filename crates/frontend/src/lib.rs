@@ -1089,6 +1089,7 @@ impl DynamicFrontEnd {
             Measured::First => return self.judge_first(frame, kps, out),
             Measured::Next(m) => *m,
         };
+        let t0 = Instant::now();
         out.semantic_ms = semantic_ms;
         out.geometry_ms = geometry_ms;
         let settings = &self.settings.dynamic;
@@ -1143,7 +1144,6 @@ impl DynamicFrontEnd {
         // paper's algorithm 3 otherwise.
         // The per-keypoint motion evidence inside dynamic boxes (`dynamic::keypoint_motion`,
         // ours) when `settings.keypoint_motion.enabled`.
-        let t0 = Instant::now();
         let culled = stillpoint_dynamic::cull_frame_with_evidence(
             kps,
             &mut states,
@@ -1195,7 +1195,6 @@ impl DynamicFrontEnd {
             }
             _ => culled.removed,
         };
-        out.geometry_ms += t0.elapsed().as_secs_f64() * 1e3;
         let mut track_only = seated_kept;
         if self.settings.seated_track_only {
             let still = seated_only(
@@ -1237,6 +1236,8 @@ impl DynamicFrontEnd {
             );
         }
         self.prev_pyramid = Some(pyramid);
+        // The whole judgement counts, the new-point check's tracks included.
+        out.geometry_ms += t0.elapsed().as_secs_f64() * 1e3;
         out
     }
 }

@@ -103,7 +103,7 @@ impl PipelineSettings {
 pub struct FrameTimings {
     /// The detector (0 without a front-end).
     pub semantic_ms: f64,
-    /// The front-end's motion check (0 without a front-end).
+    /// The front-end's motion check, judgement and culling (0 without a front-end).
     pub geometry_ms: f64,
     /// ORB extraction, and stereo matching for a pair.
     pub orb_ms: f64,
