@@ -333,11 +333,11 @@ impl System {
     }
 
     /// [`System::track_rgbd_masked`] and then the caller's own map hygiene, `hygiene(map,
-    /// pose_wc)`, when there is one and the frame has a pose. With local mapping in its own thread it runs before
-    /// this frame's keyframe is handed over, as do the system's own hygiene and settling: the
-    /// mapper's first steps on a keyframe hold the map for several milliseconds at a lower
-    /// priority, and a lock taken after them made the frame wait for them (12-17 ms on a
-    /// keyframe). Inline, the keyframe is mapped first, as before.
+    /// pose_wc)`, when there is one and the frame has a pose. With local mapping in its own
+    /// thread it runs before this frame's keyframe is handed over, as do the system's own
+    /// hygiene and settling: the mapper's first steps on a keyframe hold the map for several
+    /// milliseconds at a lower priority, and a lock taken after them made the frame wait for
+    /// them (12-17 ms on a keyframe). Inline, the keyframe is mapped first, as before.
     #[allow(clippy::too_many_arguments)]
     pub fn track_rgbd_masked_then<'d>(
         &mut self,
