@@ -136,46 +136,14 @@ pub fn fundamental_ransac(
     )
 }
 
-/// [`symmetric_epipolar_error2`] of every pair into `out` (same length), with the same
-/// arithmetic, a point at a time, so the values are bit for bit the same; written so the
-/// compiler can vectorise it, since RANSAC scores every pair against every sample's F.
+/// [`symmetric_epipolar_error2`] of every pair into `out` (same length), bit for bit; compiled
+/// for AVX2 where the CPU has it, since RANSAC scores every pair against every sample's F.
 pub fn symmetric_epipolar_errors2(f: &Mat3, p1: &[Vec2], p2: &[Vec2], out: &mut [f64]) {
     #[inline(always)]
     fn inner(f: &Mat3, p1: &[Vec2], p2: &[Vec2], out: &mut [f64]) {
-        let m = |r: usize, c: usize| f[(r, c)];
-        let (f00, f01, f02, f10, f11, f12, f20, f21, f22) = (
-            m(0, 0),
-            m(0, 1),
-            m(0, 2),
-            m(1, 0),
-            m(1, 1),
-            m(1, 2),
-            m(2, 0),
-            m(2, 1),
-            m(2, 2),
-        );
+        let f = row_major(f);
         for ((a, b), e) in p1.iter().zip(p2).zip(out.iter_mut()) {
-            // l2 = F p1 and l1 = Fᵀ p2, each row summed left to right as nalgebra does.
-            let (l2x, l2y, l2z) = (
-                f00 * a.x + f01 * a.y + f02,
-                f10 * a.x + f11 * a.y + f12,
-                f20 * a.x + f21 * a.y + f22,
-            );
-            let (l1x, l1y, l1z) = (
-                f00 * b.x + f10 * b.y + f20,
-                f01 * b.x + f11 * b.y + f21,
-                f02 * b.x + f12 * b.y + f22,
-            );
-            let n2 = l2x * l2x + l2y * l2y;
-            let n1 = l1x * l1x + l1y * l1y;
-            let d2 = b.x * l2x + b.y * l2y + l2z;
-            let d1 = a.x * l1x + a.y * l1y + l1z;
-            let v = (d2 * d2 / n2).max(d1 * d1 / n1);
-            *e = if n1 > 1e-300 && n2 > 1e-300 {
-                v
-            } else {
-                f64::INFINITY
-            };
+            *e = epipolar_error2(&f, a, b);
         }
     }
     #[cfg(target_arch = "x86_64")]
@@ -195,16 +163,37 @@ pub fn symmetric_epipolar_errors2(f: &Mat3, p1: &[Vec2], p2: &[Vec2], out: &mut 
 /// The squared symmetric epipolar distance: `max(d(p2, F p1)², d(p1, Fᵀ p2)²)` (OpenCV's score).
 /// Infinite for a degenerate line.
 pub fn symmetric_epipolar_error2(f: &Mat3, p1: &Vec2, p2: &Vec2) -> f64 {
-    let l2 = f * crate::Vec3::new(p1.x, p1.y, 1.0);
-    let l1 = f.transpose() * crate::Vec3::new(p2.x, p2.y, 1.0);
-    let n2 = l2.x * l2.x + l2.y * l2.y;
-    let n1 = l1.x * l1.x + l1.y * l1.y;
-    if !(n1 > 1e-300 && n2 > 1e-300) {
-        return f64::INFINITY;
+    epipolar_error2(&row_major(f), p1, p2)
+}
+
+fn row_major(f: &Mat3) -> [f64; 9] {
+    std::array::from_fn(|k| f[(k / 3, k % 3)])
+}
+
+/// [`symmetric_epipolar_error2`] with `F` row-major, branch-free so a loop over pairs vectorises.
+#[inline(always)]
+fn epipolar_error2(f: &[f64; 9], a: &Vec2, b: &Vec2) -> f64 {
+    // l2 = F p1 and l1 = Fᵀ p2, each row summed left to right.
+    let (l2x, l2y, l2z) = (
+        f[0] * a.x + f[1] * a.y + f[2],
+        f[3] * a.x + f[4] * a.y + f[5],
+        f[6] * a.x + f[7] * a.y + f[8],
+    );
+    let (l1x, l1y, l1z) = (
+        f[0] * b.x + f[3] * b.y + f[6],
+        f[1] * b.x + f[4] * b.y + f[7],
+        f[2] * b.x + f[5] * b.y + f[8],
+    );
+    let n2 = l2x * l2x + l2y * l2y;
+    let n1 = l1x * l1x + l1y * l1y;
+    let d2 = b.x * l2x + b.y * l2y + l2z;
+    let d1 = a.x * l1x + a.y * l1y + l1z;
+    let v = (d2 * d2 / n2).max(d1 * d1 / n1);
+    if n1 > 1e-300 && n2 > 1e-300 {
+        v
+    } else {
+        f64::INFINITY
     }
-    let d2 = p2.x * l2.x + p2.y * l2.y + l2.z;
-    let d1 = p1.x * l1.x + p1.y * l1.y + l1.z;
-    (d2 * d2 / n2).max(d1 * d1 / n1)
 }
 
 /// The generic RANSAC loop shared by the fundamental matrix and the homography: minimal samples of
