@@ -26,6 +26,13 @@ pub fn run_without_detector_on(source: &[&str], traj: &Path) -> Output {
         .unwrap()
 }
 
+/// [`run_without_detector_on`] a recording, `--bag bag`, with the topic flags `topics`.
+pub fn run_without_detector_on_bag(bag: &Path, topics: &[&str], traj: &Path) -> Output {
+    let mut source = vec!["--bag", path_str(bag)];
+    source.extend_from_slice(topics);
+    run_without_detector_on(&source, traj)
+}
+
 /// A path as the `&str` argument lists want (the tests' temporary paths are UTF-8).
 pub fn path_str(p: &Path) -> &str {
     p.to_str().unwrap()

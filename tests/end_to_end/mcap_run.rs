@@ -8,7 +8,8 @@ use std::path::{Path, PathBuf};
 use stillpoint_datasets::mcap::{DepthEncoding, McapTopics, RecordingWriter};
 
 use crate::common::{
-    error_line, ok_json, path_str, run_without_detector_on, stillpoint, synth_in_millimetres,
+    error_line, ok_json, path_str, run_without_detector_on, run_without_detector_on_bag,
+    stillpoint, synth_in_millimetres,
 };
 
 const RGB: &str = "/camera/color/image_raw";
@@ -43,15 +44,9 @@ fn a_recording_runs_as_its_folder_does() {
     let (a, b) = (tmp.path().join("folder.txt"), tmp.path().join("bag.txt"));
     let folder = ok_json(&run_without_detector_on(&["--dataset", path_str(&seq)], &a));
     // The camera comes from the recording's CameraInfo (no --settings).
-    let recording = ok_json(&run_without_detector_on(
-        &[
-            "--bag",
-            path_str(&bag),
-            "--rgb-topic",
-            RGB,
-            "--depth-topic",
-            DEPTH,
-        ],
+    let recording = ok_json(&run_without_detector_on_bag(
+        &bag,
+        &["--rgb-topic", RGB, "--depth-topic", DEPTH],
         &b,
     ));
     assert_eq!(recording["sequence"], "rec");
@@ -85,13 +80,9 @@ fn a_recording_runs_as_its_folder_does() {
     assert!(text.contains("640x480 rgb8"), "{text}");
 
     // A wrong topic lists the topics there are.
-    let e = error_line(&run_without_detector_on(
-        &[
-            "--bag",
-            path_str(&bag),
-            "--rgb-topic",
-            "/camera/rgb/image_color",
-        ],
+    let e = error_line(&run_without_detector_on_bag(
+        &bag,
+        &["--rgb-topic", "/camera/rgb/image_color"],
         &tmp.path().join("wrong.txt"),
     ));
     assert!(e.contains("no such topic; topics in the file: /camera/aligned_depth_to_color/image_raw (sensor_msgs/msg/Image)"), "{e}");
@@ -100,15 +91,9 @@ fn a_recording_runs_as_its_folder_does() {
     let bytes = std::fs::read(&bag).unwrap();
     let cut = tmp.path().join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    let e = error_line(&run_without_detector_on(
-        &[
-            "--bag",
-            path_str(&cut),
-            "--rgb-topic",
-            RGB,
-            "--depth-topic",
-            DEPTH,
-        ],
+    let e = error_line(&run_without_detector_on_bag(
+        &cut,
+        &["--rgb-topic", RGB, "--depth-topic", DEPTH],
         &tmp.path().join("cut.txt"),
     ));
     assert!(e.contains(&format!("{}: byte ", cut.display())), "{e}");

@@ -10,8 +10,8 @@ use stillpoint_datasets::mcap::{DepthEncoding, McapTopics};
 use stillpoint_datasets::rosbag::write::{BagCompression, BagWriter};
 
 use crate::common::{
-    assert_same_trajectory, error_line, ok_json, path_str, run_without_detector_on, stillpoint,
-    synth_in_millimetres,
+    assert_same_trajectory, error_line, ok_json, path_str, run_without_detector_on,
+    run_without_detector_on_bag, stillpoint, synth_in_millimetres,
 };
 
 const RGB: &str = "/camera/rgb/image_color";
@@ -52,15 +52,9 @@ fn a_ros1_bag_runs_as_its_folder_does() {
     let (a, b) = (tmp.path().join("folder.txt"), tmp.path().join("bag.txt"));
     let folder = ok_json(&run_without_detector_on(&["--dataset", path_str(&seq)], &a));
     // The camera comes from the bag's CameraInfo (no --settings).
-    let recording = ok_json(&run_without_detector_on(
-        &[
-            "--bag",
-            path_str(&bag),
-            "--rgb-topic",
-            RGB,
-            "--depth-topic",
-            DEPTH,
-        ],
+    let recording = ok_json(&run_without_detector_on_bag(
+        &bag,
+        &["--rgb-topic", RGB, "--depth-topic", DEPTH],
         &b,
     ));
     assert_eq!(recording["sequence"], "rec");
@@ -97,13 +91,9 @@ fn a_ros1_bag_runs_as_its_folder_does() {
     assert!(text.contains("640x480 rgb8"), "{text}");
 
     // A wrong topic lists the topics there are.
-    let e = error_line(&run_without_detector_on(
-        &[
-            "--bag",
-            path_str(&bag),
-            "--rgb-topic",
-            "/camera/color/image_raw",
-        ],
+    let e = error_line(&run_without_detector_on_bag(
+        &bag,
+        &["--rgb-topic", "/camera/color/image_raw"],
         &tmp.path().join("wrong.txt"),
     ));
     assert!(
@@ -115,8 +105,9 @@ fn a_ros1_bag_runs_as_its_folder_does() {
     let bytes = std::fs::read(&bag).unwrap();
     let cut = tmp.path().join("cut.bag");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    let e = error_line(&run_without_detector_on(
-        &["--bag", path_str(&cut), "--rgb-topic", RGB],
+    let e = error_line(&run_without_detector_on_bag(
+        &cut,
+        &["--rgb-topic", RGB],
         &tmp.path().join("cut.txt"),
     ));
     assert!(e.contains(&format!("{}: byte ", cut.display())), "{e}");
@@ -178,15 +169,9 @@ fn a_stereo_bag_runs_as_its_kitti_folder_does() {
         &a,
     ));
     // No --settings: the camera from the left CameraInfo, the baseline from the right one.
-    let recording = ok_json(&run_without_detector_on(
-        &[
-            "--bag",
-            path_str(&bag),
-            "--rgb-topic",
-            LEFT,
-            "--right-topic",
-            RIGHT,
-        ],
+    let recording = ok_json(&run_without_detector_on_bag(
+        &bag,
+        &["--rgb-topic", LEFT, "--right-topic", RIGHT],
         &b,
     ));
     assert_eq!(folder["sensor"], "stereo", "{folder}");
@@ -199,10 +184,9 @@ fn a_stereo_bag_runs_as_its_kitti_folder_does() {
     assert_same_trajectory(&a, &b);
 
     // A right topic the bag has not: one line naming the file, the flag and the topics there are.
-    let e = error_line(&run_without_detector_on(
+    let e = error_line(&run_without_detector_on_bag(
+        &bag,
         &[
-            "--bag",
-            path_str(&bag),
             "--rgb-topic",
             LEFT,
             "--right-topic",
@@ -221,25 +205,18 @@ fn a_stereo_bag_runs_as_its_kitti_folder_does() {
 
     // A right image topic without its camera info (the left info given as the right images'
     // neighbour is missing): no baseline, one line saying to pass --settings.
-    let e = error_line(&run_without_detector_on(
-        &[
-            "--bag",
-            path_str(&bag),
-            "--rgb-topic",
-            LEFT,
-            "--right-topic",
-            LEFT,
-        ],
+    let e = error_line(&run_without_detector_on_bag(
+        &bag,
+        &["--rgb-topic", LEFT, "--right-topic", LEFT],
         &tmp.path().join("same.txt"),
     ));
     assert!(e.contains("no baseline"), "{e}");
     assert!(e.contains("--settings"), "{e}");
 
     // Depth and right images are two different sensors.
-    let e = error_line(&run_without_detector_on(
+    let e = error_line(&run_without_detector_on_bag(
+        &bag,
         &[
-            "--bag",
-            path_str(&bag),
             "--rgb-topic",
             LEFT,
             "--right-topic",
