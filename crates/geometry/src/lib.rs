@@ -19,7 +19,7 @@ pub use align::{Sim3, umeyama};
 pub use bbox::BBox;
 pub use camera::{PinholeCamera, RadTan};
 pub use epipolar::{epipolar_distance, fundamental_from_poses};
-pub use pose::{dpc_dpose, refine_pose_reprojection, retract};
+pub use pose::{dpc_dpose, motion_over_gap, refine_pose_reprojection, retract};
 pub use rectify::{RectifyingView, StereoRectification};
 
 /// A rigid transform (rotation + translation), double precision.

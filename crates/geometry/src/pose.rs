@@ -18,6 +18,32 @@ pub fn retract(t: &Se3, delta: &Vector6<f64>) -> Se3 {
     out
 }
 
+/// The constant-velocity motion `v`, measured between frames `measured_s` seconds apart,
+/// carried to a frame `gap_s` seconds after the last: `v` itself when the two gaps agree within
+/// 25 % (a camera's jitter), else `v` repeated `gap_s / measured_s` times (at most 4), so that
+/// a frame after a dropped one is predicted twice as far. The rotation is scaled on its axis
+/// and the translation linearly: exact for a pure translation, and off by far less than the
+/// search radius for the few degrees a camera turns between frames.
+///
+/// ```
+/// use stillpoint_geometry::{Se3, motion_over_gap};
+/// let v = Se3::translation(0.01, 0.0, 0.0);
+/// let two = motion_over_gap(&v, 1.0 / 30.0, 2.0 / 30.0);
+/// assert!((two.translation.vector.x - 0.02).abs() < 1e-12);
+/// assert_eq!(motion_over_gap(&v, 1.0 / 30.0, 1.05 / 30.0), v);
+/// ```
+pub fn motion_over_gap(v: &Se3, measured_s: f64, gap_s: f64) -> Se3 {
+    let ratio = gap_s / measured_s;
+    if !ratio.is_finite() || ratio <= 0.0 || (ratio - 1.0).abs() <= 0.25 {
+        return *v;
+    }
+    let ratio = ratio.min(4.0);
+    Se3::from_parts(
+        (v.translation.vector * ratio).into(),
+        nalgebra::UnitQuaternion::from_scaled_axis(v.rotation.scaled_axis() * ratio),
+    )
+}
+
 /// d Pc / d δ for a left perturbation of the pose that maps a point to Pc: `[-[Pc]x | I]`.
 pub fn dpc_dpose(pc: &Vec3) -> Matrix3x6<f64> {
     let mut m = Matrix3x6::zeros();
@@ -90,6 +116,23 @@ pub fn refine_pose_reprojection(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_turn_over_a_dropped_frame_is_predicted_twice_as_far() {
+        let axis = Vector3::new(0.0, 1.0, 0.0);
+        let v = Se3::new(Vector3::new(0.0, 0.0, 0.01), axis * 2f64.to_radians());
+        let dt = 1.0 / 30.0;
+        let two = motion_over_gap(&v, dt, 2.0 * dt);
+        assert!((two.rotation.angle() - 4f64.to_radians()).abs() < 1e-12);
+        assert!((two.translation.vector.z - 0.02).abs() < 1e-12);
+        // The frame after the gap: the motion was measured over two frames, the next is one.
+        let one = motion_over_gap(&two, 2.0 * dt, dt);
+        assert!((one.rotation.angle() - 2f64.to_radians()).abs() < 1e-12);
+        // A stalled camera is not extrapolated without bound.
+        let stalled = motion_over_gap(&v, dt, 30.0 * dt);
+        assert!((stalled.rotation.angle() - 8f64.to_radians()).abs() < 1e-12);
+        assert_eq!(motion_over_gap(&v, dt, 0.0), v);
+    }
 
     #[test]
     fn refinement_recovers_a_small_motion_despite_centimetre_depth_errors() {

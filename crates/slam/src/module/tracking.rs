@@ -80,6 +80,9 @@ pub struct Tracker {
     last_frame: Option<Frame>,
     /// T_cw(current) * T_wc(last): the constant-velocity model.
     velocity: Option<Se3>,
+    /// Seconds between the two frames `velocity` was measured over: a frame after dropped
+    /// ones (a live camera, `run --realtime`) scales the model by its own gap.
+    velocity_dt: f64,
     reference_kf: Option<KfId>,
     last_kf_frame: usize,
     last_reloc_frame: Option<usize>,
@@ -106,6 +109,7 @@ impl Tracker {
             state: TrackingState::NotInitialized,
             last_frame: None,
             velocity: None,
+            velocity_dt: 0.0,
             reference_kf: None,
             last_kf_frame: 0,
             last_reloc_frame: None,
@@ -173,8 +177,10 @@ impl Tracker {
             }
             TrackingState::Ok => {
                 let mut ok = false;
+                let mut by_motion = false;
                 if self.velocity.is_some() && self.last_frame.is_some() {
                     ok = self.track_motion_model(&mut frame, map);
+                    by_motion = ok;
                 }
                 if !ok {
                     ok = self.track_reference_keyframe(&mut frame, map);
@@ -182,6 +188,12 @@ impl Tracker {
                 ok && {
                     let n = self.track_local_map(&mut frame, map);
                     out.inliers = n;
+                    debug!(
+                        frame = frame.index,
+                        by_motion,
+                        inliers = n,
+                        "tracked against the local map"
+                    );
                     self.local_map_ok(&frame, n)
                 }
             }
@@ -210,6 +222,11 @@ impl Tracker {
                 let mut v = cur * last.inverse();
                 v.rotation.renormalize();
                 self.velocity = Some(v);
+                self.velocity_dt = frame.timestamp
+                    - self
+                        .last_frame
+                        .as_ref()
+                        .map_or(frame.timestamp, |l| l.timestamp);
             }
             if !self.localize
                 && self.need_new_keyframe(&frame, map, out.inliers, mapper_idle, mapper_queue)
@@ -433,6 +450,11 @@ impl Tracker {
         let Some(last_pose) = last.pose_cw else {
             return false;
         };
+        let v = stillpoint_geometry::motion_over_gap(
+            &v,
+            self.velocity_dt,
+            frame.timestamp - last.timestamp,
+        );
         frame.pose_cw = Some(v * last_pose);
         frame.map_points.iter_mut().for_each(|m| *m = None);
         let r = self.s.motion_search_radius;
