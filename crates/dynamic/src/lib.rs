@@ -162,7 +162,9 @@ pub use keypoint_motion::{
     CulledFrame, KeypointMotion, apply_keypoint_motion, cull_frame_with_evidence,
     cull_frame_with_motion, in_dynamic_box, keypoint_motion,
 };
-pub use memory::{RememberedBox, carried_states, carry_forward, moved_by_flow, remember};
+pub use memory::{
+    RememberedBox, carried_states, carry_forward, moved_by_flow, moved_by_flow_in_view, remember,
+};
 pub use motion_consistency::{
     GeometryTimings, MotionCheck, MotionModel, TrackedPoint, motion_consistency,
     motion_consistency_pyramids,

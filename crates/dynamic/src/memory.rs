@@ -151,6 +151,35 @@ pub fn moved_by_flow(bbox: &BBox, pts: &[TrackedPoint]) -> BBox {
     BBox::new(bbox.x1 + dx, bbox.y1 + dy, bbox.x2 + dx, bbox.y2 + dy)
 }
 
+/// [`moved_by_flow`] for a box in a `width` x `height` view: an edge at the view's border
+/// (within 4 px) stays there, as the object goes on past it and its hidden part may come in
+/// (a person entering from the side is carried as a box that grows with them, not one that
+/// slides off the part still entering); the box is kept inside the view.
+pub fn moved_by_flow_in_view(bbox: &BBox, pts: &[TrackedPoint], width: f32, height: f32) -> BBox {
+    const AT_BORDER_PX: f32 = 4.0;
+    let m = moved_by_flow(bbox, pts);
+    let low = |was: f32, now: f32| {
+        if was <= AT_BORDER_PX {
+            was.min(now)
+        } else {
+            now
+        }
+    };
+    let high = |was: f32, now: f32, end: f32| {
+        if was >= end - AT_BORDER_PX {
+            was.max(now)
+        } else {
+            now
+        }
+    };
+    BBox::new(
+        low(bbox.x1, m.x1).clamp(0.0, width),
+        low(bbox.y1, m.y1).clamp(0.0, height),
+        high(bbox.x2, m.x2, width).clamp(0.0, width),
+        high(bbox.y2, m.y2, height).clamp(0.0, height),
+    )
+}
+
 /// Median (dx, dy) of the flows of the points that started strictly inside `bbox`; (0, 0) with
 /// none.
 fn median_flow(bbox: &BBox, pts: &[TrackedPoint]) -> (f32, f32) {
@@ -222,6 +251,30 @@ mod tests {
         assert_eq!(carried.len(), 1);
         assert_eq!(carried[0].bbox, BBox::new(104.0, 52.0, 154.0, 352.0));
         assert_eq!(carried[0].age, 1);
+    }
+
+    #[test]
+    fn a_person_entering_from_the_left_is_carried_as_a_growing_box() {
+        // The person's points move right by 12 px; the box touches the left border, where the
+        // rest of them is still coming in.
+        let entering = BBox::new(0.0, 60.0, 200.0, 480.0);
+        let pts = [
+            flow(50.0, 100.0, 12.0, 0.0),
+            flow(120.0, 300.0, 12.0, 0.0),
+            flow(180.0, 400.0, 12.0, 0.0),
+        ];
+        let carried = moved_by_flow_in_view(&entering, &pts, 640.0, 480.0);
+        assert_eq!(carried, BBox::new(0.0, 60.0, 212.0, 480.0));
+        // Leaving to the left, the box shrinks with them; inside the view, it only moves.
+        let leaving: Vec<_> = pts
+            .iter()
+            .map(|p| flow(p.prev[0], p.prev[1], -12.0, 0.0))
+            .collect();
+        let carried = moved_by_flow_in_view(&entering, &leaving, 640.0, 480.0);
+        assert_eq!(carried, BBox::new(0.0, 60.0, 188.0, 480.0));
+        let inside = BBox::new(40.0, 60.0, 200.0, 400.0);
+        let carried = moved_by_flow_in_view(&inside, &pts, 640.0, 480.0);
+        assert_eq!(carried, BBox::new(52.0, 60.0, 212.0, 400.0));
     }
 
     #[test]

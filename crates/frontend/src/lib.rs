@@ -279,9 +279,10 @@ impl BackgroundDetector {
         }
         if let Some(l) = self.latest.as_mut() {
             let from = l.at;
+            let (w, h) = (frame.gray.width as f32, frame.gray.height as f32);
             for (index, pts) in self.tracks.iter().filter(|(i, _)| *i > from) {
                 for d in &mut l.boxes {
-                    d.bbox = stillpoint_dynamic::moved_by_flow(&d.bbox, pts);
+                    d.bbox = stillpoint_dynamic::moved_by_flow_in_view(&d.bbox, pts, w, h);
                 }
                 l.at = *index;
             }
@@ -535,14 +536,22 @@ impl DynamicFrontEnd {
     }
 
     /// The map's prediction of the camera motion into frame `index` (previous- to
-    /// current-camera coordinates): the motion between the two frames before it, when tracking
-    /// gave both.
+    /// current-camera coordinates): the motion between the last two frames tracking gave,
+    /// scaled to this frame's gap when frames were dropped in between (a live camera, `run
+    /// --realtime`); none over gaps of more than 3 frames.
     fn predicted_motion(&self, index: usize) -> Option<Se3> {
+        const MAX_GAP: usize = 3;
         match self.poses.as_slice() {
-            [(i0, cw0), (i1, cw1)] if *i1 + 1 == index && *i0 + 1 == *i1 => {
+            [(i0, cw0), (i1, cw1)]
+                if i0 < i1 && *i1 < index && i1 - i0 <= MAX_GAP && index - i1 <= MAX_GAP =>
+            {
                 let mut v = cw1 * cw0.inverse();
                 v.rotation.renormalize();
-                Some(v)
+                Some(stillpoint_geometry::motion_over_gap(
+                    &v,
+                    (i1 - i0) as f64,
+                    (index - i1) as f64,
+                ))
             }
             _ => None,
         }
@@ -684,6 +693,7 @@ impl DynamicFrontEnd {
             stillpoint_dynamic::depth::keypoint_depths(depth, kps, &self.settings.dynamic.depth);
         let cur_to_prev = motion.inverse();
         let mut moving: Vec<usize> = Vec::new();
+        let mut judged = 0;
         for (i, (m, point)) in motion_of.iter().zip(&lifted).enumerate() {
             let (Some(m), Some(point)) = (m, point) else {
                 continue;
@@ -691,11 +701,18 @@ impl DynamicFrontEnd {
             if m.fb_error > km.max_fb_error_px {
                 continue;
             }
+            judged += 1;
             let r = stillpoint_dynamic::keypoint_world_residual(point, m.prev, &cur_to_prev, p);
             if r.is_some_and(|r| r > p.new_point_moving_above_px) {
                 moving.push(i);
             }
         }
+        tracing::debug!(
+            "new points: {} candidates, {} with a residual, {judged} tracked back, {} moved",
+            candidates.iter().filter(|&&c| c).count(),
+            tracked.iter().filter(|&&t| t).count(),
+            moving.len()
+        );
         if moving.is_empty() {
             return;
         }
