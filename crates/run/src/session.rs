@@ -337,6 +337,16 @@ pub fn run_sequence(
             realtime.frames_processed += 1;
             realtime.processing_ms.push(ms_since(started));
             realtime.latency_ms.push(ms_since(arrival));
+            tracing::debug!(
+                frame = i,
+                processing_ms = ms_since(started),
+                latency_ms = ms_since(arrival),
+                geometry_ms = r.timings.geometry_ms,
+                orb_ms = r.timings.orb_ms,
+                tracking_ms = r.timings.tracking_ms,
+                keyframe = r.new_keyframe,
+                "realtime frame"
+            );
         }
         let n_culled = r.culled();
         most_keypoints = most_keypoints.max(r.keypoints.len() - n_culled);
