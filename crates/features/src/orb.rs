@@ -118,8 +118,8 @@ pub struct OrbExtractor {
     /// `pyramid_len` hold the current frame.
     pyramid: Vec<Gray8>,
     pyramid_len: usize,
-    blurred: Gray8,
-    blur_tmp: Vec<u16>,
+    /// Buffers of the calling thread and of the helper of [`Self::extract_on`].
+    scratch: [LevelScratch; 2],
     timings: OrbTimings,
     score: OrbScore,
     /// Rectangles `[x1, y1, x2, y2]` (level-0 pixels) where no corner is kept, so the budget
@@ -194,8 +194,7 @@ impl OrbExtractor {
             umax,
             pyramid: Vec::new(),
             pyramid_len: 0,
-            blurred: Gray8::new(0, 0, 0),
-            blur_tmp: Vec::new(),
+            scratch: Default::default(),
             timings: OrbTimings::default(),
             score: OrbScore::default(),
             exclude: Vec::new(),
@@ -274,6 +273,14 @@ impl OrbExtractor {
     /// Extract keypoints (level-0 pixels) and descriptors. A blank, tiny or malformed image
     /// gives empty features.
     pub fn extract(&mut self, img: &Gray8) -> OrbFeatures {
+        self.extract_on(img, 1)
+    }
+
+    /// [`Self::extract`] with the pyramid's levels shared between `threads` threads (the
+    /// calling one and at most one more): the same features in the same order, sooner when a
+    /// core is free. Each level is independent once the pyramid is built; the two groups are
+    /// balanced by pixel count (level 0 is a third of the pyramid).
+    pub fn extract_on(&mut self, img: &Gray8, threads: usize) -> OrbFeatures {
         let mut out = OrbFeatures::default();
         self.timings = OrbTimings::default();
         if !valid(img) {
@@ -282,10 +289,9 @@ impl OrbExtractor {
         let t0 = Instant::now();
         self.build_pyramid(img);
         self.timings.pyramid_ms = ms(t0);
-        let mut corners = Vec::new();
         let low_th = self.low_texture_threshold(img);
+        let mut levels: Vec<(usize, &Gray8)> = Vec::with_capacity(self.params.n_levels);
         for level in 0..self.params.n_levels {
-            let t1 = Instant::now();
             let level_img = if level == 0 {
                 img
             } else {
@@ -294,75 +300,69 @@ impl OrbExtractor {
                     None => break,
                 }
             };
-            let (w, h) = (level_img.width, level_img.height);
-            if w <= 2 * EDGE_THRESHOLD + 1 || h <= 2 * EDGE_THRESHOLD + 1 {
+            if level_img.width <= 2 * EDGE_THRESHOLD + 1
+                || level_img.height <= 2 * EDGE_THRESHOLD + 1
+            {
                 break;
             }
-            corners.clear();
-            detect_in_cells(level_img, &self.params, low_th, &mut corners);
-            let to_image = LevelToImage::new(img, level_img);
-            if let Some(mask) = &self.exclude_mask {
-                corners.retain(|c| {
-                    let (x, y) = to_image.map(c.x as f32, c.y as f32);
-                    mask.get_checked(x as isize, y as isize)
-                        .is_none_or(|m| m == 0)
-                });
+            levels.push((level, level_img));
+        }
+        let ctx = LevelContext {
+            image: img,
+            params: &self.params,
+            low_th,
+            score: self.score,
+            exclude: &self.exclude,
+            exclude_mask: self.exclude_mask.as_ref(),
+            features_per_level: &self.features_per_level,
+            scale_factors: &self.scale_factors,
+            umax: &self.umax,
+        };
+        let [mine, helper] = &mut self.scratch;
+        let mut done: Vec<LevelFeatures> = if threads > 1 && levels.len() > 1 {
+            // Largest first, each to the group with fewer pixels so far.
+            let (mut a, mut b) = (Vec::new(), Vec::new());
+            let (mut pa, mut pb) = (0usize, 0usize);
+            for &(level, l) in &levels {
+                let px = l.width * l.height;
+                if pa <= pb {
+                    a.push((level, l));
+                    pa += px;
+                } else {
+                    b.push((level, l));
+                    pb += px;
+                }
             }
-            if !self.exclude.is_empty() {
-                let exclude = &self.exclude;
-                corners.retain(|c| {
-                    let (x, y) = to_image.map(c.x as f32, c.y as f32);
-                    !exclude
-                        .iter()
-                        .any(|r| x >= r[0] && x <= r[2] && y >= r[1] && y <= r[3])
+            let ctx = &ctx;
+            std::thread::scope(|sc| {
+                let other = sc.spawn(move || {
+                    b.iter()
+                        .map(|&(level, l)| extract_level(ctx, level, l, helper))
+                        .collect::<Vec<_>>()
                 });
-            }
-            // The Harris score is part of detection, so it counts in `fast_ms`.
-            let scores: Vec<f32> = match self.score {
-                OrbScore::Harris => corners
+                let mut done: Vec<LevelFeatures> = a
                     .iter()
-                    .map(|c| harris_at(level_img, c.x as usize, c.y as usize))
-                    .collect(),
-                OrbScore::Fast => corners.iter().map(|c| c.score as f32).collect(),
-            };
-            let t2 = Instant::now();
-            self.timings.fast_ms += (t2 - t1).as_secs_f64() * 1e3;
-            let keep = distribute_quadtree(
-                &corners,
-                &scores,
-                [
-                    EDGE_THRESHOLD - 3,
-                    w - EDGE_THRESHOLD + 3,
-                    EDGE_THRESHOLD - 3,
-                    h - EDGE_THRESHOLD + 3,
-                ],
-                self.features_per_level[level],
-            );
-            let t3 = Instant::now();
-            self.timings.distribute_ms += (t3 - t2).as_secs_f64() * 1e3;
-            if keep.is_empty() {
-                continue;
-            }
-            gaussian_blur7_with(level_img, &mut self.blurred, &mut self.blur_tmp);
-            let scale = self.scale_factors[level];
-            let size = PATCH_SIZE * scale;
-            for &i in &keep {
-                let c = corners[i];
-                let (x, y) = (c.x as usize, c.y as usize);
-                let angle = ic_angle(level_img, x, y, &self.umax);
-                out.descriptors
-                    .push(steered_brief(&self.blurred, x, y, angle));
-                let (x0, y0) = to_image.map(x as f32, y as f32);
-                out.keypoints.push(KeyPoint {
-                    x: x0,
-                    y: y0,
-                    octave: level as u8,
-                    angle,
-                    response: scores[i],
-                    size,
-                });
-            }
-            self.timings.describe_ms += ms(t3);
+                    .map(|&(level, l)| extract_level(ctx, level, l, mine))
+                    .collect();
+                match other.join() {
+                    Ok(theirs) => done.extend(theirs),
+                    Err(payload) => std::panic::resume_unwind(payload),
+                }
+                done
+            })
+        } else {
+            levels
+                .iter()
+                .map(|&(level, l)| extract_level(&ctx, level, l, mine))
+                .collect()
+        };
+        done.sort_by_key(|d| d.level);
+        for d in done {
+            self.timings.fast_ms += d.fast_ms;
+            self.timings.distribute_ms += d.distribute_ms;
+            self.timings.describe_ms += d.describe_ms;
+            out.keypoints.extend(d.keypoints);
+            out.descriptors.extend(d.descriptors);
         }
         out
     }
@@ -397,6 +397,133 @@ impl OrbExtractor {
             self.pyramid_len = level;
         }
     }
+}
+
+/// What every level's extraction reads.
+struct LevelContext<'a> {
+    image: &'a Gray8,
+    params: &'a OrbParams,
+    low_th: Option<u8>,
+    score: OrbScore,
+    exclude: &'a [[f32; 4]],
+    exclude_mask: Option<&'a Gray8>,
+    features_per_level: &'a [usize],
+    scale_factors: &'a [f32],
+    umax: &'a [usize],
+}
+
+/// One thread's buffers, kept between frames.
+struct LevelScratch {
+    corners: Vec<Corner>,
+    blurred: Gray8,
+    blur_tmp: Vec<u16>,
+}
+
+impl Default for LevelScratch {
+    fn default() -> Self {
+        Self {
+            corners: Vec::new(),
+            blurred: Gray8::new(0, 0, 0),
+            blur_tmp: Vec::new(),
+        }
+    }
+}
+
+/// One level's features (level-0 pixels) and its stage times.
+struct LevelFeatures {
+    level: usize,
+    keypoints: Vec<KeyPoint>,
+    descriptors: Vec<Descriptor>,
+    fast_ms: f64,
+    distribute_ms: f64,
+    describe_ms: f64,
+}
+
+/// FAST corners of one level, spread by the quadtree, oriented and described.
+fn extract_level(
+    ctx: &LevelContext,
+    level: usize,
+    level_img: &Gray8,
+    scratch: &mut LevelScratch,
+) -> LevelFeatures {
+    let t1 = Instant::now();
+    let (w, h) = (level_img.width, level_img.height);
+    let mut out = LevelFeatures {
+        level,
+        keypoints: Vec::new(),
+        descriptors: Vec::new(),
+        fast_ms: 0.0,
+        distribute_ms: 0.0,
+        describe_ms: 0.0,
+    };
+    let corners = &mut scratch.corners;
+    corners.clear();
+    detect_in_cells(level_img, ctx.params, ctx.low_th, corners);
+    let to_image = LevelToImage::new(ctx.image, level_img);
+    if let Some(mask) = ctx.exclude_mask {
+        corners.retain(|c| {
+            let (x, y) = to_image.map(c.x as f32, c.y as f32);
+            mask.get_checked(x as isize, y as isize)
+                .is_none_or(|m| m == 0)
+        });
+    }
+    if !ctx.exclude.is_empty() {
+        corners.retain(|c| {
+            let (x, y) = to_image.map(c.x as f32, c.y as f32);
+            !ctx.exclude
+                .iter()
+                .any(|r| x >= r[0] && x <= r[2] && y >= r[1] && y <= r[3])
+        });
+    }
+    // The Harris score is part of detection, so it counts in `fast_ms`.
+    let scores: Vec<f32> = match ctx.score {
+        OrbScore::Harris => corners
+            .iter()
+            .map(|c| harris_at(level_img, c.x as usize, c.y as usize))
+            .collect(),
+        OrbScore::Fast => corners.iter().map(|c| c.score as f32).collect(),
+    };
+    let t2 = Instant::now();
+    out.fast_ms = (t2 - t1).as_secs_f64() * 1e3;
+    let keep = distribute_quadtree(
+        corners,
+        &scores,
+        [
+            EDGE_THRESHOLD - 3,
+            w - EDGE_THRESHOLD + 3,
+            EDGE_THRESHOLD - 3,
+            h - EDGE_THRESHOLD + 3,
+        ],
+        ctx.features_per_level[level],
+    );
+    let t3 = Instant::now();
+    out.distribute_ms = (t3 - t2).as_secs_f64() * 1e3;
+    if keep.is_empty() {
+        return out;
+    }
+    gaussian_blur7_with(level_img, &mut scratch.blurred, &mut scratch.blur_tmp);
+    let scale = ctx.scale_factors[level];
+    let size = PATCH_SIZE * scale;
+    out.keypoints.reserve(keep.len());
+    out.descriptors.reserve(keep.len());
+    for &i in &keep {
+        let c = corners[i];
+        let (x, y) = (c.x as usize, c.y as usize);
+        let angle = ic_angle(level_img, x, y, ctx.umax);
+        out.descriptors
+            .push(steered_brief(&scratch.blurred, x, y, angle));
+        let (x0, y0) = to_image.map(x as f32, y as f32);
+        out.keypoints.push(KeyPoint {
+            x: x0,
+            y: y0,
+            octave: level as u8,
+            angle,
+            response: scores[i],
+            size,
+        });
+    }
+    out.describe_ms = ms(t3);
+    out
 }
 
 /// Level pixel -> level-0 pixel. Each level is resized from the one above with pixel centres
@@ -928,6 +1055,18 @@ mod tests {
             orb.umax,
             vec![15, 15, 15, 15, 14, 14, 14, 13, 13, 12, 11, 10, 9, 8, 6, 3]
         );
+    }
+
+    #[test]
+    fn levels_shared_between_two_threads_give_the_same_features() {
+        let img = texture(640, 480, 7);
+        let mut one = OrbExtractor::new(OrbParams::default());
+        let mut two = OrbExtractor::new(OrbParams::default());
+        let serial = one.extract(&img);
+        assert!(serial.keypoints.len() > 500);
+        assert_eq!(two.extract_on(&img, 2), serial);
+        // And again, on the buffers the first call left.
+        assert_eq!(two.extract_on(&img, 2), serial);
     }
 
     #[test]

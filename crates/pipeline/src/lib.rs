@@ -310,8 +310,10 @@ impl Pipeline {
                 .right
                 .as_ref()
                 .map(|r| sc.spawn(|| orb_right.extract(r)));
-            let left = sc.spawn(|| {
-                let left = left_orb.extract(&frame.gray);
+            // Without a right image, the left's levels are shared with this thread's check.
+            let threads = if frame.right.is_some() { 1 } else { 2 };
+            let left = sc.spawn(move || {
+                let left = left_orb.extract_on(&frame.gray, threads);
                 (left, ms(t0))
             });
             let measured = front_end.as_mut().and_then(|f| {
