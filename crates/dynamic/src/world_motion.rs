@@ -67,6 +67,14 @@ pub struct WorldMotionParams {
     /// edge, too little of them for the detector, made close untracked points that asked for a
     /// keyframe every other frame and went into the map).
     pub check_new_points: bool,
+    /// The corner strength a keypoint needs to be checked that way (ours: 20, a third of
+    /// [`WorldMotionParams::min_corner_strength`]). The backward track must come back within
+    /// `keypoint_motion.max_fb_error_px` too, and a barred keypoint costs the map only a point
+    /// of one keyframe, where a missed one lets a mover in: at 60 a tenth of the keypoints could
+    /// be checked, and a person entering between two detections in real time (living_close,
+    /// living_turn) put enough points into the map to drag the camera 20-60 cm; at 20 a static
+    /// room (living_empty) had 2 % of its checked keypoints barred, and its ATE did not move.
+    pub new_point_min_corner_strength: f32,
     /// A keypoint checked that way moved when its residual exceeds this, pixels (ours: 3; ORB
     /// keypoints of coarse pyramid levels sit on a grid of up to 2-4 px, and at 1.5 px 1 % of a
     /// still plain room's keypoints a frame were called moving).
@@ -91,6 +99,7 @@ impl Default for WorldMotionParams {
             min_corner_strength: 60.0,
             min_corner_ratio: 0.1,
             check_new_points: true,
+            new_point_min_corner_strength: 20.0,
             new_point_moving_above_px: 3.0,
             new_point_radius_px: 40.0,
         }
@@ -282,8 +291,8 @@ pub fn world_residuals(
 
 /// A keypoint of the current frame lifted into the current camera with its (smooth) depth, for
 /// [`keypoint_world_residual`]: `None` without a camera or a smooth depth, or where the current
-/// patch is no corner ([`is_corner`]). Such a keypoint gets no residual, so it need not be
-/// tracked at all.
+/// patch is no corner of [`WorldMotionParams::new_point_min_corner_strength`] ([`is_corner`]).
+/// Such a keypoint gets no residual, so it need not be tracked at all.
 pub fn lift_keypoint(
     keypoint: [f32; 2],
     cur_gray: &Gray8,
@@ -291,7 +300,7 @@ pub fn lift_keypoint(
     p: &WorldMotionParams,
 ) -> Option<Vec3> {
     let cam = p.camera.as_ref()?;
-    if !is_corner(cur_gray, keypoint, p) {
+    if !corner_at_least(cur_gray, keypoint, p.new_point_min_corner_strength, p) {
         return None;
     }
     let z = smooth_depth_at(cur_depth, keypoint, p.depth_range)?;
@@ -329,6 +338,11 @@ pub fn keypoint_world_residual(
 /// assert!(!is_corner(&img, [8.0, 8.0], &p)); // plain
 /// ```
 pub fn is_corner(img: &Gray8, at: [f32; 2], p: &WorldMotionParams) -> bool {
+    corner_at_least(img, at, p.min_corner_strength, p)
+}
+
+/// [`is_corner`] with another least strength.
+fn corner_at_least(img: &Gray8, at: [f32; 2], min_strength: f32, p: &WorldMotionParams) -> bool {
     if !(at[0].is_finite() && at[1].is_finite()) {
         return false;
     }
@@ -353,7 +367,7 @@ pub fn is_corner(img: &Gray8, at: [f32; 2], p: &WorldMotionParams) -> bool {
     let half_trace = 0.5 * (a + c);
     let root = (0.25 * (a - c) * (a - c) + b * b).sqrt();
     let (large, small) = (half_trace + root, half_trace - root);
-    small >= p.min_corner_strength && small >= p.min_corner_ratio * large
+    small >= min_strength && small >= p.min_corner_ratio * large
 }
 
 /// The map wins: every track's outlier flag becomes its static-world verdict (residual above
