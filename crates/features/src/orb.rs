@@ -94,7 +94,8 @@ pub struct OrbFeatures {
     pub descriptors: Vec<Descriptor>,
 }
 
-/// Wall time of each stage of the last [`OrbExtractor::extract`] call, in milliseconds.
+/// Time of each stage of the last [`OrbExtractor::extract`] call, in milliseconds, summed over
+/// the levels (with [`OrbExtractor::extract_on`] on two threads, more than the call took).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct OrbTimings {
     /// Building the scale pyramid.

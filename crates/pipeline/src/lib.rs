@@ -310,7 +310,8 @@ impl Pipeline {
                 .right
                 .as_ref()
                 .map(|r| sc.spawn(|| orb_right.extract(r)));
-            // Without a right image, the left's levels are shared with this thread's check.
+            // Without a right image, the left's levels are split over two threads; the check
+            // shares the cores with them.
             let threads = if frame.right.is_some() { 1 } else { 2 };
             let left = sc.spawn(move || {
                 let left = left_orb.extract_on(&frame.gray, threads);
