@@ -334,13 +334,14 @@ pub fn run_sequence(
                 source,
             })?;
         if camera.is_some() {
+            let (processing_ms, latency_ms) = (ms_since(started), ms_since(arrival));
             realtime.frames_processed += 1;
-            realtime.processing_ms.push(ms_since(started));
-            realtime.latency_ms.push(ms_since(arrival));
+            realtime.processing_ms.push(processing_ms);
+            realtime.latency_ms.push(latency_ms);
             tracing::debug!(
                 frame = i,
-                processing_ms = ms_since(started),
-                latency_ms = ms_since(arrival),
+                processing_ms,
+                latency_ms,
                 geometry_ms = r.timings.geometry_ms,
                 orb_ms = r.timings.orb_ms,
                 tracking_ms = r.timings.tracking_ms,
