@@ -481,8 +481,8 @@ pub(crate) fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Resul
             ),
         );
     }
-    if s.sensor == Sensor::Stereo
-        && let Some(bf) = s.bf
+    // RGB-D uses it too: its close-point depth is `th_depth * bf / fx`.
+    if let Some(bf) = s.bf
         && !(bf.is_finite() && bf > 0.0)
     {
         return bad(

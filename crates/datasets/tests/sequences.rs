@@ -295,6 +295,12 @@ fn settings_out_of_range_are_errors_naming_file_line_and_key() {
         .unwrap_err()
         .to_string();
     assert!(e.starts_with("bad.toml: line 2: depth_factor"), "{e}");
+    // RGB-D uses bf too (its close-point depth): a NaN one is refused, not only a stereo one's.
+    let toml = toml.replace("depth_factor = 0.0", "depth_factor = 5000.0\nbf = nan");
+    let e = parse_settings_toml(&toml, "bad.toml".as_ref())
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with("bad.toml: line 3: bf"), "{e}");
 }
 
 #[test]
