@@ -109,6 +109,8 @@ pub struct FrameTimings {
     pub orb_ms: f64,
     /// Tracking (frame building included).
     pub tracking_ms: f64,
+    /// Of `tracking_ms`, waiting for the map while local mapping or loop closing held it.
+    pub map_wait_ms: f64,
 }
 
 /// What happened to one frame.
@@ -407,6 +409,7 @@ impl Pipeline {
                 source,
             })?;
         timings.tracking_ms = report.tracking_ms;
+        timings.map_wait_ms = report.map_wait_ms;
         if let Some(f) = self.front_end.as_mut() {
             f.observe_pose(frame.index, report.pose_wc.as_ref());
         }

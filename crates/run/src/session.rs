@@ -345,6 +345,7 @@ pub fn run_sequence(
                 geometry_ms = r.timings.geometry_ms,
                 orb_ms = r.timings.orb_ms,
                 tracking_ms = r.timings.tracking_ms,
+                map_wait_ms = r.timings.map_wait_ms,
                 keyframe = r.new_keyframe,
                 "realtime frame"
             );
@@ -584,6 +585,7 @@ pub fn run_sequence(
     }
     timings.push(("orb", pick(|t| t.orb_ms)));
     timings.push(("tracking", pick(|t| t.tracking_ms)));
+    timings.push(("tracking: waiting for the map", pick(|t| t.map_wait_ms)));
     let loops = fin.loops;
     timings.push(("local mapping (per keyframe)", fin.mapping_ms));
     if o.record.is_some() {

@@ -10,7 +10,7 @@ use tracing::debug;
 use stillpoint_geometry::Se3;
 use stillpoint_image::DepthMetres;
 
-use crate::data::{FreeSpaceCheck, KfId, Map};
+use crate::data::{FreeSpaceCheck, KfId, Map, SharedMap};
 use crate::map_file::{MapFile, MapSensor};
 use crate::module::local_mapping::{LocalMapper, MapperHooks, MapperThread};
 use crate::module::loop_closing::{LoopCloser, LoopStats, LoopThread};
@@ -45,6 +45,9 @@ pub struct FrameReport {
     pub new_map: bool,
     /// Tracking time (ms), frame building included.
     pub tracking_ms: f64,
+    /// Of `tracking_ms`, the time spent waiting for the map while local mapping or loop
+    /// closing held it (ms).
+    pub map_wait_ms: f64,
 }
 
 enum Mapping {
@@ -63,7 +66,7 @@ enum Looping {
 pub struct System {
     /// The settings it runs with (read-only once tracking started).
     pub settings: SlamSettings,
-    map: Arc<Mutex<Map>>,
+    map: Arc<SharedMap>,
     tracker: Tracker,
     mapping: Mapping,
     mapping_ms: Arc<Mutex<Vec<f64>>>,
@@ -161,7 +164,7 @@ impl System {
         let is_loaded = !map.keyframes.is_empty();
         let reloc_db =
             is_loaded.then(|| relocalisation_database(&map, vocabulary.clone(), &settings));
-        let map = Arc::new(Mutex::new(map));
+        let map = Arc::new(SharedMap::new(map));
         let mapping_ms = Arc::new(Mutex::new(Vec::new()));
         let mapper = LocalMapper::new(settings.clone());
         // Loop closing corrects with SE3: a monocular map drifts in scale too (ORB-SLAM
@@ -374,11 +377,14 @@ impl System {
                 t.queued.load(Ordering::SeqCst),
             ),
         };
+        let waiting = Instant::now();
+        let map_wait_ms;
         let outcome = {
             let mut map = self
                 .map
                 .lock()
                 .map_err(|_| SlamError::LocalMapping("map lock poisoned".into()))?;
+            map_wait_ms = waiting.elapsed().as_secs_f64() * 1e3;
             // Corrections the loop-closing thread made since the last frame.
             if let Looping::Thread(t) = &self.looping {
                 let pending =
@@ -479,6 +485,7 @@ impl System {
             relocalised: outcome.relocalised,
             new_map: outcome.new_map,
             tracking_ms,
+            map_wait_ms,
         })
     }
 
@@ -696,7 +703,7 @@ impl System {
     }
 
     /// Shared map (read it under the lock).
-    pub fn map(&self) -> Arc<Mutex<Map>> {
+    pub fn map(&self) -> Arc<SharedMap> {
         self.map.clone()
     }
 }

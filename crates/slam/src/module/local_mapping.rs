@@ -2,8 +2,10 @@
 //! points, fuse duplicates with neighbours, local bundle adjustment, cull redundant keyframes.
 //!
 //! [`LocalMapper::process`] does one keyframe; [`MapperThread`] runs it in its own thread fed by
-//! a channel. The map is shared behind a mutex; bundle adjustment works on a copy so tracking is
-//! not blocked while it solves.
+//! a channel. The map is shared behind a mutex, taken for one short piece of work at a time (a
+//! neighbour's triangulation, a target's fusion, a few hundred points' updates): the mapper runs
+//! niced, and a frame's tracking waited 20-40 ms whenever it was preempted while holding the map
+//! for a whole step. Bundle adjustment works on a copy so tracking is not blocked while it solves.
 
 use std::collections::BTreeSet;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -15,9 +17,24 @@ use stillpoint_geometry::Vec3;
 use tracing::debug;
 
 use crate::SlamSettings;
-use crate::data::{KfId, Map, MpId};
+use crate::data::{KfId, Map, MpId, SharedMap};
 use crate::hamming;
 use crate::optimize::{BaObservation, BaProblem, local_bundle_adjustment};
+
+/// Points handled under one taking of the map lock (updates, fusion candidates): ~1 ms of work.
+const POINTS_PER_LOCK: usize = 200;
+
+/// Run `f` on `items`, `POINTS_PER_LOCK` at a time, each batch under its own lock; false when
+/// the lock is poisoned.
+fn in_batches<T>(map: &SharedMap, items: &[T], mut f: impl FnMut(&mut Map, &T)) -> bool {
+    for batch in items.chunks(POINTS_PER_LOCK) {
+        let Ok(mut m) = map.lock() else { return false };
+        for item in batch {
+            f(&mut m, item);
+        }
+    }
+    true
+}
 
 /// Local mapping state: the recently created points awaiting culling.
 pub struct LocalMapper {
@@ -39,59 +56,74 @@ impl LocalMapper {
         }
     }
 
-    /// Process one keyframe. The map lock is taken per step; the BA solve runs unlocked.
-    pub fn process(&mut self, map: &Mutex<Map>, kf: KfId) {
+    /// Process one keyframe. The map lock is taken per short piece of work; the BA solve runs
+    /// unlocked. Alone on the map (inline), the pieces do exactly what one locked pass would.
+    pub fn process(&mut self, map: &SharedMap, kf: KfId) {
+        if map
+            .lock()
+            .map_or(true, |m| m.keyframes.get(&kf).is_none_or(|k| k.bad))
         {
-            let Ok(mut m) = map.lock() else { return };
-            if m.keyframes.get(&kf).is_none_or(|k| k.bad) {
-                return;
-            }
-            let t0 = Instant::now();
-            self.process_new_keyframe(&mut m, kf);
-            self.cull_points(&mut m, kf);
-            let t1 = Instant::now();
-            if self.s.triangulate_new_points {
-                self.create_new_points(&mut m, kf);
-            }
-            let t2 = Instant::now();
-            self.fuse_with_neighbours(&mut m, kf);
-            debug!(
-                associate_ms = (t1 - t0).as_secs_f64() * 1e3,
-                triangulate_ms = (t2 - t1).as_secs_f64() * 1e3,
-                fuse_ms = t2.elapsed().as_secs_f64() * 1e3,
-                "local mapping: map locked"
-            );
+            return;
         }
+        let t0 = Instant::now();
+        self.process_new_keyframe(map, kf);
+        let t1 = Instant::now();
+        if self.s.triangulate_new_points {
+            self.create_new_points(map, kf);
+        }
+        let t2 = Instant::now();
+        self.fuse_with_neighbours(map, kf);
+        debug!(
+            associate_ms = (t1 - t0).as_secs_f64() * 1e3,
+            triangulate_ms = (t2 - t1).as_secs_f64() * 1e3,
+            fuse_ms = t2.elapsed().as_secs_f64() * 1e3,
+            "local mapping: before BA"
+        );
         self.local_ba(map, kf);
         if let Ok(mut m) = map.lock() {
             self.cull_keyframes(&mut m, kf);
         }
     }
 
-    fn process_new_keyframe(&mut self, m: &mut Map, kf: KfId) {
-        let mps: Vec<(usize, MpId)> = m.keyframes[&kf]
-            .map_points
-            .iter()
-            .enumerate()
-            .filter_map(|(i, p)| p.map(|p| (i, p)))
-            .collect();
-        for (i, mp) in mps {
+    /// The keyframe's points observe it (those it created are recent), its connections are
+    /// updated, then recent points are culled.
+    fn process_new_keyframe(&mut self, map: &SharedMap, kf: KfId) {
+        let mps: Vec<(usize, MpId)> = {
+            let Ok(m) = map.lock() else { return };
+            let Some(k) = m.keyframes.get(&kf) else {
+                return;
+            };
+            k.map_points
+                .iter()
+                .enumerate()
+                .filter_map(|(i, p)| p.map(|p| (i, p)))
+                .collect()
+        };
+        let recent = &mut self.recent_points;
+        let scales = &self.scales;
+        let done = in_batches(map, &mps, |m, &(i, mp)| {
             let Some(p) = m.points.get(&mp) else {
                 if let Some(k) = m.keyframes.get_mut(&kf) {
                     k.map_points[i] = None;
                 }
-                continue;
+                return;
             };
             if p.observations.contains_key(&kf) {
                 if p.first_kf == kf {
-                    self.recent_points.push(mp);
+                    recent.push(mp);
                 }
             } else {
                 m.add_observation(mp, kf, i);
-                m.update_point(mp, &self.scales);
+                m.update_point(mp, scales);
             }
+        });
+        if !done {
+            return;
         }
-        m.update_connections(kf, self.s.covisibility_min_shared);
+        if let Ok(mut m) = map.lock() {
+            m.update_connections(kf, self.s.covisibility_min_shared);
+            self.cull_points(&mut m, kf);
+        }
     }
 
     /// ORB-SLAM3 `MapPointCulling`.
@@ -122,125 +154,23 @@ impl LocalMapper {
     /// after initialisation. Monocular also skips neighbours too close for their scene depth
     /// (baseline < 1 % of their median depth) and keypoints near the epipole, as ORB-SLAM3.
     /// Keypoints the front-end flagged `no_new_point` never found a point here either.
-    fn create_new_points(&mut self, m: &mut Map, kf: KfId) {
-        let s = &self.s;
-        let cam = &s.camera;
-        let baseline = s.bf / cam.fx;
-        let ratio_factor = 1.5 * s.scale_factor;
-        let Some(k1) = m.keyframes.get(&kf) else {
-            return;
+    fn create_new_points(&mut self, map: &SharedMap, kf: KfId) {
+        let (free1, neighbours) = {
+            let Ok(m) = map.lock() else { return };
+            let Some(k1) = m.keyframes.get(&kf) else {
+                return;
+            };
+            let free1: Vec<usize> = (0..k1.points.len())
+                .filter(|&i| free_keypoint(k1, i))
+                .collect();
+            (free1, k1.best_covisibles(self.s.mapping_neighbours))
         };
-        let free = |k: &crate::data::KeyFrame, i: usize| {
-            k.map_points[i].is_none() && !k.no_new_point.get(i).copied().unwrap_or(false)
-        };
-        let free1: Vec<usize> = (0..k1.points.len()).filter(|&i| free(k1, i)).collect();
-        let (pose1, center1) = (k1.pose_cw, k1.camera_center());
-        let neighbours = k1.best_covisibles(s.mapping_neighbours);
         let mut created = Vec::new();
         for kf2 in neighbours {
-            let (Some(k1), Some(k2)) = (m.keyframes.get(&kf), m.keyframes.get(&kf2)) else {
-                continue;
-            };
-            if k2.bad || k2.map_epoch != k1.map_epoch {
-                continue;
-            }
-            let center2 = k2.camera_center();
-            if s.monocular {
-                let depth2 = k2.scene_median_depth(&m.points).unwrap_or(0.0);
-                if !(depth2 > 0.0 && (center2 - center1).norm() / depth2 >= 0.01) {
-                    continue;
-                }
-            } else if (center2 - center1).norm() < baseline {
-                continue;
-            }
-            let pose2 = k2.pose_cw;
-            let free2: Vec<usize> = (0..k2.points.len()).filter(|&j| free(k2, j)).collect();
-            // Fundamental matrix of the pair, for the epipolar check (pixels of 1 -> line in 2).
-            let t12 = pose1 * pose2.inverse();
-            let (r21, t21) = {
-                let t21 = t12.inverse();
-                (
-                    t21.rotation.to_rotation_matrix().into_inner(),
-                    t21.translation.vector,
-                )
-            };
-            let kinv = cam
-                .k()
-                .try_inverse()
-                .unwrap_or_else(stillpoint_geometry::Mat3::identity);
-            let f21 = kinv.transpose() * stillpoint_geometry::skew(&t21) * r21 * kinv;
-            // Monocular: where the first camera's centre appears in the second image; matches
-            // near it have no parallax whatever their depth.
-            let epipole2 = {
-                let c = (pose2 * nalgebra::Point3::from(center1)).coords;
-                (s.monocular && c.z.abs() > 1e-12).then(|| {
-                    stillpoint_geometry::Vec2::new(
-                        cam.fx * c.x / c.z + cam.cx,
-                        cam.fy * c.y / c.z + cam.cy,
-                    )
-                })
-            };
-            // The free keypoints of the neighbour as columns, so that the epipolar test, which
-            // rejects all but a few, runs as a tight loop before any descriptor is compared
-            // (monocular keyframes have ~all keypoints free: 30 neighbours x 2000 x 2000 pairs).
-            let xs: Vec<f64> = free2.iter().map(|&j| k2.points[j].x).collect();
-            let ys: Vec<f64> = free2.iter().map(|&j| k2.points[j].y).collect();
-            let band: Vec<f64> = free2
-                .iter()
-                .map(|&j| 3.84 * (1.0 / self.inv_sigma2[k2.octaves[j] as usize]))
-                .collect();
-            // A test without the division that lets through a superset of the exact one.
-            let loose: Vec<f64> = band.iter().map(|b| b * (1.0 + 1e-9)).collect();
-            let mut near_line: Vec<usize> = Vec::new();
-            let mut matches: Vec<(usize, usize, f32)> = Vec::new();
-            for &i in &free1 {
-                let p1 = k1.points[i];
-                let line = f21 * nalgebra::Vector3::new(p1.x, p1.y, 1.0);
-                let norm2 = line.x * line.x + line.y * line.y;
-                if norm2 <= 0.0 {
-                    continue;
-                }
-                near_line.clear();
-                for (n, ((x, y), l)) in xs.iter().zip(&ys).zip(&loose).enumerate() {
-                    let dist = line.x * x + line.y * y + line.z;
-                    if dist * dist < l * norm2 && dist * dist / norm2 < band[n] {
-                        near_line.push(n);
-                    }
-                }
-                let mut best = (u32::MAX, usize::MAX);
-                for &n in &near_line {
-                    let j = free2[n];
-                    if let Some(ep) = epipole2
-                        && k1.depth[i] <= 0.0
-                        && k2.depth[j] <= 0.0
-                        && (ep - k2.points[j]).norm_squared()
-                            < 100.0 * self.scales[k2.octaves[j] as usize]
-                    {
-                        continue;
-                    }
-                    let d = hamming(&k1.descriptors[i], &k2.descriptors[j]);
-                    if d <= s.th_low && d < best.0 {
-                        best = (d, j);
-                    }
-                }
-                if best.1 != usize::MAX {
-                    matches.push((i, best.1, k2.angles[best.1] - k1.angles[i]));
-                }
-            }
-            let rot: Vec<(usize, f32)> = matches.iter().map(|m| (m.0, m.2)).collect();
-            let drop: BTreeSet<usize> = crate::matching::rotation_outliers(&rot)
-                .into_iter()
-                .collect();
-            let mut used2 = BTreeSet::new();
-            for (n, &(i, j, _)) in matches.iter().enumerate() {
-                if drop.contains(&n) || !used2.insert(j) {
-                    continue;
-                }
-                if let Some(x) = self.triangulate_pair(k1, i, k2, j, ratio_factor) {
-                    created.push((x, i, kf2, j));
-                }
-            }
+            let Ok(m) = map.lock() else { return };
+            self.triangulate_with_neighbour(&m, kf, kf2, &free1, &mut created);
         }
+        let Ok(mut m) = map.lock() else { return };
         for (x, i, kf2, j) in created {
             let (Some(k1), Some(k2)) = (m.keyframes.get(&kf), m.keyframes.get(&kf2)) else {
                 continue;
@@ -253,6 +183,128 @@ impl LocalMapper {
                 m.add_observation(mp, kf2, j);
                 m.update_point(mp, &self.scales);
                 self.recent_points.push(mp);
+            }
+        }
+    }
+
+    /// [`LocalMapper::create_new_points`] with one neighbour `kf2`: the free keypoints `free1`
+    /// of `kf` matched along their epipolar lines and triangulated, pushed to `created` as
+    /// (point, keypoint in `kf`, `kf2`, keypoint in `kf2`).
+    fn triangulate_with_neighbour(
+        &self,
+        m: &Map,
+        kf: KfId,
+        kf2: KfId,
+        free1: &[usize],
+        created: &mut Vec<(Vec3, usize, KfId, usize)>,
+    ) {
+        let (Some(k1), Some(k2)) = (m.keyframes.get(&kf), m.keyframes.get(&kf2)) else {
+            return;
+        };
+        if k2.bad || k2.map_epoch != k1.map_epoch {
+            return;
+        }
+        let s = &self.s;
+        let cam = &s.camera;
+        let baseline = s.bf / cam.fx;
+        let ratio_factor = 1.5 * s.scale_factor;
+        let center1 = k1.camera_center();
+        let center2 = k2.camera_center();
+        if s.monocular {
+            let depth2 = k2.scene_median_depth(&m.points).unwrap_or(0.0);
+            if !(depth2 > 0.0 && (center2 - center1).norm() / depth2 >= 0.01) {
+                return;
+            }
+        } else if (center2 - center1).norm() < baseline {
+            return;
+        }
+        let pose2 = k2.pose_cw;
+        let free2: Vec<usize> = (0..k2.points.len())
+            .filter(|&j| free_keypoint(k2, j))
+            .collect();
+        // Fundamental matrix of the pair, for the epipolar check (pixels of 1 -> line in 2).
+        let t12 = k1.pose_cw * pose2.inverse();
+        let (r21, t21) = {
+            let t21 = t12.inverse();
+            (
+                t21.rotation.to_rotation_matrix().into_inner(),
+                t21.translation.vector,
+            )
+        };
+        let kinv = cam
+            .k()
+            .try_inverse()
+            .unwrap_or_else(stillpoint_geometry::Mat3::identity);
+        let f21 = kinv.transpose() * stillpoint_geometry::skew(&t21) * r21 * kinv;
+        // Monocular: where the first camera's centre appears in the second image; matches
+        // near it have no parallax whatever their depth.
+        let epipole2 = {
+            let c = (pose2 * nalgebra::Point3::from(center1)).coords;
+            (s.monocular && c.z.abs() > 1e-12).then(|| {
+                stillpoint_geometry::Vec2::new(
+                    cam.fx * c.x / c.z + cam.cx,
+                    cam.fy * c.y / c.z + cam.cy,
+                )
+            })
+        };
+        // The free keypoints of the neighbour as columns, so that the epipolar test, which
+        // rejects all but a few, runs as a tight loop before any descriptor is compared
+        // (monocular keyframes have ~all keypoints free: 30 neighbours x 2000 x 2000 pairs).
+        let xs: Vec<f64> = free2.iter().map(|&j| k2.points[j].x).collect();
+        let ys: Vec<f64> = free2.iter().map(|&j| k2.points[j].y).collect();
+        let band: Vec<f64> = free2
+            .iter()
+            .map(|&j| 3.84 * (1.0 / self.inv_sigma2[k2.octaves[j] as usize]))
+            .collect();
+        // A test without the division that lets through a superset of the exact one.
+        let loose: Vec<f64> = band.iter().map(|b| b * (1.0 + 1e-9)).collect();
+        let mut near_line: Vec<usize> = Vec::new();
+        let mut matches: Vec<(usize, usize, f32)> = Vec::new();
+        for &i in free1 {
+            let p1 = k1.points[i];
+            let line = f21 * nalgebra::Vector3::new(p1.x, p1.y, 1.0);
+            let norm2 = line.x * line.x + line.y * line.y;
+            if norm2 <= 0.0 {
+                continue;
+            }
+            near_line.clear();
+            for (n, ((x, y), l)) in xs.iter().zip(&ys).zip(&loose).enumerate() {
+                let dist = line.x * x + line.y * y + line.z;
+                if dist * dist < l * norm2 && dist * dist / norm2 < band[n] {
+                    near_line.push(n);
+                }
+            }
+            let mut best = (u32::MAX, usize::MAX);
+            for &n in &near_line {
+                let j = free2[n];
+                if let Some(ep) = epipole2
+                    && k1.depth[i] <= 0.0
+                    && k2.depth[j] <= 0.0
+                    && (ep - k2.points[j]).norm_squared()
+                        < 100.0 * self.scales[k2.octaves[j] as usize]
+                {
+                    continue;
+                }
+                let d = hamming(&k1.descriptors[i], &k2.descriptors[j]);
+                if d <= s.th_low && d < best.0 {
+                    best = (d, j);
+                }
+            }
+            if best.1 != usize::MAX {
+                matches.push((i, best.1, k2.angles[best.1] - k1.angles[i]));
+            }
+        }
+        let rot: Vec<(usize, f32)> = matches.iter().map(|m| (m.0, m.2)).collect();
+        let drop: BTreeSet<usize> = crate::matching::rotation_outliers(&rot)
+            .into_iter()
+            .collect();
+        let mut used2 = BTreeSet::new();
+        for (n, &(i, j, _)) in matches.iter().enumerate() {
+            if drop.contains(&n) || !used2.insert(j) {
+                continue;
+            }
+            if let Some(x) = self.triangulate_pair(k1, i, k2, j, ratio_factor) {
+                created.push((x, i, kf2, j));
             }
         }
     }
@@ -339,45 +391,80 @@ impl LocalMapper {
 
     /// ORB-SLAM3 `SearchInNeighbors`: fuse the keyframe's points into its neighbours and theirs
     /// into it, merging duplicates.
-    fn fuse_with_neighbours(&mut self, m: &mut Map, kf: KfId) {
-        let n = self.s.mapping_neighbours;
-        let mut targets: BTreeSet<KfId> = BTreeSet::new();
-        for k in m.keyframes[&kf].best_covisibles(n) {
-            targets.insert(k);
-            if let Some(kk) = m.keyframes.get(&k) {
-                for k2 in kk.best_covisibles(5) {
-                    targets.insert(k2);
+    fn fuse_with_neighbours(&mut self, map: &SharedMap, kf: KfId) {
+        let (targets, own) = {
+            let Ok(m) = map.lock() else { return };
+            let Some(k) = m.keyframes.get(&kf) else {
+                return;
+            };
+            let mut targets: BTreeSet<KfId> = BTreeSet::new();
+            for k in k.best_covisibles(self.s.mapping_neighbours) {
+                targets.insert(k);
+                if let Some(kk) = m.keyframes.get(&k) {
+                    for k2 in kk.best_covisibles(5) {
+                        targets.insert(k2);
+                    }
                 }
             }
-        }
-        targets.remove(&kf);
-        targets.retain(|t| {
-            m.keyframes
-                .get(t)
-                .is_some_and(|k| !k.bad && k.map_epoch == m.epoch)
-        });
-        let own = matched_points(m, kf);
+            targets.remove(&kf);
+            targets.retain(|t| {
+                m.keyframes
+                    .get(t)
+                    .is_some_and(|k| !k.bad && k.map_epoch == m.epoch)
+            });
+            (targets, matched_points(&m, kf))
+        };
         for &t in &targets {
-            self.fuse(m, t, &own);
+            if !self.fuse(map, t, &own) {
+                return;
+            }
         }
-        let mut theirs = BTreeSet::new();
-        for &t in &targets {
-            theirs.extend(m.keyframes[&t].map_points.iter().flatten().copied());
+        let theirs: Vec<MpId> = {
+            let Ok(m) = map.lock() else { return };
+            let mut theirs = BTreeSet::new();
+            for t in &targets {
+                if let Some(k) = m.keyframes.get(t) {
+                    theirs.extend(k.map_points.iter().flatten().copied());
+                }
+            }
+            theirs.into_iter().collect()
+        };
+        if !self.fuse(map, kf, &theirs) {
+            return;
         }
-        let theirs: Vec<MpId> = theirs.into_iter().collect();
-        self.fuse(m, kf, &theirs);
-        let own = matched_points(m, kf);
-        for mp in own {
-            m.update_point(mp, &self.scales);
+        let own = match map.lock() {
+            Ok(m) => matched_points(&m, kf),
+            Err(_) => return,
+        };
+        let scales = &self.scales;
+        if in_batches(map, &own, |m, &mp| m.update_point(mp, scales))
+            && let Ok(mut m) = map.lock()
+        {
+            m.update_connections(kf, self.s.covisibility_min_shared);
         }
-        m.update_connections(kf, self.s.covisibility_min_shared);
     }
 
-    /// ORB-SLAM `ORBmatcher::Fuse(pKF, vpMapPoints, th=3)`.
-    fn fuse(&self, m: &mut Map, target: KfId, points: &[MpId]) {
+    /// ORB-SLAM `ORBmatcher::Fuse(pKF, vpMapPoints, th=3)`: `points` projected into `target`
+    /// and merged with, or added to, the keypoint they match. The matches are all found (a
+    /// batch of points per lock) before any is applied, as ORB-SLAM does; false when the lock
+    /// is poisoned.
+    fn fuse(&self, map: &SharedMap, target: KfId, points: &[MpId]) -> bool {
+        let mut found = Vec::new();
+        for batch in points.chunks(POINTS_PER_LOCK) {
+            let Ok(m) = map.lock() else { return false };
+            found.extend(self.fusion_matches(&m, target, batch));
+        }
+        let Ok(mut m) = map.lock() else { return false };
+        apply_fusion(&mut m, target, found);
+        true
+    }
+
+    /// Of `points`, those that project onto a keypoint of `target` with a close descriptor:
+    /// (point, keypoint, the keypoint's point then).
+    fn fusion_matches(&self, m: &Map, target: KfId, points: &[MpId]) -> Vec<FusionMatch> {
         let s = &self.s;
         let Some(k) = m.keyframes.get(&target) else {
-            return;
+            return Vec::new();
         };
         let pose = k.pose_cw;
         let center = k.camera_center();
@@ -425,37 +512,12 @@ impl LocalMapper {
                 actions.push((mp, best.1, k.map_points[best.1]));
             }
         }
-        for (mp, idx, existing) in actions {
-            if !m.points.contains_key(&mp) {
-                continue;
-            }
-            match existing.filter(|e| m.points.contains_key(e)) {
-                Some(e) if e == mp => {}
-                Some(e) => {
-                    let (ne, nm) = (
-                        m.points[&e].observations.len(),
-                        m.points[&mp].observations.len(),
-                    );
-                    if ne > nm {
-                        m.replace_point(mp, e)
-                    } else {
-                        m.replace_point(e, mp)
-                    }
-                }
-                None => {
-                    if m.keyframes[&target].map_points[idx].is_none()
-                        && !m.points[&mp].observations.contains_key(&target)
-                    {
-                        m.add_observation(mp, target, idx);
-                    }
-                }
-            }
-        }
+        actions
     }
 
     /// Local BA over the keyframe and its covisible keyframes; keyframes that see those points
     /// but are not covisible are fixed, as is the map's first keyframe.
-    fn local_ba(&mut self, map: &Mutex<Map>, kf: KfId) {
+    fn local_ba(&mut self, map: &SharedMap, kf: KfId) {
         let (mut problem, kf_ids, pt_ids) = {
             let Ok(m) = map.lock() else { return };
             let Some(k) = m.keyframes.get(&kf) else {
@@ -562,9 +624,9 @@ impl LocalMapper {
                 m.erase_observation(pt_ids[o.point], kf_ids[o.camera]);
             }
         }
-        for id in &pt_ids {
-            m.update_point(*id, &self.scales);
-        }
+        drop(m);
+        let scales = &self.scales;
+        in_batches(map, &pt_ids, |m, id| m.update_point(*id, scales));
     }
 
     /// ORB-SLAM3 `KeyFrameCulling`: drop covisible keyframes whose close points (monocular: all
@@ -622,6 +684,47 @@ impl LocalMapper {
     }
 }
 
+/// A point of [`LocalMapper::fusion_matches`]: (point, keypoint of the target, the
+/// keypoint's own point when it had one).
+type FusionMatch = (MpId, usize, Option<MpId>);
+
+/// Apply the matches of [`LocalMapper::fusion_matches`] to `target`: a matched keypoint's
+/// point and the match merge into whichever has more observations; a free keypoint observes
+/// the match. Points and keypoints taken since the matches were found are checked again.
+fn apply_fusion(m: &mut Map, target: KfId, actions: Vec<FusionMatch>) {
+    for (mp, idx, existing) in actions {
+        if !m.points.contains_key(&mp) {
+            continue;
+        }
+        match existing.filter(|e| m.points.contains_key(e)) {
+            Some(e) if e == mp => {}
+            Some(e) => {
+                let (ne, nm) = (
+                    m.points[&e].observations.len(),
+                    m.points[&mp].observations.len(),
+                );
+                if ne > nm {
+                    m.replace_point(mp, e)
+                } else {
+                    m.replace_point(e, mp)
+                }
+            }
+            None => {
+                if m.keyframes[&target].map_points[idx].is_none()
+                    && !m.points[&mp].observations.contains_key(&target)
+                {
+                    m.add_observation(mp, target, idx);
+                }
+            }
+        }
+    }
+}
+
+/// A keypoint with no map point that the front-end left free to make one.
+fn free_keypoint(k: &crate::data::KeyFrame, i: usize) -> bool {
+    k.map_points[i].is_none() && !k.no_new_point.get(i).copied().unwrap_or(false)
+}
+
 /// The map points `kf` sees, in keypoint order (read again after fusion, which replaces some).
 fn matched_points(m: &Map, kf: KfId) -> Vec<MpId> {
     m.keyframes[&kf]
@@ -665,7 +768,7 @@ impl MapperThread {
     /// Start the thread on `map`; each keyframe's time goes to `times_ms`.
     pub fn spawn(
         mapper: LocalMapper,
-        map: Arc<Mutex<Map>>,
+        map: Arc<SharedMap>,
         times_ms: Arc<Mutex<Vec<f64>>>,
     ) -> std::io::Result<Self> {
         Self::spawn_with_hooks(mapper, map, times_ms, MapperHooks::default())
@@ -674,7 +777,7 @@ impl MapperThread {
     /// [`MapperThread::spawn`] feeding loop closing.
     pub fn spawn_with_hooks(
         mapper: LocalMapper,
-        map: Arc<Mutex<Map>>,
+        map: Arc<SharedMap>,
         times_ms: Arc<Mutex<Vec<f64>>>,
         hooks: MapperHooks,
     ) -> std::io::Result<Self> {
@@ -797,7 +900,9 @@ mod tests {
         }
         map.update_connections(k2, 15);
         let mut mapper = LocalMapper::new(s);
-        mapper.create_new_points(&mut map, k2);
+        let shared = SharedMap::new(map);
+        mapper.create_new_points(&shared, k2);
+        let map = shared.lock().unwrap();
         let k = &map.keyframes[&k2];
         for (i, p) in points.iter().enumerate().skip(20) {
             let made = k.map_points[i].map(|mp| map.points[&mp].position);

@@ -8,7 +8,7 @@ use stillpoint_geometry::Se3;
 use tracing::debug;
 
 use super::{LoopCloser, MapCorrection};
-use crate::data::{KfId, Map, MpId};
+use crate::data::{KfId, MpId, SharedMap};
 use crate::solve::rigid::apply;
 
 use super::correction::move_culled_keyframes;
@@ -20,7 +20,7 @@ impl LoopCloser {
     /// move with the newest optimised one, points of theirs with their reference keyframe.
     pub(super) fn global_bundle_adjustment(
         &self,
-        map: &Mutex<Map>,
+        map: &SharedMap,
         publish: Option<&Mutex<Vec<MapCorrection>>>,
     ) -> Option<MapCorrection> {
         let (mut problem, kf_ids, pt_ids) = {

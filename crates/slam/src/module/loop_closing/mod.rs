@@ -22,7 +22,7 @@ use stillpoint_geometry::Se3;
 use tracing::info;
 
 use crate::SlamSettings;
-use crate::data::{KfId, Map, MpId};
+use crate::data::{KfId, Map, MpId, SharedMap};
 use crate::place::{DatabaseParams, KeyFrameDatabase, Vocabulary};
 
 mod correction;
@@ -262,7 +262,7 @@ impl LoopCloser {
     /// when a loop was closed.
     pub fn process(
         &mut self,
-        map: &Mutex<Map>,
+        map: &SharedMap,
         kf: KfId,
         mapping_busy: Option<&Mutex<()>>,
         publish: Option<&Mutex<Vec<MapCorrection>>>,
@@ -371,7 +371,7 @@ impl LoopThread {
     /// `mapping_busy` so that local mapping waits between keyframes.
     pub fn spawn(
         closer: LoopCloser,
-        map: Arc<Mutex<Map>>,
+        map: Arc<SharedMap>,
         keyframes: Receiver<KfId>,
         mapping_busy: Arc<Mutex<()>>,
     ) -> std::io::Result<Self> {
