@@ -585,7 +585,10 @@ pub fn run_sequence(
     }
     timings.push(("orb", pick(|t| t.orb_ms)));
     timings.push(("tracking", pick(|t| t.tracking_ms)));
-    timings.push(("tracking: waiting for the map", pick(|t| t.map_wait_ms)));
+    if !o.sequential {
+        // Only a mapping thread can hold the map while a frame waits.
+        timings.push(("tracking: waiting for the map", pick(|t| t.map_wait_ms)));
+    }
     let loops = fin.loops;
     timings.push(("local mapping (per keyframe)", fin.mapping_ms));
     if o.record.is_some() {
