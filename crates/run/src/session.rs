@@ -369,6 +369,19 @@ pub fn run_sequence(
             culled = n_culled,
             inliers = r.inliers,
             keyframe = r.new_keyframe,
+            // Synthetic sequences: kept keypoints and pose inliers on the generator's movers.
+            kept_on_movers = truth_mask.as_ref().map(|m| {
+                stillpoint_eval::movers::moving_keypoints_kept(m, &r.keypoints, &r.dynamic)
+            }),
+            inliers_on_movers = truth_mask.as_ref().map(|m| {
+                r.keypoints
+                    .iter()
+                    .zip(&r.matched)
+                    .filter(|&(k, &hit)| {
+                        hit && stillpoint_eval::movers::on_mask(m, k[0] as f64, k[1] as f64)
+                    })
+                    .count()
+            }),
             "tracked"
         );
         relocs += r.relocalised as usize;
