@@ -196,6 +196,11 @@ pub struct FrontEndSettings {
     /// Nice steps (Linux) the background detector runs below tracking, as local mapping does
     /// (`slam.background_nice`): its boxes may come a little later, a frame may not.
     pub background_detect_nice: i32,
+    /// Ours, with the detector in the background: while a box touches the image's left or right
+    /// edge (someone coming into view, or leaving it), the detector takes each frame it is idle
+    /// for, not one every `background_detect_interval_s`: the part still coming in has no box
+    /// until a detection sees it.
+    pub background_detect_at_side_edge: bool,
 }
 
 impl Default for FrontEndSettings {
@@ -219,6 +224,7 @@ impl Default for FrontEndSettings {
             detector_in_background: false,
             background_detect_interval_s: 0.1,
             background_detect_nice: 10,
+            background_detect_at_side_edge: true,
         }
     }
 }
@@ -235,6 +241,8 @@ struct BackgroundDetector {
     last_sent: Option<f64>,
     /// [`FrontEndSettings::background_detect_interval_s`].
     interval_s: f64,
+    /// [`FrontEndSettings::background_detect_at_side_edge`].
+    at_side_edge_every_frame: bool,
     /// The newest finished boxes, already carried to frame `at`, and the frame they were
     /// detected on.
     latest: Option<CarriedDetections>,
@@ -248,6 +256,15 @@ struct CarriedDetections {
     detected: usize,
     at: usize,
     boxes: Vec<Detection>,
+}
+
+/// Whether a box reaches the left or right edge of an image `width` pixels wide (within 4 px):
+/// someone coming into view, or leaving it.
+fn at_side_edge(boxes: &[Detection], width: f32) -> bool {
+    const SIDE_EDGE_PX: f32 = 4.0;
+    boxes
+        .iter()
+        .any(|d| d.bbox.x1 <= SIDE_EDGE_PX || d.bbox.x2 >= width - SIDE_EDGE_PX)
 }
 
 /// Frames after which boxes carried from an older detection are dropped.
@@ -287,9 +304,14 @@ impl BackgroundDetector {
                 l.at = *index;
             }
         }
-        let due = self
-            .last_sent
-            .is_none_or(|t| frame.timestamp - t >= self.interval_s);
+        let entering = self
+            .latest
+            .as_ref()
+            .is_some_and(|l| at_side_edge(&l.boxes, frame.gray.width as f32));
+        let due = (entering && self.at_side_edge_every_frame)
+            || self
+                .last_sent
+                .is_none_or(|t| frame.timestamp - t >= self.interval_s);
         if !self.busy && due {
             self.send(frame);
         }
@@ -381,6 +403,7 @@ impl DynamicFrontEnd {
             busy: false,
             last_sent: None,
             interval_s: self.settings.background_detect_interval_s,
+            at_side_edge_every_frame: self.settings.background_detect_at_side_edge,
             latest: None,
             tracks: std::collections::VecDeque::new(),
         });
@@ -1684,6 +1707,22 @@ mod tests {
         for w in seen.windows(2) {
             assert!(w[1] - w[0] >= 0.1 - 1e-9, "{seen:?}");
         }
+    }
+
+    #[test]
+    fn boxes_at_the_left_or_right_edge_are_told_apart() {
+        let boxed = |x1: f32, x2: f32| {
+            vec![Detection {
+                bbox: stillpoint_geometry::BBox::new(x1, 100.0, x2, 300.0),
+                class_id: PERSON_CLASS,
+                score: 0.9,
+            }]
+        };
+        assert!(at_side_edge(&boxed(0.0, 120.0), 640.0));
+        assert!(at_side_edge(&boxed(3.5, 120.0), 640.0));
+        assert!(at_side_edge(&boxed(500.0, 637.0), 640.0));
+        assert!(!at_side_edge(&boxed(5.0, 634.0), 640.0));
+        assert!(!at_side_edge(&[], 640.0));
     }
 
     #[test]
