@@ -163,7 +163,8 @@ pub use keypoint_motion::{
     cull_frame_with_motion, in_dynamic_box, keypoint_motion,
 };
 pub use memory::{
-    RememberedBox, carried_states, carry_forward, moved_by_flow, moved_by_flow_in_view, remember,
+    AT_BORDER_PX, RememberedBox, carried_states, carry_forward, moved_by_flow,
+    moved_by_flow_in_view, remember,
 };
 pub use motion_consistency::{
     GeometryTimings, MotionCheck, MotionModel, TrackedPoint, motion_consistency,

@@ -151,12 +151,15 @@ pub fn moved_by_flow(bbox: &BBox, pts: &[TrackedPoint]) -> BBox {
     BBox::new(bbox.x1 + dx, bbox.y1 + dy, bbox.x2 + dx, bbox.y2 + dy)
 }
 
+/// A box edge this close to the view's border (pixels) is at the border: the object may go on
+/// past it.
+pub const AT_BORDER_PX: f32 = 4.0;
+
 /// [`moved_by_flow`] for a box in a `width` x `height` view: an edge at the view's border
 /// (within 4 px) stays there, as the object goes on past it and its hidden part may come in
 /// (a person entering from the side is carried as a box that grows with them, not one that
 /// slides off the part still entering); the box is kept inside the view.
 pub fn moved_by_flow_in_view(bbox: &BBox, pts: &[TrackedPoint], width: f32, height: f32) -> BBox {
-    const AT_BORDER_PX: f32 = 4.0;
     let m = moved_by_flow(bbox, pts);
     let low = |was: f32, now: f32| {
         if was <= AT_BORDER_PX {

@@ -21,10 +21,20 @@ pub fn on_mask(mask: &Gray8, x: f64, y: f64) -> bool {
 
 /// Keypoints handed to tracking (not `dynamic`) that lie on a moving object.
 pub fn moving_keypoints_kept(mask: &Gray8, keypoints: &[[f32; 2]], dynamic: &[bool]) -> usize {
+    on_mask_where(mask, keypoints, dynamic, false)
+}
+
+/// Keypoints tracking `matched` to the map (pose inliers) that lie on a moving object.
+pub fn moving_keypoints_matched(mask: &Gray8, keypoints: &[[f32; 2]], matched: &[bool]) -> usize {
+    on_mask_where(mask, keypoints, matched, true)
+}
+
+/// Keypoints whose flag is `wanted` that lie on a moving object.
+fn on_mask_where(mask: &Gray8, keypoints: &[[f32; 2]], flags: &[bool], wanted: bool) -> usize {
     keypoints
         .iter()
-        .zip(dynamic)
-        .filter(|(k, d)| !**d && on_mask(mask, k[0] as f64, k[1] as f64))
+        .zip(flags)
+        .filter(|&(k, &f)| f == wanted && on_mask(mask, k[0] as f64, k[1] as f64))
         .count()
 }
 

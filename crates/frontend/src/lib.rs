@@ -258,13 +258,14 @@ struct CarriedDetections {
     boxes: Vec<Detection>,
 }
 
-/// Whether a box reaches the left or right edge of an image `width` pixels wide (within 4 px):
-/// someone coming into view, or leaving it.
+/// Whether a box reaches the left or right edge of an image `width` pixels wide (within
+/// [`stillpoint_dynamic::AT_BORDER_PX`], as boxes carried in view keep such edges): someone
+/// coming into view, or leaving it.
 fn at_side_edge(boxes: &[Detection], width: f32) -> bool {
-    const SIDE_EDGE_PX: f32 = 4.0;
+    use stillpoint_dynamic::AT_BORDER_PX;
     boxes
         .iter()
-        .any(|d| d.bbox.x1 <= SIDE_EDGE_PX || d.bbox.x2 >= width - SIDE_EDGE_PX)
+        .any(|d| d.bbox.x1 <= AT_BORDER_PX || d.bbox.x2 >= width - AT_BORDER_PX)
 }
 
 /// Frames after which boxes carried from an older detection are dropped.

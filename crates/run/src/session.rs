@@ -374,13 +374,7 @@ pub fn run_sequence(
                 stillpoint_eval::movers::moving_keypoints_kept(m, &r.keypoints, &r.dynamic)
             }),
             inliers_on_movers = truth_mask.as_ref().map(|m| {
-                r.keypoints
-                    .iter()
-                    .zip(&r.matched)
-                    .filter(|&(k, &hit)| {
-                        hit && stillpoint_eval::movers::on_mask(m, k[0] as f64, k[1] as f64)
-                    })
-                    .count()
+                stillpoint_eval::movers::moving_keypoints_matched(m, &r.keypoints, &r.matched)
             }),
             "tracked"
         );
