@@ -22,7 +22,8 @@ use crate::data::{KfId, Map, MpId, SharedMap};
 use crate::hamming;
 use crate::optimize::{BaObservation, BaProblem, local_bundle_adjustment};
 
-/// Points handled under one taking of the map lock (updates, fusion candidates): ~1 ms of work.
+/// Points handled under one taking of the map lock (new points, updates, fusion candidates):
+/// ~1 ms of work.
 const POINTS_PER_LOCK: usize = 200;
 
 /// Run `f` on `items`, `POINTS_PER_LOCK` at a time, each batch under its own lock; false when
@@ -171,21 +172,22 @@ impl LocalMapper {
             let Ok(m) = map.lock() else { return };
             self.triangulate_with_neighbour(&m, kf, kf2, &free1, &mut created);
         }
-        let Ok(mut m) = map.lock() else { return };
-        for (x, i, kf2, j) in created {
+        let recent = &mut self.recent_points;
+        let scales = &self.scales;
+        in_batches(map, &created, |m, &(x, i, kf2, j)| {
             let (Some(k1), Some(k2)) = (m.keyframes.get(&kf), m.keyframes.get(&kf2)) else {
-                continue;
+                return;
             };
             // An earlier neighbour may have taken either keypoint.
             if k1.map_points[i].is_some() || k2.map_points[j].is_some() {
-                continue;
+                return;
             }
             if let Some(mp) = m.add_point(x, kf, i) {
                 m.add_observation(mp, kf2, j);
-                m.update_point(mp, &self.scales);
-                self.recent_points.push(mp);
+                m.update_point(mp, scales);
+                recent.push(mp);
             }
-        }
+        });
     }
 
     /// [`LocalMapper::create_new_points`] with one neighbour `kf2`: the free keypoints `free1`
