@@ -181,8 +181,8 @@ pub use settings::{
     KeypointMotionParams,
 };
 pub use world_motion::{
-    WorldMotion, WorldMotionParams, WorldSource, judge_against_world, keypoint_world_residual,
-    lift_keypoint, world_motion, world_residuals,
+    NewPointCheck, WorldMotion, WorldMotionParams, WorldSource, judge_against_world,
+    keypoint_world_residual, lift_keypoint, new_point_check, world_motion, world_residuals,
 };
 
 #[cfg(test)]

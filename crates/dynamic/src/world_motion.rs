@@ -21,6 +21,7 @@
 //! gives no evidence either way. When the two-frame consensus and the map disagree, the map
 //! wins: [`judge_against_world`] replaces the outlier flags of the paper's check.
 
+use crate::keypoint_motion::KeypointMotion;
 use crate::motion_consistency::{MotionCheck, MotionModel, TrackedPoint};
 use crate::seated_motion::{lift, reprojection, smooth_depth_at};
 use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3, refine_pose_reprojection};
@@ -79,6 +80,12 @@ pub struct WorldMotionParams {
     /// keypoints of coarse pyramid levels sit on a grid of up to 2-4 px, and at 1.5 px 1 % of a
     /// still plain room's keypoints a frame were called moving).
     pub new_point_moving_above_px: f32,
+    /// A keypoint that could be checked that way but whose backward track is lost
+    /// ([`NewPointCheck::Lost`]) counts as moved (ours, on: a walker entering at the side edge,
+    /// not yet boxed, was tracked back on few of its corners, and the rest made points that
+    /// dragged real-time runs of living_turn 1-3 cm; the sequential matrix did not move, though
+    /// 10-15 % of a turning room's checkable corners are lost so).
+    pub new_point_lost_track_moved: bool,
     /// Kept keypoints within this many pixels of at least two such moving keypoints, at their
     /// depth (within max(0.3 m, 15 %)), make no map points either (ours: 40; a mover's blurred
     /// or plain parts give no evidence of their own).
@@ -101,6 +108,7 @@ impl Default for WorldMotionParams {
             check_new_points: true,
             new_point_min_corner_strength: 20.0,
             new_point_moving_above_px: 3.0,
+            new_point_lost_track_moved: true,
             new_point_radius_px: 40.0,
         }
     }
@@ -320,6 +328,53 @@ pub fn keypoint_world_residual(
     let cam = p.camera.as_ref()?;
     let r = reprojection(cam, cur_to_prev, lifted, prev_px);
     r.is_finite().then_some(r as f32)
+}
+
+/// What the new-point check found of one keypoint ([`new_point_check`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NewPointCheck {
+    /// Found in the previous frame where the static world puts it.
+    Still,
+    /// Found there more than [`WorldMotionParams::new_point_moving_above_px`] away.
+    Moved,
+    /// Not found: the backward track failed, left the image, or came back more than
+    /// `max_fb_error_px` off (it moved, something that moved hid it, or it came into view).
+    Lost,
+}
+
+/// The new-point check of a keypoint whose point is `lifted` ([`lift_keypoint`]), given its
+/// backward track `motion` ([`crate::keypoint_motion()`]) and the frame's camera motion
+/// `cur_to_prev` as the static world says.
+///
+/// ```
+/// use stillpoint_dynamic::{KeypointMotion, MotionModel, NewPointCheck, WorldMotionParams,
+///     new_point_check};
+/// use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
+/// let p = WorldMotionParams { camera: Some(PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480)), ..Default::default() };
+/// let still = Se3::identity(); // the camera stood still
+/// let found = |prev, fb_error| Some(KeypointMotion { prev, residual: 0.0, fb_error, model: MotionModel::Flow });
+/// let centre = Vec3::new(0.0, 0.0, 2.0); // seen at (320, 240)
+/// assert_eq!(new_point_check(&centre, found([320.5, 240.0], 0.1), &still, &p, 0.5), NewPointCheck::Still);
+/// assert_eq!(new_point_check(&centre, found([330.0, 240.0], 0.1), &still, &p, 0.5), NewPointCheck::Moved);
+/// assert_eq!(new_point_check(&centre, found([320.0, 240.0], 2.0), &still, &p, 0.5), NewPointCheck::Lost);
+/// assert_eq!(new_point_check(&centre, None, &still, &p, 0.5), NewPointCheck::Lost);
+/// ```
+pub fn new_point_check(
+    lifted: &Vec3,
+    motion: Option<KeypointMotion>,
+    cur_to_prev: &Se3,
+    p: &WorldMotionParams,
+    max_fb_error_px: f32,
+) -> NewPointCheck {
+    let Some(m) = motion.filter(|m| m.fb_error <= max_fb_error_px) else {
+        return NewPointCheck::Lost;
+    };
+    let r = keypoint_world_residual(lifted, m.prev, cur_to_prev, p);
+    if r.is_some_and(|r| r > p.new_point_moving_above_px) {
+        NewPointCheck::Moved
+    } else {
+        NewPointCheck::Still
+    }
 }
 
 /// True when the 7x7 patch of `img` around `at` is a corner LK can follow: the smaller

@@ -678,7 +678,9 @@ impl DynamicFrontEnd {
 
     /// Map hygiene against movers no box covers: each kept keypoint that may make a map point
     /// is tracked back into the previous frame and judged against the static world's camera
-    /// motion; one that moved makes none (`WorldMotionParams::check_new_points`).
+    /// motion; one that moved, or that cannot be found there
+    /// (`WorldMotionParams::new_point_lost_track_moved`), makes none
+    /// (`WorldMotionParams::check_new_points`).
     #[allow(clippy::too_many_arguments)]
     fn bar_moving_new_points(
         &self,
@@ -716,23 +718,30 @@ impl DynamicFrontEnd {
         let depths =
             stillpoint_dynamic::depth::keypoint_depths(depth, kps, &self.settings.dynamic.depth);
         let cur_to_prev = motion.inverse();
+        use stillpoint_dynamic::NewPointCheck;
         let mut moving: Vec<usize> = Vec::new();
-        let mut judged = 0;
-        for (i, (m, point)) in motion_of.iter().zip(&lifted).enumerate() {
-            let (Some(m), Some(point)) = (m, point) else {
+        let (mut judged, mut lost) = (0, 0);
+        for (i, (&m, point)) in motion_of.iter().zip(&lifted).enumerate() {
+            let Some(point) = point else {
                 continue;
             };
-            if m.fb_error > km.max_fb_error_px {
-                continue;
-            }
-            judged += 1;
-            let r = stillpoint_dynamic::keypoint_world_residual(point, m.prev, &cur_to_prev, p);
-            if r.is_some_and(|r| r > p.new_point_moving_above_px) {
-                moving.push(i);
+            match stillpoint_dynamic::new_point_check(point, m, &cur_to_prev, p, km.max_fb_error_px)
+            {
+                NewPointCheck::Still => judged += 1,
+                NewPointCheck::Moved => {
+                    judged += 1;
+                    moving.push(i);
+                }
+                NewPointCheck::Lost => {
+                    lost += 1;
+                    if p.new_point_lost_track_moved {
+                        moving.push(i);
+                    }
+                }
             }
         }
         tracing::debug!(
-            "new points: {} candidates, {} with a residual, {judged} tracked back, {} moved",
+            "new points: {} candidates, {} with a residual, {judged} tracked back, {lost} lost, {} moved",
             candidates.iter().filter(|&&c| c).count(),
             tracked.iter().filter(|&&t| t).count(),
             moving.len()
