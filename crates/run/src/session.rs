@@ -357,10 +357,11 @@ pub fn run_sequence(
         let truth_mask = has_masks
             .then(|| stillpoint_eval::movers::moving_mask(&o.dataset, frame.timestamp))
             .flatten();
+        let kept_on_movers = truth_mask
+            .as_ref()
+            .map(|m| stillpoint_eval::movers::moving_keypoints_kept(m, &r.keypoints, &r.dynamic));
         if has_masks {
-            moving_kept.push(truth_mask.as_ref().map_or(0, |m| {
-                stillpoint_eval::movers::moving_keypoints_kept(m, &r.keypoints, &r.dynamic)
-            }));
+            moving_kept.push(kept_on_movers.unwrap_or(0));
         }
         tracing::debug!(
             frame = i,
@@ -370,9 +371,7 @@ pub fn run_sequence(
             inliers = r.inliers,
             keyframe = r.new_keyframe,
             // Synthetic sequences: kept keypoints and pose inliers on the generator's movers.
-            kept_on_movers = truth_mask.as_ref().map(|m| {
-                stillpoint_eval::movers::moving_keypoints_kept(m, &r.keypoints, &r.dynamic)
-            }),
+            kept_on_movers,
             inliers_on_movers = truth_mask.as_ref().map(|m| {
                 stillpoint_eval::movers::moving_keypoints_matched(m, &r.keypoints, &r.matched)
             }),
