@@ -9,16 +9,17 @@ pub fn stillpoint() -> Command {
     Command::new(env!("CARGO_BIN_EXE_stillpoint"))
 }
 
-/// `stillpoint run --detector none --sequential --json --dataset SEQ --out TRAJ`.
+/// `stillpoint run --detector none --json --dataset SEQ --out TRAJ` (the default mode, which on
+/// a file is `--sequential`'s, `file_runs.rs`).
 pub fn run_without_detector(seq: &Path, traj: &Path) -> Output {
     run_without_detector_on(&["--dataset", path_str(seq)], traj)
 }
 
-/// `stillpoint run --detector none --sequential --json SOURCE.. --out TRAJ`, the source being
+/// `stillpoint run --detector none --json SOURCE.. --out TRAJ`, the source being
 /// `--dataset D` or `--bag F --rgb-topic ..`.
 pub fn run_without_detector_on(source: &[&str], traj: &Path) -> Output {
     stillpoint()
-        .args(["run", "--detector", "none", "--sequential", "--json"])
+        .args(["run", "--detector", "none", "--json"])
         .args(source)
         .arg("--out")
         .arg(traj)

@@ -11,6 +11,7 @@ mod dynamic_real_tum;
 mod dynamic_synth;
 mod eval_cli;
 mod fault_injection;
+mod file_runs;
 mod map_files;
 mod mcap_run;
 mod record_run;

@@ -88,7 +88,7 @@ use crate::common::stillpoint;
 
 /// `stillpoint synth --preset static --frames N` into `dir`, then depth.txt removed: a TUM folder
 /// that reads as monocular.
-fn synth_mono(dir: &Path, frames: usize) {
+pub fn synth_mono(dir: &Path, frames: usize) {
     let st = stillpoint()
         .args(["synth", "--preset", "static", "--frames"])
         .arg(frames.to_string())

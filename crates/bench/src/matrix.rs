@@ -39,7 +39,9 @@ pub struct MatrixOptions {
     pub model: Option<PathBuf>,
     /// Runs at a time.
     pub jobs: usize,
-    /// Local mapping in its own thread (sequential otherwise, so that tables are reproducible).
+    /// Local mapping in its own thread, as for a camera (`slam.local_mapping_thread`); by
+    /// default each run is `run`'s default on a recording, whose result does not depend on
+    /// timing.
     pub threaded: bool,
     /// Also write each run's dense cloud (RGB-D) and measure it: points on movers and the
     /// distance to the scene's true static surfaces.
@@ -142,9 +144,16 @@ fn run_one(
             out: Some(out),
             dense_cloud: cloud.clone(),
             detector: (mode != "off").then(|| mode.to_string()),
-            sequential: !o.threaded,
             model: o.model.clone(),
             stop: o.stop,
+            overrides: stillpoint_run::Overrides {
+                sets: o
+                    .threaded
+                    .then(|| "slam.local_mapping_thread=true".to_string())
+                    .into_iter()
+                    .collect(),
+                ..Default::default()
+            },
             ..RunOptions::new(dir.to_path_buf())
         },
         &mut |_| {},

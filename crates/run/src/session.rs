@@ -108,9 +108,23 @@ pub fn run_sequence(
 ) -> Result<RunSummary, RunError> {
     let seq = open_sequence(o)?;
     let ds = seq.settings().clone();
-    let tree = settings_layers(&ds, o.settings.as_deref(), o.paper_cull, &o.overrides)?.tree;
+    let layers = settings_layers(&ds, o.settings.as_deref(), o.paper_cull, &o.overrides)?;
+    let tree = layers.tree;
     let mut pipeline_settings = tree.pipeline();
-    pipeline_settings.slam.local_mapping_thread = !o.sequential;
+    // A recording is not a race: mapped inline, its trajectory is the same however busy the
+    // machine is (on its own thread, a mapper that falls behind leaves tracking without the
+    // points of the last keyframes, and a monocular run then loses them). A camera and
+    // `--realtime` cannot wait for the mapper: they map on its own thread unless the settings
+    // say otherwise.
+    // A live source has no known end (len usize::MAX): frames are counted as they come.
+    let live = seq.len() == usize::MAX;
+    if !layers.sources.contains_key("slam.local_mapping_thread") {
+        pipeline_settings.slam.local_mapping_thread = live || o.realtime;
+    }
+    if o.sequential {
+        pipeline_settings.slam.local_mapping_thread = false;
+    }
+    let mapping_thread = pipeline_settings.slam.local_mapping_thread;
     pipeline_settings.slam.loop_closing.enabled &= !o.overrides.no_loop_closing;
     let vocabulary = o
         .overrides
@@ -270,8 +284,6 @@ pub fn run_sequence(
         None => Pipeline::new(pipeline_settings, front, vocabulary),
     };
     let mut first_relocalisation = None;
-    // A live source has no known end (len usize::MAX): frames are counted as they come.
-    let live = seq.len() == usize::MAX;
     let mut times: Vec<FrameTimings> = Vec::with_capacity(n.min(1 << 16));
     let mut record_ms = Vec::new();
     let mut written: Option<f64> = None;
@@ -591,7 +603,7 @@ pub fn run_sequence(
     }
     timings.push(("orb", pick(|t| t.orb_ms)));
     timings.push(("tracking", pick(|t| t.tracking_ms)));
-    if !o.sequential {
+    if mapping_thread {
         // Only a mapping thread can hold the map while a frame waits.
         timings.push(("tracking: waiting for the map", pick(|t| t.map_wait_ms)));
     }

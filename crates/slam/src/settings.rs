@@ -157,8 +157,10 @@ pub struct SlamSettings {
     pub kf_redundancy: f64,
     /// Local BA iterations before and after outlier removal (ORB-SLAM3: 5 + 10).
     pub ba_iterations: [usize; 2],
-    /// Run local mapping in its own thread (ORB-SLAM3 does). `false` runs it inline after each
-    /// keyframe: deterministic, used by tests and the demo.
+    /// Run local mapping (and loop closing) in their own threads, as ORB-SLAM3 does: for live
+    /// input, where tracking must not wait for them (`run` sets it for a camera and
+    /// `--realtime`). `false` (the default) maps inline after each keyframe: the result is the
+    /// same however busy the machine is, which a recording needs.
     pub local_mapping_thread: bool,
     /// How many nice steps (Linux) the local-mapping and loop-closing threads run below tracking.
     /// On two cores beside a detector, tracking must not wait for mapping (ORB-SLAM's tracking is
@@ -300,7 +302,7 @@ impl SlamSettings {
             point_min_observations: 3,
             kf_redundancy: 0.9,
             ba_iterations: [5, 10],
-            local_mapping_thread: true,
+            local_mapping_thread: false,
             background_nice: 10,
             new_map_after_lost_frames: fps.max(1.0).round() as usize,
             reloc_candidates: 20,

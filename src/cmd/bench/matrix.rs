@@ -45,8 +45,8 @@ pub struct Args {
     /// Runs at a time.
     #[arg(long, default_value_t = 2)]
     pub jobs: usize,
-    /// Local mapping in its own thread (the default of `run`); sequential by default here, so
-    /// that tables are reproducible.
+    /// Local mapping in its own thread, as `run` maps a camera or `--realtime` (by default each
+    /// run is `run`'s default on a recording, which does not depend on timing).
     #[arg(long)]
     pub threaded: bool,
     /// Also write each run's dense cloud and measure it: points on movers and distance to the

@@ -1,0 +1,119 @@
+//! A recording is not a race: `stillpoint run` on a file, in its default mode, gives the
+//! trajectory of `--sequential` byte for byte while other threads keep both cores busy (a
+//! compiler, a browser, a second run on the user's machine). Monocular suffered most: a mapper
+//! that fell behind left tracking without the last keyframes' points, and the run lost its map.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use crate::common::{assert_ok, path_str, stillpoint, synth_walking};
+use crate::slam_mono::synth_mono;
+
+/// Threads that spin until dropped: one per core, so the run under test shares them.
+struct Busy {
+    stop: Arc<AtomicBool>,
+    threads: Vec<std::thread::JoinHandle<u64>>,
+}
+
+impl Busy {
+    fn start() -> Self {
+        let stop = Arc::new(AtomicBool::new(false));
+        let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
+        let threads = (0..cores)
+            .map(|i| {
+                let stop = stop.clone();
+                std::thread::spawn(move || {
+                    let mut x = i as u64 + 1;
+                    while !stop.load(Ordering::Relaxed) {
+                        x = std::hint::black_box(x.wrapping_mul(6_364_136_223_846_793_005) + 1);
+                    }
+                    x
+                })
+            })
+            .collect();
+        Self { stop, threads }
+    }
+}
+
+impl Drop for Busy {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
+/// `stillpoint run --json --dataset SEQ --out TRAJ EXTRA..`: the trajectory file's bytes and the
+/// JSON summary.
+fn run(seq: &Path, traj: &Path, extra: &[&str]) -> (Vec<u8>, serde_json::Value) {
+    let out = stillpoint()
+        .args([
+            "run",
+            "--json",
+            "--dataset",
+            path_str(seq),
+            "--out",
+            path_str(traj),
+        ])
+        .args(extra)
+        .output()
+        .unwrap();
+    assert_ok(&out);
+    let summary = serde_json::from_slice(&out.stdout).unwrap();
+    (std::fs::read(traj).unwrap(), summary)
+}
+
+/// The default run under load against `--sequential` on an idle machine, `extra` for both.
+fn same_as_sequential_under_load(seq: &Path, extra: &[&str]) -> serde_json::Value {
+    let dir = seq.parent().unwrap();
+    let mut sequential = vec!["--sequential"];
+    sequential.extend_from_slice(extra);
+    let (expected, _) = run(seq, &dir.join("sequential.txt"), &sequential);
+    let busy = Busy::start();
+    let (got, summary) = run(seq, &dir.join("default.txt"), extra);
+    drop(busy);
+    assert!(
+        expected == got,
+        "{}: the default run's trajectory differs from --sequential's: {summary}",
+        seq.display()
+    );
+    summary
+}
+
+#[test]
+fn a_monocular_file_run_on_a_busy_machine_is_the_sequential_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("mono");
+    synth_mono(&seq, 60);
+    let summary = same_as_sequential_under_load(&seq, &["--detector", "none"]);
+    assert_eq!(summary["sensor"], "mono", "{summary}");
+    assert!(summary["tracked"].as_u64().unwrap() >= 30, "{summary}");
+}
+
+#[test]
+fn an_rgbd_file_run_with_the_front_end_on_a_busy_machine_is_the_sequential_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("walking");
+    synth_walking(&seq, 90, &[]);
+    let summary = same_as_sequential_under_load(&seq, &["--detector", "gt"]);
+    assert_eq!(summary["sensor"], "rgbd", "{summary}");
+    assert_eq!(summary["tracked"], 90, "{summary}");
+    // The mapping thread is still there for whoever asks for it (a camera, `--realtime`).
+    let (_, threaded) = run(
+        &seq,
+        &tmp.path().join("threaded.txt"),
+        &[
+            "--detector",
+            "gt",
+            "--set",
+            "slam.local_mapping_thread=true",
+        ],
+    );
+    let rows = threaded["timing"].as_object().unwrap();
+    assert!(
+        rows.contains_key("tracking: waiting for the map"),
+        "{threaded}"
+    );
+}
