@@ -408,7 +408,14 @@ pub fn cull_frame(
             };
             cull_with_depth(&input, &s.cull, &s.depth)
         }
-        _ => cull_with(keypoints, states, tracked, &s.cull),
+        Some(_) => cull_with(keypoints, states, tracked, &s.cull),
+        None => {
+            let cull = CullParams {
+                unknown_objects: s.cull.unknown_objects && s.cull.unknown_objects_without_depth,
+                ..s.cull.clone()
+            };
+            cull_with(keypoints, states, tracked, &cull)
+        }
     }
 }
 
@@ -593,8 +600,13 @@ mod tests {
         let s = settings(); // unknown objects on by default
         let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &s);
         assert_eq!(removed, vec![true, false, false]);
-        // Without depth the wall point goes too (the paper's image-only rule).
+        // Without depth the rule is off by default (monocular: box-less outliers lie all over
+        // the static world); asked for, the wall point goes too (the paper's image-only rule).
         let removed = cull_frame(&keypoints, &mut states, &tracked, None, &s);
+        assert_eq!(removed, vec![false; 3]);
+        let mut image_only = settings();
+        image_only.cull.unknown_objects_without_depth = true;
+        let removed = cull_frame(&keypoints, &mut states, &tracked, None, &image_only);
         assert_eq!(removed, vec![true, true, false]);
         // Off (the paper): nothing outside a box is culled.
         let mut off = settings();

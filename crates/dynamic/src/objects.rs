@@ -46,8 +46,12 @@ use crate::judge::{BoxPart, BoxState, Verdict};
 /// What one frame says about a box.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Evidence {
-    /// Motion seen (the box's rule judged it dynamic).
+    /// Motion seen (the box's rule judged it dynamic) against the static world's motion.
     Moving,
+    /// Motion seen by the two-frame check alone (no static-world check: monocular, stereo):
+    /// motion for a movable object, a hint for one that does not move on its own
+    /// ([`ObjectParams::unmovable_moving_frames`]).
+    MovingByTwoFrames,
     /// Enough tracks judged against the static world, and none moving.
     Still,
     /// Too little to tell, or only the two-frame check spoke.
@@ -81,6 +85,12 @@ pub struct ObjectParams {
     /// case, a person at a desk, whose still torso the map may use from the first frame; one
     /// frame of motion evidence makes a part moving as for any object.
     pub seated_parts_start_still: bool,
+    /// Consecutive frames of [`Evidence::MovingByTwoFrames`] before an object of a class that
+    /// does not move on its own (not in `movable_classes`: a bed, a sofa, a table) turns moving
+    /// (ours: 3). Without a static-world check nothing ever proves such an object still again,
+    /// and one frame of a bed's bedding deformed by children jumping on it made the whole bed
+    /// a mover for good: monocular, its box took most of the image, and the map never started.
+    pub unmovable_moving_frames: u32,
 }
 
 impl Default for ObjectParams {
@@ -96,6 +106,7 @@ impl Default for ObjectParams {
             still_min_tracks: 8,
             forget_after_frames: 30,
             seated_parts_start_still: false,
+            unmovable_moving_frames: 3,
         }
     }
 }
@@ -115,6 +126,8 @@ pub struct TrackedObject {
     pub moving: bool,
     /// Consecutive frames of [`Evidence::Still`] (reset by motion).
     pub still_frames: u32,
+    /// Consecutive frames of [`Evidence::MovingByTwoFrames`].
+    pub moving_hints: u32,
     /// Frame it was last seen in.
     pub last_seen: usize,
     /// Frames it has been seen in.
@@ -199,6 +212,7 @@ impl ObjectTracker {
                         } else {
                             0
                         },
+                        moving_hints: 0,
                         last_seen: frame,
                         seen: 0,
                     });
@@ -210,11 +224,23 @@ impl ObjectTracker {
             obj.bbox = st.bbox;
             obj.last_seen = frame;
             obj.seen += 1;
-            match evidence.get(s).copied().unwrap_or(Evidence::Inconclusive) {
+            let seen = evidence.get(s).copied().unwrap_or(Evidence::Inconclusive);
+            obj.moving_hints = match seen {
+                Evidence::MovingByTwoFrames => obj.moving_hints.saturating_add(1),
+                _ => 0,
+            };
+            match seen {
                 Evidence::Moving => {
                     obj.moving = true;
                     obj.still_frames = 0;
                 }
+                Evidence::MovingByTwoFrames
+                    if movable || obj.moving_hints >= p.unmovable_moving_frames =>
+                {
+                    obj.moving = true;
+                    obj.still_frames = 0;
+                }
+                Evidence::MovingByTwoFrames => {}
                 Evidence::Still => {
                     obj.still_frames = obj.still_frames.saturating_add(1);
                     if obj.still_frames >= p.still_frames_to_static {
@@ -261,6 +287,7 @@ pub enum WorldCheck {
 pub fn evidence_of(state: &BoxState, world: WorldCheck, min_tracks: usize) -> Evidence {
     match state.verdict {
         Verdict::Dynamic if world == WorldCheck::Missing => Evidence::Inconclusive,
+        Verdict::Dynamic if world == WorldCheck::NotUsed => Evidence::MovingByTwoFrames,
         Verdict::Dynamic => Evidence::Moving,
         Verdict::Static
             if world == WorldCheck::Judged
@@ -360,7 +387,10 @@ mod tests {
         assert_eq!(evidence_of(&still, Missing, 8), Evidence::Inconclusive);
         assert_eq!(evidence_of(&still, Judged, 30), Evidence::Inconclusive);
         let moving = state(0, 0.0, Verdict::Dynamic);
-        assert_eq!(evidence_of(&moving, NotUsed, 8), Evidence::Moving);
+        assert_eq!(
+            evidence_of(&moving, NotUsed, 8),
+            Evidence::MovingByTwoFrames
+        );
         assert_eq!(evidence_of(&moving, Judged, 8), Evidence::Moving);
         let unknown = state(0, 0.0, Verdict::StaticUnknown);
         assert_eq!(evidence_of(&unknown, Judged, 0), Evidence::Inconclusive);
@@ -381,11 +411,49 @@ mod tests {
         let e = [evidence_of(&s[0], WorldCheck::Judged, p.still_min_tracks)];
         t.update(2, &mut s, &e, &p);
         assert_eq!(s[0].verdict, Verdict::Static);
-        // Without depth the two-frame check is the evidence, as in the paper.
+        // Without depth the two-frame check is the evidence, as in the paper, once it persists
+        // for `unmovable_moving_frames` frames.
         let mut t = ObjectTracker::default();
-        let mut s = [state(TV, 0.0, Verdict::Dynamic)];
-        let e = [evidence_of(&s[0], WorldCheck::NotUsed, p.still_min_tracks)];
-        t.update(1, &mut s, &e, &p);
-        assert_eq!(s[0].verdict, Verdict::Dynamic);
+        for frame in 1..=p.unmovable_moving_frames as usize {
+            let mut s = [state(TV, 0.0, Verdict::Dynamic)];
+            let e = [evidence_of(&s[0], WorldCheck::NotUsed, p.still_min_tracks)];
+            t.update(frame, &mut s, &e, &p);
+            let expected = if frame < p.unmovable_moving_frames as usize {
+                Verdict::Static
+            } else {
+                Verdict::Dynamic
+            };
+            assert_eq!(s[0].verdict, expected, "frame {frame}");
+        }
+    }
+
+    /// Monocular: children jump on a bed, and the two-frame check finds the bedding's outliers
+    /// above ATA's ratio on some frames and below it on others. The bed is never culled; a person
+    /// is a mover from the first hint.
+    #[test]
+    fn intermittent_two_frame_motion_never_makes_a_bed_move() {
+        const BED: u16 = 59;
+        let p = ObjectParams::default();
+        let mut t = ObjectTracker::default();
+        let verdicts = [
+            Verdict::Static,
+            Verdict::Dynamic,
+            Verdict::Dynamic,
+            Verdict::Static,
+            Verdict::Dynamic,
+            Verdict::Static,
+            Verdict::Dynamic,
+            Verdict::Dynamic,
+        ];
+        for (frame, v) in verdicts.into_iter().enumerate() {
+            let mut s = [state(BED, frame as f32, v), state(0, 400.0, v)];
+            let e = [
+                evidence_of(&s[0], WorldCheck::NotUsed, p.still_min_tracks),
+                evidence_of(&s[1], WorldCheck::NotUsed, p.still_min_tracks),
+            ];
+            t.update(frame, &mut s, &e, &p);
+            assert_eq!(s[0].verdict, Verdict::Static, "bed, frame {frame}");
+            assert_eq!(s[1].verdict, Verdict::Dynamic, "person, frame {frame}");
+        }
     }
 }

@@ -320,7 +320,11 @@ fn paper_settings_cull_as_algorithm_3() {
     let removed = crate::cull_frame(&kp, &mut states, &pts, None, &paper);
     assert_eq!(removed, cull(&kp, &states));
     assert_eq!(removed, vec![false, true, false, false]);
-    let ours = crate::DynamicSettings::default();
+    // Our defaults: the unknown-object rule needs depth (or, for stereo, asking).
+    let mut ours = crate::DynamicSettings::default();
+    let removed = crate::cull_frame(&kp, &mut states, &pts, None, &ours);
+    assert_eq!(removed, vec![false, true, false, false]);
+    ours.cull.unknown_objects_without_depth = true;
     let removed = crate::cull_frame(&kp, &mut states, &pts, None, &ours);
     assert_eq!(removed, vec![true, true, false, false]);
 }

@@ -104,6 +104,12 @@ pub struct FrontEndSettings {
     /// Outliers needed within `outlier_guard_radius_px` (1 = any; 2 measured worse: YOLOX
     /// walking_xyz 13.4 cm at 30 px against 7.8 with 1).
     pub outlier_guard_min: usize,
+    /// The outlier guard on frames without depth too (ours: off for monocular, on for stereo,
+    /// whose depth comes after the front-end). Monocular, the two-frame
+    /// check's outliers cover the static world of a forward-moving or hand-held camera; the
+    /// guard kept a static highway's keypoints from making points, and the map thinned (KITTI
+    /// 01, first 51 frames: 43 keyframes without the front-end, 31 with it).
+    pub outlier_guard_without_depth: bool,
     /// Ours: keypoints culled only because they lie in a mostly still part of a seated person
     /// (NHBC's split; see `seated_still_max_outlier_share`) are tracked against the map but
     /// create no map points, and seated people are not taken as moving on the first frame. Why:
@@ -211,6 +217,7 @@ impl Default for FrontEndSettings {
             no_new_points_in_dynamic_boxes: true,
             outlier_guard_radius_px: 60.0,
             outlier_guard_min: 1,
+            outlier_guard_without_depth: false,
             seated_track_only: false,
             seated_still_max_outlier_share: 0.3,
             seated_motion: SeatedMotionParams::default(),
@@ -868,7 +875,8 @@ impl DynamicFrontEnd {
             frame.depth,
             &self.settings.dynamic,
         );
-        out.no_new_points = self.no_new_points(kps, &out.dynamic, &states, &[]);
+        out.no_new_points =
+            self.no_new_points(kps, &out.dynamic, &states, &[], frame.depth.is_some());
         self.add_hygiene(&mut out, kps, &states, &decisions, frame.depth);
         out
     }
@@ -912,9 +920,12 @@ impl DynamicFrontEnd {
         dynamic: &[bool],
         states: &[BoxState],
         tracked: &[TrackedPoint],
+        has_depth: bool,
     ) -> Vec<bool> {
         let s = &self.settings;
-        let guard = s.outlier_guard_radius_px > 0.0 && !tracked.is_empty();
+        let guard = s.outlier_guard_radius_px > 0.0
+            && !tracked.is_empty()
+            && (has_depth || s.outlier_guard_without_depth);
         if !s.no_new_points_in_dynamic_boxes && !guard {
             return Vec::new();
         }
@@ -1143,7 +1154,8 @@ impl DynamicFrontEnd {
         out.semantic_ms = semantic_ms;
         out.geometry_ms = geometry_ms;
         let settings = &self.settings.dynamic;
-        let mut states = stillpoint_dynamic::judge_boxes(&dets, &check.points, &settings.judge);
+        let judge = settings.judge.on_frame(frame.depth.is_some());
+        let mut states = stillpoint_dynamic::judge_boxes(&dets, &check.points, &judge);
         // Box memory (ours): dynamic boxes of the previous frame that the detector missed now.
         let carried =
             stillpoint_dynamic::carry_forward(&self.memory, &dets, &check.points, &settings.memory);
@@ -1264,7 +1276,13 @@ impl DynamicFrontEnd {
                 }
             }
         }
-        out.no_new_points = self.no_new_points(kps, &out.dynamic, &states, &check.points);
+        out.no_new_points = self.no_new_points(
+            kps,
+            &out.dynamic,
+            &states,
+            &check.points,
+            frame.depth.is_some(),
+        );
         if !track_only.is_empty() {
             if out.no_new_points.is_empty() {
                 out.no_new_points = vec![false; kps.len()];

@@ -64,6 +64,7 @@ pub fn settings_layers(
 fn paper_cull(s: &mut FrontEndSettings) {
     s.dynamic.depth.enabled = false;
     s.dynamic.cull.unknown_objects = false;
+    s.dynamic.judge.ata_ignores_person_points_without_depth = false;
     s.dynamic.keypoint_motion.enabled = false;
     s.seated_motion.enabled = false;
     s.dynamic.world.enabled = false;
