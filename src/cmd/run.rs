@@ -266,6 +266,9 @@ pub fn summary_json(s: &RunSummary) -> serde_json::Value {
         "moving_keypoints_kept_per_frame": s.moving_kept_stats().map(|(m, med, p90)| {
             serde_json::json!({"mean": m, "median": med, "p90": p90})
         }),
+        "static_keypoints_culled_share": s.static_culled_stats().map(|(m, med, p90)| {
+            serde_json::json!({"mean": m, "median": med, "p90": p90})
+        }),
         "moving_map_points": s.moving_map_points.map(|m| m.lying),
         "moving_map_points_seen": s.moving_map_points.map(|m| m.seen),
         "first_relocalisation": s.first_relocalisation,

@@ -73,6 +73,8 @@ pub struct Row {
     pub map_points_on_movers: Option<usize>,
     /// Of those, seen on a moving object by one keyframe or more.
     pub map_points_seen_on_movers: Option<usize>,
+    /// Median over frames of the share of static keypoints (off the masks' movers) culled.
+    pub static_culled_share: Option<f64>,
     /// With `dense`: the dense cloud's points, those mostly on movers, and its distance to the
     /// scene's true static surfaces (the cloud aligned as the ATE aligns the trajectory).
     pub dense: Option<DenseRow>,
@@ -196,6 +198,7 @@ fn run_one(
         map_points: s.map_points,
         map_points_on_movers: s.moving_map_points.map(|m| m.lying),
         map_points_seen_on_movers: s.moving_map_points.map(|m| m.seen),
+        static_culled_share: s.static_culled_stats().map(|(_, median, _)| median),
         dense,
         error: None,
     })
@@ -308,6 +311,7 @@ pub fn run_matrix(o: &MatrixOptions) -> Result<Vec<Row>, BenchError> {
                         map_points: 0,
                         map_points_on_movers: None,
                         map_points_seen_on_movers: None,
+                        static_culled_share: None,
                         dense: None,
                         error: Some(crate::error_chain(&e)),
                     });
@@ -339,6 +343,7 @@ mod tests {
             map_points,
             map_points_on_movers: movers,
             map_points_seen_on_movers: movers,
+            static_culled_share: None,
             dense: None,
             error: None,
         }

@@ -24,6 +24,23 @@ pub fn moving_keypoints_kept(mask: &Gray8, keypoints: &[[f32; 2]], dynamic: &[bo
     on_mask_where(mask, keypoints, dynamic, false)
 }
 
+/// The share of the keypoints off every moving object that the front-end culled (`dynamic`):
+/// static world lost to the culling. `None` when no keypoint lies off the movers.
+pub fn static_keypoints_culled_share(
+    mask: &Gray8,
+    keypoints: &[[f32; 2]],
+    dynamic: &[bool],
+) -> Option<f64> {
+    let (mut off_movers, mut culled) = (0usize, 0usize);
+    for (k, &d) in keypoints.iter().zip(dynamic) {
+        if !on_mask(mask, k[0] as f64, k[1] as f64) {
+            off_movers += 1;
+            culled += usize::from(d);
+        }
+    }
+    (off_movers > 0).then(|| culled as f64 / off_movers as f64)
+}
+
 /// Keypoints tracking `matched` to the map (pose inliers) that lie on a moving object.
 pub fn moving_keypoints_matched(mask: &Gray8, keypoints: &[[f32; 2]], matched: &[bool]) -> usize {
     on_mask_where(mask, keypoints, matched, true)
@@ -133,6 +150,29 @@ mod tests {
         assert!(!on_mask(&m, 6.0, 4.0));
         assert!(!on_mask(&m, -10.0, 2.0));
         assert!(!on_mask(&m, 100.0, 100.0));
+    }
+
+    #[test]
+    fn the_static_share_culled_counts_only_keypoints_off_the_movers() {
+        let m = mask();
+        // Two on the mover (one culled), four off it (one culled).
+        let kps = [
+            [4.0, 2.0],
+            [5.0, 3.0],
+            [0.0, 0.0],
+            [1.0, 1.0],
+            [2.0, 5.0],
+            [7.0, 0.0],
+        ];
+        let dynamic = [true, false, true, false, false, false];
+        assert_eq!(
+            static_keypoints_culled_share(&m, &kps, &dynamic),
+            Some(0.25)
+        );
+        assert_eq!(
+            static_keypoints_culled_share(&m, &kps[..2], &dynamic[..2]),
+            None
+        );
     }
 
     #[test]

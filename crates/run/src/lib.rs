@@ -188,6 +188,9 @@ pub struct RunSummary {
     /// With the generator's per-pixel masks (`mask/` of a `stillpoint synth --masks` sequence):
     /// keypoints handed to tracking that lie on moving objects, per frame.
     pub moving_kept_per_frame: Option<Vec<usize>>,
+    /// ... and the share of the keypoints off the moving objects that were culled, per frame
+    /// (static world the front-end took for movers).
+    pub static_culled_share_per_frame: Option<Vec<f64>>,
     /// ... and map points at the end with at least one keyframe observation on a moving object.
     pub moving_map_points: Option<stillpoint_eval::movers::MoversInMap>,
     /// Loop closing's statistics (`None` when it is off).
@@ -282,6 +285,14 @@ impl RunSummary {
             .map(|&c| c as f64)
             .collect();
         Some(stillpoint_eval::stats(&v))
+    }
+
+    /// mean / median / p90 of the share of static keypoints culled per frame, when the
+    /// sequence has masks.
+    pub fn static_culled_stats(&self) -> Option<(f64, f64, f64)> {
+        Some(stillpoint_eval::stats(
+            self.static_culled_share_per_frame.as_ref()?,
+        ))
     }
 }
 

@@ -292,6 +292,7 @@ pub fn run_sequence(
     let (mut tracked, mut relocs, mut new_maps) = (0, 0, 0);
     let has_masks = o.dataset.join("mask").is_dir();
     let mut moving_kept = Vec::new();
+    let mut static_culled = Vec::new();
     let mut depth_scale_checked = false;
     // For a run that tracks nothing: what the frames offered.
     let (mut frames_read, mut frames_with_depth, mut most_keypoints) = (0usize, 0usize, 0usize);
@@ -375,6 +376,11 @@ pub fn run_sequence(
             .map(|m| stillpoint_eval::movers::moving_keypoints_kept(m, &r.keypoints, &r.dynamic));
         if has_masks {
             moving_kept.push(kept_on_movers.unwrap_or(0));
+        }
+        if let Some(share) = truth_mask.as_ref().and_then(|m| {
+            stillpoint_eval::movers::static_keypoints_culled_share(m, &r.keypoints, &r.dynamic)
+        }) {
+            static_culled.push(share);
         }
         tracing::debug!(
             frame = i,
@@ -635,6 +641,7 @@ pub fn run_sequence(
         timings,
         detector: detector_name,
         moving_kept_per_frame: has_masks.then_some(moving_kept),
+        static_culled_share_per_frame: has_masks.then_some(static_culled),
         moving_map_points,
         loops,
         realtime: camera.is_some().then_some(realtime),
