@@ -38,8 +38,8 @@ pub use mcap::open as open_recording;
 pub use sequence::{DatasetKind, GroundTruthFormat, Sequence, detect_kind, open};
 pub use settings::{Sensor, Settings};
 pub use settings_file::{
-    parse_orbslam_yaml, parse_settings_toml, read_orbslam_yaml, read_settings, read_settings_toml,
-    write_settings_toml,
+    parse_orbslam_yaml, parse_settings_toml, read_orbslam_yaml, read_settings,
+    read_settings_for_images, read_settings_toml, write_settings_toml,
 };
 /// The ORB extractor's settings as a dataset's settings carry them (`Settings::orb`).
 pub use stillpoint_features::OrbParams;

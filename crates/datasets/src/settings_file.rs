@@ -201,10 +201,39 @@ impl Doc<'_> {
 /// The sensor is not in the file: a `DepthMapFactor` means RGB-D, else a `Camera.bf` (or
 /// `Stereo.b`) means stereo, else monocular.
 pub fn read_orbslam_yaml(path: &Path) -> Result<Settings, DatasetError> {
+    read_orbslam_yaml_sized(path, None)
+}
+
+fn read_orbslam_yaml_sized(
+    path: &Path,
+    image_size: Option<(u32, u32)>,
+) -> Result<Settings, DatasetError> {
     let raw = std::fs::read(path).map_err(io_err(path))?;
     let text = String::from_utf8(raw).map_err(|_| settings_err(path, "file is not valid UTF-8"))?;
     // A byte-order mark (Windows editors) is not part of the first key.
-    parse_orbslam_yaml(text.strip_prefix('\u{feff}').unwrap_or(&text), path)
+    parse_orbslam_yaml_sized(
+        text.strip_prefix('\u{feff}').unwrap_or(&text),
+        path,
+        image_size,
+    )
+}
+
+/// [`read_settings`] for a source that knows its images' size before the settings are read (a
+/// video, a camera): an ORB-SLAM file without `Camera.width` / `Camera.height` (ORB-SLAM2's
+/// own files have none) takes that size; a size the file gives must be the images' (checked
+/// where each frame is read).
+pub fn read_settings_for_images(
+    path: &Path,
+    image_size: (u32, u32),
+) -> Result<Settings, DatasetError> {
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+    {
+        read_settings_toml(path)
+    } else {
+        read_orbslam_yaml_sized(path, Some(image_size))
+    }
 }
 
 /// YAML aliases (`*name`) are refused: the loader copies the anchored node at each one, so a
@@ -233,6 +262,16 @@ fn refuse_aliases(text: &str, path: &Path) -> Result<(), DatasetError> {
 
 /// Parse the text of an ORB-SLAM settings file; `path` names it in messages.
 pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetError> {
+    parse_orbslam_yaml_sized(text, path, None)
+}
+
+/// [`parse_orbslam_yaml`]; a missing `Camera.width` / `Camera.height` takes `image_size` when
+/// it is given.
+fn parse_orbslam_yaml_sized(
+    text: &str,
+    path: &Path,
+    image_size: Option<(u32, u32)>,
+) -> Result<Settings, DatasetError> {
     let fixed = opencv_to_yaml(text);
     refuse_aliases(&fixed, path)?;
     let docs = YamlLoader::load_from_str(&fixed)
@@ -249,8 +288,12 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
     let fy = d.required(&["Camera.fy", "Camera1.fy"])?;
     let cx = d.required(&["Camera.cx", "Camera1.cx"])?;
     let cy = d.required(&["Camera.cy", "Camera1.cy"])?;
-    let dim = |keys: &[&str]| -> Result<u32, DatasetError> {
-        let v = d.required(keys)?;
+    let dim = |keys: &[&str], from_images: Option<u32>| -> Result<u32, DatasetError> {
+        let v = match (d.any(keys)?, from_images) {
+            (Some(v), _) => v,
+            (None, Some(n)) => return Ok(n),
+            (None, None) => d.required(keys)?,
+        };
         if (1.0..=100_000.0).contains(&v) && v.fract() == 0.0 {
             Ok(v as u32)
         } else {
@@ -260,8 +303,11 @@ pub fn parse_orbslam_yaml(text: &str, path: &Path) -> Result<Settings, DatasetEr
             ))
         }
     };
-    let width = dim(&["Camera.width", "Camera1.width"])?;
-    let height = dim(&["Camera.height", "Camera1.height"])?;
+    let width = dim(&["Camera.width", "Camera1.width"], image_size.map(|s| s.0))?;
+    let height = dim(
+        &["Camera.height", "Camera1.height"],
+        image_size.map(|s| s.1),
+    )?;
     let coef = |k: &str| -> Result<f64, DatasetError> {
         Ok(d.any(&[&format!("Camera.{k}"), &format!("Camera1.{k}")])?
             .unwrap_or(0.0))

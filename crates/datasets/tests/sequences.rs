@@ -492,3 +492,29 @@ fn an_image_of_another_size_is_told_from_its_header_before_it_is_decoded() {
     let e = seq.frame(2).unwrap_err().to_string();
     assert!(e.contains("depth/2.png: image is 50000x9"), "{e}");
 }
+
+/// ORB-SLAM2's own settings files give no image size: a source that knows it (a video) fills it
+/// in, a size the file gives is kept (and checked against each frame where it is read), and
+/// without an image size the key is still required, named in the error.
+#[test]
+fn a_settings_file_without_the_image_size_takes_the_images() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("TUM1.yaml");
+    let camera =
+        "%YAML:1.0\nCamera.fx: 517.3\nCamera.fy: 516.5\nCamera.cx: 318.6\nCamera.cy: 255.3\n";
+    std::fs::write(&p, camera).unwrap();
+    let s = stillpoint_datasets::read_settings_for_images(&p, (960, 540)).unwrap();
+    assert_eq!((s.camera.width, s.camera.height), (960, 540));
+    assert_eq!(s.camera.fx, 517.3);
+    let e = stillpoint_datasets::read_settings(&p)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("TUM1.yaml") && e.contains("Camera.width"), "{e}");
+    std::fs::write(
+        &p,
+        format!("{camera}Camera.width: 640\nCamera.height: 480\n"),
+    )
+    .unwrap();
+    let s = stillpoint_datasets::read_settings_for_images(&p, (960, 540)).unwrap();
+    assert_eq!((s.camera.width, s.camera.height), (640, 480));
+}

@@ -265,6 +265,7 @@ pub fn run_sequence(
         pipeline_settings.slam.init_min_with_depth,
         pipeline_settings.slam.init_min_cells_with_depth,
     );
+    let mono_init = pipeline_settings.slam.mono_init.clone();
     let mut dense = o.dense_cloud.as_ref().map(|_| {
         stillpoint_pipeline::dense::DenseFusion::new(
             tree.dense.clone(),
@@ -625,6 +626,7 @@ pub fn run_sequence(
         timings.push(("global BA after a loop", l.global_ba_ms.clone()));
         timings.push(("vocabulary training", l.training_ms.clone()));
     }
+    let culled_mean = culled.iter().sum::<usize>() as f64 / culled.len().max(1) as f64;
     Ok(RunSummary {
         name: seq.name(),
         sensor: ds.sensor,
@@ -669,6 +671,15 @@ pub fn run_sequence(
                     "the most keypoints a frame kept was {most_keypoints}; a map starts with \
                      {} (slam.init_min_keypoints; plain or dark images, or the front-end culled them)",
                     init.0
+                )
+            } else if ds.sensor == Sensor::Mono {
+                // Monocular has no depth: its map starts from two views with parallax.
+                format!(
+                    "the monocular map never started: no two frames gave {} matches with {}° of \
+                     parallax (slam.mono_init); the camera must move, not only turn. Up to \
+                     {most_keypoints} keypoints a frame were kept; the front-end culled \
+                     {culled_mean:.0} a frame",
+                    mono_init.min_matches, mono_init.min_parallax_deg
                 )
             } else {
                 format!(

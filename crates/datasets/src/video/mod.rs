@@ -40,7 +40,6 @@ pub const GUESSED_HFOV_DEG: f64 = 60.0;
 pub fn open(path: &Path, settings: Option<&Path>) -> Result<Box<dyn Sequence>, DatasetError> {
     #[cfg(feature = "video")]
     {
-        let settings = settings.map(crate::read_settings).transpose()?;
         let seq = VideoSequence::open(path, settings)?;
         if let Err(e @ DatasetError::SizeMismatch { .. }) = seq.frame(0) {
             return Err(e);

@@ -38,9 +38,10 @@ struct Decoding {
 }
 
 impl VideoSequence {
-    /// Open `path`; `settings` gives the camera, else [`super::guessed_camera`] of the first
-    /// frame's size. The frame rate is the samples' median rate.
-    pub fn open(path: &Path, settings: Option<Settings>) -> Result<Self, DatasetError> {
+    /// Open `path`; the settings file `settings` gives the camera (its image size may be left
+    /// out: the stream gives it), else [`super::guessed_camera`] of the first frame's size. The
+    /// frame rate is the samples' median rate.
+    pub fn open(path: &Path, settings: Option<&Path>) -> Result<Self, DatasetError> {
         let track = read_track(path)?;
         let mut stamps: Vec<f64> = track
             .samples
@@ -59,7 +60,9 @@ impl VideoSequence {
         };
         let first = seq.picture(0)?;
         let mut settings = match settings {
-            Some(s) => s,
+            Some(file) => {
+                crate::read_settings_for_images(file, (first.width as u32, first.height as u32))?
+            }
             None => {
                 let camera = super::guessed_camera(first.width as u32, first.height as u32);
                 tracing::warn!(
