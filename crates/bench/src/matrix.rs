@@ -46,6 +46,9 @@ pub struct MatrixOptions {
     /// Also write each run's dense cloud (RGB-D) and measure it: points on movers and the
     /// distance to the scene's true static surfaces.
     pub dense: bool,
+    /// Run each sequence monocular: its depth withheld (a `PRESET_sSEED_mono` folder beside it
+    /// without `depth.txt`); the ATE is then after a Sim(3) alignment.
+    pub monocular: bool,
     /// Set to stop the runs early.
     pub stop: Option<&'static AtomicBool>,
 }
@@ -133,6 +136,29 @@ fn generate(o: &MatrixOptions, preset: Preset, seed: u64, dir: &Path) -> Result<
         source,
     })?;
     Ok(())
+}
+
+/// A folder beside `dir` (`DIR_mono`) that holds links to everything of it but its depth: the
+/// same sequence, read as monocular.
+fn without_depth(dir: &Path) -> Result<PathBuf, BenchError> {
+    let mut name = dir.file_name().unwrap_or_default().to_os_string();
+    name.push("_mono");
+    let mono = dir.with_file_name(name);
+    let io = |what: &str, p: &Path| crate::io_error(format!("{what} {}", p.display()));
+    std::fs::create_dir_all(&mono).map_err(io("creating", &mono))?;
+    for entry in std::fs::read_dir(dir).map_err(io("reading", dir))? {
+        let entry = entry.map_err(io("reading", dir))?;
+        let file = entry.file_name();
+        if file == "depth" || file == "depth.txt" {
+            continue;
+        }
+        let link = mono.join(&file);
+        if link.symlink_metadata().is_err() {
+            let target = std::path::absolute(entry.path()).map_err(io("resolving", dir))?;
+            std::os::unix::fs::symlink(&target, &link).map_err(io("linking", &link))?;
+        }
+    }
+    Ok(mono)
 }
 
 fn run_one(
@@ -282,8 +308,13 @@ pub fn run_matrix(o: &MatrixOptions) -> Result<Vec<Row>, BenchError> {
             let dir = o.out.join(format!("{}_s{seed}", p.name()));
             tracing::info!("generating {}", dir.display());
             generate(o, *p, seed, &dir)?;
+            let (name, dir) = if o.monocular {
+                (format!("{}_mono", p.name()), without_depth(&dir)?)
+            } else {
+                (p.name().to_string(), dir)
+            };
             for m in &o.modes {
-                jobs.push((p.name().to_string(), seed, dir.clone(), m.clone()));
+                jobs.push((name.clone(), seed, dir.clone(), m.clone()));
             }
         }
     }
@@ -357,6 +388,28 @@ mod tests {
     }
 
     #[test]
+    fn a_monocular_copy_links_everything_but_the_depth() {
+        let tmp = tempfile::tempdir().unwrap();
+        let seq = tmp.path().join("living_cross_s0");
+        for d in ["rgb", "depth", "mask"] {
+            std::fs::create_dir_all(seq.join(d)).unwrap();
+        }
+        for f in ["rgb.txt", "depth.txt", "groundtruth.txt"] {
+            std::fs::write(seq.join(f), "# x\n").unwrap();
+        }
+        let mono = without_depth(&seq).unwrap();
+        assert_eq!(mono, tmp.path().join("living_cross_s0_mono"));
+        let mut names: Vec<String> = std::fs::read_dir(&mono)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["groundtruth.txt", "mask", "rgb", "rgb.txt"]);
+        // Again: the links already there are kept.
+        assert_eq!(without_depth(&seq).unwrap(), mono);
+    }
+
+    #[test]
     fn unknown_modes_and_zero_jobs_are_refused_before_anything_is_written() {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("m");
@@ -372,6 +425,7 @@ mod tests {
             jobs: 1,
             threaded: false,
             dense: false,
+            monocular: false,
             stop: None,
         };
         let err = run_matrix(&o).unwrap_err().to_string();

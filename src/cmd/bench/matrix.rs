@@ -49,6 +49,10 @@ pub struct Args {
     /// run is `run`'s default on a recording, which does not depend on timing).
     #[arg(long)]
     pub threaded: bool,
+    /// Run each sequence monocular (its depth withheld; ATE after a Sim(3) alignment), in a
+    /// `PRESET_sSEED_mono` folder of links beside it.
+    #[arg(long)]
+    pub monocular: bool,
     /// Also write each run's dense cloud and measure it: points on movers and distance to the
     /// scene's true static surfaces.
     #[arg(long)]
@@ -101,6 +105,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         model: args.model.clone(),
         jobs: args.jobs,
         threaded: args.threaded,
+        monocular: args.monocular,
         dense: args.dense,
         stop: Some(crate::interrupt_flag()),
     })?;
