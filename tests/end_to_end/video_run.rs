@@ -130,43 +130,54 @@ fn a_synthetic_sequence_tracks_from_its_video_and_a_cut_video_keeps_its_first_po
 }
 
 /// Real hand-held video with people: the 200 JPEG frames of SAM 2's bedroom clip (960x540,
-/// children jumping on a bed while the camera pans) encoded as H.264 at 24 fps, run monocular
-/// with the camera guessed (60° across) and YOLOX culling people's keypoints when the model is
-/// there.
+/// children jumping on a bed while the camera pans), run monocular as a user has them (a folder
+/// of images, the camera guessed, the default mode) with YOLOX culling people's keypoints when
+/// the model is there; then the same frames as H.264 at 24 fps through `--video`.
 #[test]
 #[ignore = "needs ../shared/data"]
 fn real_hand_held_video_with_people_initialises_and_tracks() {
     let frames = shared().join("data/video/sam2_bedroom/rgb");
     let tmp = tempfile::tempdir().unwrap();
-    let clip = tmp.path().join("bedroom.mp4");
-    let n = encode(&frames, &clip, 24.0, false);
-    assert_eq!(n, 200);
     let model = shared().join("models/yolox_nano_480x640.onnx");
-    let traj = tmp.path().join("bedroom.txt");
-    let mut args = vec!["--video", path_str(&clip), "--sequential"];
-    if model.is_file() {
-        args.extend(["--detector", "yolox", "--model", path_str(&model)]);
+    let detector = if model.is_file() {
+        vec!["--detector", "yolox", "--model", path_str(&model)]
     } else {
-        args.extend(["--detector", "none"]);
+        vec!["--detector", "none"]
+    };
+    let mut args = vec!["--dataset", path_str(&frames)];
+    args.extend(&detector);
+    let folder = ok_json(&run(&args, &tmp.path().join("folder.txt")));
+    eprintln!("folder: {folder}");
+    assert_eq!(folder["frames"], 200);
+    assert_eq!(folder["sensor"], "mono");
+    assert_eq!(folder["new_maps"], 0, "{folder}");
+    let tracked = folder["tracked"].as_u64().unwrap();
+    if model.is_file() {
+        // Measured with YOLOX-nano 480x640 (tract): the map starts at frame 9, the first with a
+        // degree of parallax, and 191 of 200 frames are tracked; 44.7 keypoints culled a frame
+        // (median 0: once the map is up, ORB skips the moving boxes). The bed the children jump
+        // on is judged on its own points, not theirs: judged on theirs it was "moving", and its
+        // box took 2,700 keypoints a frame and the whole map with it.
+        assert!(tracked >= 185, "{folder}");
+        let culled = folder["culled_per_frame"]["mean"].as_f64().unwrap();
+        assert!(culled < 200.0, "{folder}");
+    } else {
+        assert!(tracked >= 100, "{folder}");
     }
-    let out = run(&args, &traj);
-    let summary = ok_json(&out);
-    eprintln!("{summary}");
-    assert_eq!(summary["frames"], 200);
-    assert_eq!(summary["sensor"], "mono");
-    let tracked = summary["tracked"].as_u64().unwrap();
-    let keyframes = summary["keyframes"].as_u64().unwrap();
+
+    let clip = tmp.path().join("bedroom.mp4");
+    assert_eq!(encode(&frames, &clip, 24.0, false), 200);
+    let mut args = vec!["--video", path_str(&clip)];
+    args.extend(&detector);
+    let video = ok_json(&run(&args, &tmp.path().join("video.txt")));
+    eprintln!("video: {video}");
+    assert_eq!(video["frames"], 200);
     if model.is_file() {
-        // Measured with YOLOX-nano 480x640 (tract): 196 of 200 frames tracked, 19 keyframes,
-        // 81.3 keypoints culled a frame on average (median 2, p90 91: the culls come in a
-        // minority of the frames).
-        assert!(tracked >= 185, "{summary}");
-        assert!(keyframes >= 15, "{summary}");
-        let culled = summary["culled_per_frame"]["mean"].as_f64().unwrap();
-        assert!(culled >= 60.0, "{summary}");
+        // Measured: 181 of 200 tracked, 77.6 keypoints culled a frame (median 0). The bed is
+        // judged the same way as in the folder now; before, it stayed still here by a hair
+        // (its outlier ratio on the other side of ATA's 0.4) and the clip tracked 196.
+        assert!(video["tracked"].as_u64().unwrap() >= 170, "{video}");
     } else {
-        // Not measured without the model: that it initialises and tracks.
-        assert!(tracked >= 100, "{summary}");
-        assert!(keyframes >= 3, "{summary}");
+        assert!(video["tracked"].as_u64().unwrap() >= 100, "{video}");
     }
 }
