@@ -83,8 +83,7 @@ fn monocular_static_sequence_initialises_tracks_and_matches_the_truth_up_to_scal
     assert!(rmse < 0.012, "ATE {rmse} m");
 }
 
-use crate::common::shared;
-use crate::common::stillpoint;
+use crate::common::{ok_json, path_str, shared, stillpoint};
 
 /// `stillpoint synth --preset static --frames N` into `dir`, then depth.txt removed: a TUM folder
 /// that reads as monocular.
@@ -196,27 +195,15 @@ fn kitti_01_first_51_left_frames_track_monocular() {
     let tmp = tempfile::tempdir().unwrap();
     let mut modes = vec![vec!["--no-dynamic"], vec!["--detector", "none"]];
     if model.is_file() {
-        modes.push(vec![
-            "--detector",
-            "yolox",
-            "--model",
-            model.to_str().unwrap(),
-        ]);
+        modes.push(vec!["--detector", "yolox", "--model", path_str(&model)]);
     }
     let mut ates = Vec::new();
     for mode in modes {
-        let out = stillpoint()
-            .args(["run", "--kind", "kitti", "--json"])
-            .args(&mode)
-            .arg("--dataset")
-            .arg(&seq)
-            .arg("--out")
-            .arg(tmp.path().join("traj.txt"))
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success(), "{mode:?}: {stderr}");
-        let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let traj = tmp.path().join("traj.txt");
+        let mut args = vec!["run", "--kind", "kitti", "--json", "--out", path_str(&traj)];
+        args.extend(["--dataset", path_str(&seq)]);
+        args.extend(&mode);
+        let summary = ok_json(&stillpoint().args(&args).output().unwrap());
         eprintln!("{mode:?}: {summary}");
         assert_eq!(summary["sensor"], "mono", "{summary}");
         assert_eq!(summary["new_maps"], 0, "{mode:?}: {summary}");
