@@ -226,14 +226,7 @@ pub fn read_settings_for_images(
     path: &Path,
     image_size: (u32, u32),
 ) -> Result<Settings, DatasetError> {
-    if path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
-    {
-        read_settings_toml(path)
-    } else {
-        read_orbslam_yaml_sized(path, Some(image_size))
-    }
+    read_settings_sized(path, Some(image_size))
 }
 
 /// YAML aliases (`*name`) are refused: the loader copies the anchored node at each one, so a
@@ -654,12 +647,19 @@ pub fn write_settings_toml(path: &Path, s: &Settings) -> Result<(), DatasetError
 
 /// Read a settings file by extension: `.toml` is ours, anything else ORB-SLAM YAML.
 pub fn read_settings(path: &Path) -> Result<Settings, DatasetError> {
+    read_settings_sized(path, None)
+}
+
+fn read_settings_sized(
+    path: &Path,
+    image_size: Option<(u32, u32)>,
+) -> Result<Settings, DatasetError> {
     if path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
     {
         read_settings_toml(path)
     } else {
-        read_orbslam_yaml(path)
+        read_orbslam_yaml_sized(path, image_size)
     }
 }
