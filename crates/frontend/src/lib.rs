@@ -34,7 +34,7 @@
 //!   keypoints of a movable object, in its box or within half its size around it at its depth,
 //!   create no map points until it has been still for 60 frames (background behind it may).
 //!   Measured on the synthetic living room with a photographed person (`stillpoint bench
-//!   matrix`): see the README.
+//!   matrix`): see docs/results.md.
 //!
 //! ```
 //! use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
