@@ -44,7 +44,7 @@ fn monocular_static_sequence_initialises_tracks_and_matches_the_truth_up_to_scal
     let mut first_tracked = None;
     for frame in generator {
         let gray = stillpoint_image::rgb_to_gray(&frame.rgb);
-        let extractor = if sys.initialising() {
+        let extractor = if sys.wants_initial_features(frame.index) {
             &mut orb_init
         } else {
             &mut orb

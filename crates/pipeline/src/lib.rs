@@ -291,7 +291,7 @@ impl Pipeline {
             self.orb.set_exclusion_mask(mask);
         }
         let left_orb = match self.orb_init.as_mut() {
-            Some(o) if self.system.initialising() => o,
+            Some(o) if self.system.wants_initial_features(frame.index) => o,
             _ => &mut self.orb,
         };
         let orb_right = &mut self.orb_right;

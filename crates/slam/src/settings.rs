@@ -213,6 +213,9 @@ pub struct MonoInitSettings {
     /// count (ORB-SLAM3 `mpIniORBextractor`: 5): initialisation matches level-0 keypoints only.
     /// Read by the caller that extracts features ([`crate::System::initialising`]).
     pub feature_factor: usize,
+    /// Seconds after the map starts during which frames are still extracted with
+    /// `feature_factor` times the features (ORB-SLAM3: `mMaxFrames`, one second of frames).
+    pub young_map_seconds: f64,
 }
 
 impl Default for MonoInitSettings {
@@ -228,6 +231,7 @@ impl Default for MonoInitSettings {
             homography_ratio: 0.4,
             min_points_after_ba: 100,
             feature_factor: 5,
+            young_map_seconds: 1.0,
         }
     }
 }

@@ -303,11 +303,23 @@ impl System {
         )
     }
 
-    /// Monocular and not initialised yet: the caller should extract
-    /// `settings.mono_init.feature_factor` times the usual features (ORB-SLAM3 initialises with
-    /// 5x: initialisation matches level-0 keypoints only).
-    pub fn initialising(&self) -> bool {
-        self.settings.monocular && self.tracker.state == TrackingState::NotInitialized
+    /// Whether frame `index` should be extracted with `settings.mono_init.feature_factor` times
+    /// the usual features: monocular, and not initialised yet or within
+    /// `settings.mono_init.young_map_seconds` of the map's start. Initialisation matches level-0
+    /// keypoints only; and the young map's points were made from those many keypoints, so with
+    /// the usual count a frame finds a fraction of them (ORB-SLAM3 keeps `mpIniORBextractor` for
+    /// `mMaxFrames`, a second, after initialising).
+    pub fn wants_initial_features(&self, index: usize) -> bool {
+        if !self.settings.monocular {
+            return false;
+        }
+        if self.tracker.state == TrackingState::NotInitialized {
+            return true;
+        }
+        let young = (self.settings.fps * self.settings.mono_init.young_map_seconds).round();
+        self.tracker
+            .map_started_at
+            .is_some_and(|start| index < start + young.max(0.0) as usize)
     }
 
     /// [`System::track_rgbd`] with keypoints that may be tracked but must not create map points

@@ -98,6 +98,8 @@ pub struct Tracker {
     localize: bool,
     /// Keyframes place recognition proposes for the next relocalisation, best first.
     reloc_candidates: Vec<KfId>,
+    /// Monocular: the frame the current map was initialised at.
+    pub map_started_at: Option<usize>,
 }
 
 impl Tracker {
@@ -120,6 +122,7 @@ impl Tracker {
             new_map_pending: false,
             localize: false,
             reloc_candidates: Vec::new(),
+            map_started_at: None,
         }
     }
 
@@ -391,6 +394,7 @@ impl Tracker {
             "monocular map initialised"
         );
         self.start_tracking_from(kf, frame.index);
+        self.map_started_at = Some(frame.index);
         Some((first, kf))
     }
 
