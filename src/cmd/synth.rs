@@ -11,7 +11,8 @@ pub struct Args {
     /// sitting_xyz, sitting_static, sitting_halfsphere, crowd, placing_box, person_tracking,
     /// static, loop (a lap of 20 s round the room); living_cross, living_close, living_turn,
     /// living_empty (a low-texture living room, a hand-held camera and one textured person
-    /// close to it; Kinect noise by default); "all" only with --contact-sheet.
+    /// close to it; Kinect noise by default); street (a camera on a car driving down a town
+    /// street past parked and moving cars); "all" only with --contact-sheet.
     #[arg(long, default_value = "walking_xyz")]
     preset: String,
     /// Output folder (TUM layout). Optional when only a contact sheet is wanted.

@@ -22,6 +22,7 @@ pub mod noise;
 pub mod presets;
 pub mod render;
 pub mod scene;
+pub mod street;
 pub mod texture;
 pub mod write;
 

@@ -58,11 +58,15 @@ pub enum Preset {
     LivingTurn,
     /// The living room and hand-held camera with nobody in it (the control).
     LivingEmpty,
+    /// A camera on a car driving down a town street at 5-7 m/s, past parked cars, behind a car
+    /// in its lane, meeting two oncoming cars, a pedestrian on the pavement (built by
+    /// [`crate::street::build`]; best seen monocular, as KITTI is).
+    Street,
 }
 
 impl Preset {
     /// Every preset, in the order `synth --contact-sheet --preset all` shows them.
-    pub const ALL: [Preset; 16] = [
+    pub const ALL: [Preset; 17] = [
         Preset::WalkingXyz,
         Preset::WalkingStatic,
         Preset::WalkingHalfsphere,
@@ -79,6 +83,7 @@ impl Preset {
         Preset::LivingClose,
         Preset::LivingTurn,
         Preset::LivingEmpty,
+        Preset::Street,
     ];
 
     /// The preset's name on the command line (`walking_xyz`, ...).
@@ -100,6 +105,7 @@ impl Preset {
             Preset::LivingClose => "living_close",
             Preset::LivingTurn => "living_turn",
             Preset::LivingEmpty => "living_empty",
+            Preset::Street => "street",
         }
     }
 
@@ -203,6 +209,23 @@ pub enum CameraPath {
         target: P3,
         /// Sinusoids added to the position along world x, y, z.
         pos: [Vec<Wave>; 3],
+        /// Sinusoids added to yaw, pitch and roll.
+        rot: [Vec<Wave>; 3],
+    },
+    /// Driving: along +y from `start` at `speed` m/s, `pitch` down, with sinusoids added to
+    /// the lateral position (`sway`, along x), the height (`bounce`) and to yaw, pitch and roll
+    /// (`rot`, in the camera frame, as in `Rpy`).
+    Drive {
+        /// Where the camera is at t = 0 (world, metres).
+        start: P3,
+        /// Metres a second along +y.
+        speed: f64,
+        /// How far the view points down (radians).
+        pitch: f64,
+        /// Sinusoids added to x.
+        sway: Vec<Wave>,
+        /// Sinusoids added to z.
+        bounce: Vec<Wave>,
         /// Sinusoids added to yaw, pitch and roll.
         rot: [Vec<Wave>; 3],
     },
@@ -331,6 +354,21 @@ impl CameraPath {
                     Translation3::from(p.translation.vector + off),
                     p.rotation * r,
                 )
+            }
+            CameraPath::Drive {
+                start,
+                speed,
+                pitch,
+                sway,
+                bounce,
+                rot,
+            } => {
+                let eye = start + P3::new(waves(t, sway), speed * t, waves(t, bounce));
+                let p = look_at(eye, eye + P3::new(0.0, 1.0, -pitch.tan()));
+                let r = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), waves(t, &rot[0]))
+                    * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), waves(t, &rot[1]))
+                    * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), waves(t, &rot[2]));
+                Isometry3::from_parts(p.translation, p.rotation * r)
             }
         }
     }
@@ -585,7 +623,7 @@ fn furnish(s: &mut Scene, rng: &mut Pcg64Mcg, photos: &Photos) {
     );
 }
 
-fn random_outfit(s: &mut Scene, rng: &mut Pcg64Mcg) -> Outfit {
+pub(crate) fn random_outfit(s: &mut Scene, rng: &mut Pcg64Mcg) -> Outfit {
     let skins = [
         [0.87, 0.7, 0.58],
         [0.62, 0.45, 0.33],
@@ -733,6 +771,9 @@ fn add_seated(
 pub fn build(preset: Preset, rng: &mut Pcg64Mcg, photos: &Photos) -> (Scene, CameraPath) {
     if preset.is_living() {
         return crate::living::build(preset, rng, photos);
+    }
+    if preset == Preset::Street {
+        return crate::street::build(rng, photos);
     }
     let mut s = Scene::new();
     furnish(&mut s, rng, photos);
@@ -953,8 +994,12 @@ pub fn build(preset: Preset, rng: &mut Pcg64Mcg, photos: &Photos) -> (Scene, Cam
             start: PI / 2.0,
             pitch: 10f64.to_radians(),
         },
-        Preset::LivingCross | Preset::LivingClose | Preset::LivingTurn | Preset::LivingEmpty => {
-            unreachable!("the living-room presets are built by living::build")
+        Preset::LivingCross
+        | Preset::LivingClose
+        | Preset::LivingTurn
+        | Preset::LivingEmpty
+        | Preset::Street => {
+            unreachable!("the living-room and street presets are built by their own modules")
         }
     };
     (s, cam)

@@ -263,6 +263,14 @@ pub enum Motion {
         /// Drift period along x, y, z (seconds).
         period: P3,
     },
+    /// A vehicle driving straight along y at a constant `velocity` (m/s; negative drives
+    /// towards -y, turned round), from `start` (x, y) at t = 0.
+    Driving {
+        /// Where it is at t = 0 (x, y, metres).
+        start: [f64; 2],
+        /// Metres a second along +y.
+        velocity: f64,
+    },
     /// A flat cut-out that stands at a route's position (or `fixed`) and turns to face the
     /// camera.
     Billboard {
@@ -487,6 +495,11 @@ impl Motion {
                 let w = |i: usize| (TAU * t / period[i] + i as f64).sin();
                 let p = base + P3::new(amp.x * w(0), amp.y * w(1), amp.z * w(2));
                 out.extend(std::iter::repeat_n(iso(p, rz(0.3 * w(1))), n_parts));
+            }
+            Motion::Driving { start, velocity } => {
+                let yaw = if *velocity < 0.0 { PI } else { 0.0 };
+                let p = P3::new(start[0], start[1] + velocity * t, 0.0);
+                out.extend(std::iter::repeat_n(iso(p, rz(yaw)), n_parts));
             }
             Motion::Billboard { route, fixed, bob } => {
                 let (xy, b) = match route {
