@@ -1,10 +1,9 @@
 //! Precision and recall of the dynamic-keypoint decision against the ground-truth masks of a
 //! synthetic sequence (`stillpoint synth --masks`), for the paper (geometry + NHBC/ATA +
 //! algorithm 3) and variants of it, our depth-aware culling for RGB-D (`ours_depth`, when the
-//! sequence has depth), with the per-keypoint motion evidence (`ours_depth+kp`), our defaults
-//! (`ours`: the front-end's whole per-frame decision, `frontend::DynamicFrontEnd` with the given
-//! dynamic settings: depth-aware culling, per-keypoint evidence, unknown objects, box memory,
-//! and for RGB-D the seated-part 3D motion test; keypoints it keeps as track-only count as not
+//! sequence has depth), with the per-keypoint motion evidence (`ours_depth+kp`), what `stillpoint
+//! run` decides (`ours`: a run of the sequence with the same settings tree, in run's default
+//! mode, scored on that run's own keypoints; keypoints it keeps as track-only count as not
 //! culled), a person-box-only baseline (Crowd-SLAM: cull everything in person boxes) and a
 //! detection-free baseline (epipolar outliers only, dilated to a radius). Also times the
 //! geometry module per frame, as a ratio to ORB extraction of the same frames.
@@ -26,15 +25,15 @@ use stillpoint_eval::keypoints::{
     Counts, clear_truth, fast_test_moving, mask_frames, strict_truth, support_truth,
 };
 use stillpoint_eval::{mean, median};
-use stillpoint_features::{LkPyramid, OrbExtractor, OrbParams};
-use stillpoint_frontend::{DynamicFrontEnd, FilterInput, FrontEndSettings, KeypointFilter};
+use stillpoint_features::{KeyPoint, LkPyramid, OrbExtractor, OrbParams};
 use stillpoint_image::{Gray8, read_gray};
+use stillpoint_run::{Event, Overrides, RunOptions, run_sequence, settings_layers};
 
 use crate::BenchError;
 
 /// The rows of the report: the paper (algorithms 1 and 3 as published) and variants of it, our
-/// depth-aware culling alone and with the per-keypoint evidence, our defaults (`ours`: depth,
-/// per-keypoint evidence, unknown objects), and the two baselines.
+/// depth-aware culling alone and with the per-keypoint evidence, what `run` decides (`ours`),
+/// and the two baselines.
 pub const METHODS: [&str; 9] = [
     "paper",
     "paper+unknown",
@@ -60,13 +59,13 @@ pub struct KeypointOptions {
     pub radius: f32,
     /// A keypoint is truly dynamic (strict truth) with a moving mask pixel this close.
     pub gt_radius: usize,
-    /// Our dynamic settings (`ours`, `ours_depth`, `ours_depth+kp`); the paper's rows take the
-    /// same with the paper's judgement (no sub-pixel person rule) and culling (no unknown
-    /// objects).
-    pub settings: DynamicSettings,
-    /// The front-end's seated-part 3D motion test in `ours` (when the camera can be read).
-    pub seated_motion: bool,
-    /// Use the sequence's depth (else ours_depth culls by the paper's rule).
+    /// The settings tree's layers over the sequence's own settings (`--config`, `--set`), as
+    /// `run` takes them: `ours` is a run with them, and every other row takes its dynamic
+    /// settings (`front_end.dynamic`) from the same tree; the paper's rows with the paper's
+    /// judgement (no sub-pixel person rule) and culling (no unknown objects).
+    pub overrides: Overrides,
+    /// Use the sequence's depth (else ours_depth culls by the paper's rule, and `ours` runs the
+    /// sequence monocular, from a sibling folder `DATASET_mono` of links without the depth).
     pub use_depth: bool,
     /// Use at most this many frames (0: all).
     pub max_frames: usize,
@@ -165,6 +164,11 @@ pub struct KeypointReport {
     /// Our culling step ([`cull_frame_with_motion`]: depth-aware culling, unknown objects,
     /// per-keypoint evidence), mean milliseconds per frame.
     pub culling_ms_mean: f64,
+    /// Keypoints `ours` culled over every frame of its run (frame 0 included): `run --json`'s
+    /// `culled` on the same frames.
+    pub ours_culled: usize,
+    /// Frames `ours`'s run tracked.
+    pub ours_tracked: usize,
     /// Per frame.
     pub per_frame: Vec<FrameReport>,
 }
@@ -193,12 +197,6 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
         GtDetectorParams::default(),
     )
     .map_err(detect_err(format!("detector {:?}", o.detector)))?;
-    let settings = o.settings.clone();
-    // The paper's judgement for every method but ours_depth.
-    let paper_judge = stillpoint_dynamic::JudgeParams {
-        person_subpixel_px: None,
-        ..settings.judge.clone()
-    };
     // Frames, depth (with the sequence's depth factor) and their association as `run` reads them.
     let sequence = stillpoint_datasets::open(&o.dataset, None, None).map_err(|source| {
         BenchError::Dataset {
@@ -206,6 +204,16 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
             source,
         }
     })?;
+    // One settings tree for every row: the one `run` builds for this sequence.
+    let settings = settings_layers(sequence.settings(), None, false, &o.overrides)?
+        .tree
+        .front_end
+        .dynamic;
+    // The paper's judgement for every method but ours_depth.
+    let paper_judge = stillpoint_dynamic::JudgeParams {
+        person_subpixel_px: None,
+        ..settings.judge.clone()
+    };
     let mut depth_frames = 0usize;
     // The paper has no unknown-object rule; ours_depth and ours_depth+kp measure without it.
     let paper_cull = CullParams {
@@ -225,36 +233,7 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
         cull: paper_cull.clone(),
         ..settings.clone()
     };
-    // `ours` is the front-end's per-frame decision, exactly as `stillpoint run` makes it: its
-    // own detector (same source), the bench's dynamic settings, the sequence's camera for the
-    // seated-part 3D motion test.
-    // Without a readable camera the seated-part test stays off (the front-end's own rule).
-    let camera = match stillpoint_datasets::open(&o.dataset, None, None) {
-        Ok(seq) => Some(seq.settings().camera),
-        Err(e) => {
-            tracing::warn!(
-                "{}: no camera, so no seated-part 3D test in `ours`: {e}",
-                o.dataset.display()
-            );
-            None
-        }
-    };
-    let mut front_end_settings = FrontEndSettings {
-        dynamic: settings.clone(),
-        ..FrontEndSettings::default()
-    };
-    front_end_settings.seated_motion.camera = camera;
-    front_end_settings.seated_motion.enabled &= o.seated_motion;
-    let mut front_end = DynamicFrontEnd::new(
-        open_detector(
-            &o.detector,
-            &detect_settings,
-            boxes.exists().then_some(boxes.as_path()),
-            GtDetectorParams::default(),
-        )
-        .map_err(detect_err(format!("detector {:?} (front-end)", o.detector)))?,
-        front_end_settings,
-    );
+    let ours = run_decisions(o, n)?;
     let mut orb = OrbExtractor::new(OrbParams::default());
     let scales = orb.scale_factors().to_vec();
 
@@ -307,16 +286,7 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
         let prev_pyr =
             std::mem::replace(&mut last_pyr, LkPyramid::new(&gray, &settings.geometry.lk));
         let cur_pyr = &last_pyr;
-        let input = FilterInput {
-            index,
-            timestamp: *t,
-            gray: &gray,
-            rgb: Some(&rgb),
-            depth: depth.as_ref(),
-        };
         let Some(prev_gray) = prev.replace(gray.clone()) else {
-            // The front-end sees frame 0 too (its previous gray, pyramid, depth, box memory).
-            front_end.judge(&input, &[]);
             continue;
         };
         let mask = read_gray(mask_path).map_err(|source| BenchError::Image {
@@ -435,8 +405,6 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
             &settings,
         );
         ours_ms.push(ours_clock.elapsed().as_secs_f64() * 1e3);
-        // Track-only keypoints (`no_new_points`) are not in `dynamic`: they count as kept.
-        let ours = front_end.judge(&input, &kps).dynamic;
         let predictions = [
             cull_with(&kps, &states, &check.points, &paper_cull),
             cull_with(&kps, &states, &check.points, &unknown),
@@ -444,7 +412,7 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
             cull_with(&kps, &own_states, &check.points, &paper_cull),
             depth_removed,
             kp_removed,
-            ours,
+            Vec::new(),
             kps.iter()
                 .map(|&[x, y]| {
                     dets.iter()
@@ -454,15 +422,27 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
             near_outliers(&kps, &check.points, o.radius, 1),
         ];
         let mut counts = [Counts::default(); METHODS.len()];
-        for ((c, total), p) in counts.iter_mut().zip(&mut totals).zip(&predictions) {
-            c.add(p, &truth);
-            total.add(p, &truth);
+        for (m, ((c, total), p)) in counts
+            .iter_mut()
+            .zip(&mut totals)
+            .zip(&predictions)
+            .enumerate()
+        {
+            if m != OURS {
+                c.add(p, &truth);
+                total.add(p, &truth);
+                support_totals[m].add(p, &support);
+                clear_totals[m].add_known(p, &clear);
+            }
         }
-        for (total, p) in support_totals.iter_mut().zip(&predictions) {
-            total.add(p, &support);
-        }
-        for (total, p) in clear_totals.iter_mut().zip(&predictions) {
-            total.add_known(p, &clear);
+        // `ours` on its run's own keypoints, against the same mask.
+        if let Some(d) = ours.frames.get(&index) {
+            let truth = strict_truth(&mask, &d.keypoints, o.gt_radius);
+            let fast_moving = fast_test_moving(&mask, &d.keypoints_with_octaves(), &scales);
+            counts[OURS].add(&d.dynamic, &truth);
+            totals[OURS].add(&d.dynamic, &truth);
+            support_totals[OURS].add(&d.dynamic, &support_truth(&fast_moving));
+            clear_totals[OURS].add_known(&d.dynamic, &clear_truth(&fast_moving));
         }
         let report = FrameReport {
             frame: index,
@@ -519,6 +499,150 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
         orb_ms_mean: mean(&orb_ms),
         geometry_over_orb: mean(&geometry_ms) / mean(&orb_ms).max(1e-9),
         culling_ms_mean: mean(&ours_ms),
+        ours_culled: ours.culled,
+        ours_tracked: ours.tracked,
         per_frame,
     })
+}
+
+/// Where `ours` sits in [`METHODS`].
+const OURS: usize = 6;
+
+/// One frame of `ours`'s run: its keypoints and which it culled.
+struct RunFrame {
+    keypoints: Vec<[f32; 2]>,
+    octaves: Vec<u8>,
+    dynamic: Vec<bool>,
+}
+
+impl RunFrame {
+    fn keypoints_with_octaves(&self) -> Vec<KeyPoint> {
+        self.keypoints
+            .iter()
+            .zip(&self.octaves)
+            .map(|(&[x, y], &octave)| KeyPoint {
+                x,
+                y,
+                octave,
+                angle: 0.0,
+                response: 0.0,
+                size: 0.0,
+            })
+            .collect()
+    }
+}
+
+/// What `run` decided on each frame.
+struct RunDecisions {
+    frames: std::collections::BTreeMap<usize, RunFrame>,
+    culled: usize,
+    tracked: usize,
+}
+
+/// `stillpoint run` on the first `n` frames with the bench's detector and settings layers, in
+/// run's default mode: what it culled on each frame. Without depth, the sequence is run
+/// monocular from a sibling folder of links that leaves the depth out.
+fn run_decisions(o: &KeypointOptions, n: usize) -> Result<RunDecisions, BenchError> {
+    let dataset = if o.use_depth {
+        o.dataset.clone()
+    } else {
+        crate::matrix::without_depth(&o.dataset)?
+    };
+    let options = RunOptions {
+        detector: Some(o.detector.clone()),
+        model: o.model.clone(),
+        frames: Some(n),
+        overrides: o.overrides.clone(),
+        ..RunOptions::new(dataset)
+    };
+    let mut frames = std::collections::BTreeMap::new();
+    let summary = run_sequence(&options, &mut |e| {
+        if let Event::Tracked { result, .. } = e {
+            frames.insert(
+                result.index,
+                RunFrame {
+                    keypoints: result.keypoints.clone(),
+                    octaves: result.octaves.clone(),
+                    dynamic: result.dynamic.clone(),
+                },
+            );
+        }
+    })?;
+    Ok(RunDecisions {
+        frames,
+        culled: summary.culled_per_frame.iter().sum(),
+        tracked: summary.tracked,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stillpoint_synth::{Preset, SynthConfig, WriteOptions};
+
+    /// `ours` is `run`'s decision: with depth and without, the keypoints it scores culled are
+    /// the ones a run of the same frames culls, and a `--set` reaches it as it reaches `run`.
+    #[test]
+    fn ours_is_what_run_culls_on_the_same_frames() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("walking_xyz");
+        let cfg = SynthConfig {
+            preset: Preset::WalkingXyz,
+            frames: 12,
+            ..SynthConfig::default()
+        };
+        let opts = WriteOptions {
+            stereo: false,
+            masks: true,
+        };
+        stillpoint_synth::write_sequence(&cfg, opts, &dir).unwrap();
+        for (use_depth, sets) in [
+            (true, vec![]),
+            (false, vec![]),
+            (true, vec!["front_end.orb_exclusion=false".to_string()]),
+        ] {
+            let overrides = Overrides {
+                sets,
+                ..Overrides::default()
+            };
+            let options = KeypointOptions {
+                dataset: dir.clone(),
+                detector: "gt".into(),
+                model: None,
+                radius: 20.0,
+                gt_radius: 0,
+                overrides: overrides.clone(),
+                use_depth,
+                max_frames: 0,
+                dump_keypoints: None,
+            };
+            let report = evaluate(&options).unwrap();
+            let run_dir = if use_depth {
+                dir.clone()
+            } else {
+                dir.with_file_name("walking_xyz_mono")
+            };
+            let run = run_sequence(
+                &RunOptions {
+                    detector: Some("gt".into()),
+                    overrides,
+                    ..RunOptions::new(run_dir)
+                },
+                &mut |_| {},
+            )
+            .unwrap();
+            let culled: usize = run.culled_per_frame.iter().sum();
+            assert!(culled > 0, "depth {use_depth}: nothing culled");
+            assert_eq!(report.ours_culled, culled, "depth {use_depth}");
+            assert_eq!(report.ours_tracked, run.tracked, "depth {use_depth}");
+            // Frame 0 is not scored; every other frame's culled keypoints are.
+            let ours = &report.methods[OURS];
+            assert_eq!(ours.method, "ours");
+            assert_eq!(
+                ours.counts.tp + ours.counts.fp,
+                culled - run.culled_per_frame[0],
+                "depth {use_depth}"
+            );
+        }
+    }
 }

@@ -140,7 +140,7 @@ fn generate(o: &MatrixOptions, preset: Preset, seed: u64, dir: &Path) -> Result<
 
 /// A folder beside `dir` (`DIR_mono`) that holds links to everything of it but its depth: the
 /// same sequence, read as monocular.
-fn without_depth(dir: &Path) -> Result<PathBuf, BenchError> {
+pub(crate) fn without_depth(dir: &Path) -> Result<PathBuf, BenchError> {
     let mut name = dir.file_name().unwrap_or_default().to_os_string();
     name.push("_mono");
     let mono = dir.with_file_name(name);

@@ -126,6 +126,8 @@ pub struct FrameResult {
     pub state: TrackingState,
     /// Every keypoint ORB found (level-0 pixels), culled ones included.
     pub keypoints: Vec<[f32; 2]>,
+    /// Per keypoint: the pyramid level ORB found it on.
+    pub octaves: Vec<u8>,
     /// Per keypoint: `true` = judged on a moving object and removed before tracking.
     pub dynamic: Vec<bool>,
     /// Per keypoint: kept for tracking but barred from creating map points (on an object not
@@ -334,6 +336,7 @@ impl Pipeline {
         timings.orb_ms = orb_ms;
         let mut features: Vec<Feature> = feats.keypoints.iter().map(Feature::from).collect();
         let keypoints: Vec<[f32; 2]> = features.iter().map(|k| [k.x, k.y]).collect();
+        let octaves: Vec<u8> = features.iter().map(|k| k.octave).collect();
         let mut descriptors = feats.descriptors;
         let (mut dynamic, mut no_new_points, mut dynamic_boxes) = (Vec::new(), Vec::new(), 0);
         if let (Some(f), Some(measured)) = (self.front_end.as_mut(), measured) {
@@ -435,6 +438,7 @@ impl Pipeline {
             pose_wc: report.pose_wc,
             state: report.state,
             keypoints,
+            octaves,
             dynamic,
             no_new_points,
             dynamic_boxes,

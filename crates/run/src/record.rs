@@ -660,6 +660,7 @@ mod tests {
             pose_wc: None,
             state: stillpoint_slam::TrackingState::Ok,
             keypoints: vec![],
+            octaves: vec![],
             dynamic: vec![],
             no_new_points: vec![],
             dynamic_boxes: 0,

@@ -4,10 +4,8 @@
 //! (its docs list the methods and the three ground truths), this module maps the flags onto its
 //! settings and prints the report.
 
-use anyhow::bail;
 use std::path::PathBuf;
 use stillpoint_bench::keypoints::{KeypointOptions, KeypointReport, evaluate};
-use stillpoint_dynamic::DynamicSettings;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -30,76 +28,17 @@ pub struct Args {
     /// that is partly the mover.
     #[arg(long, default_value_t = 0)]
     gt_radius: usize,
-    /// Depth-aware culling: half width of the band around the object's depth, at least (m).
-    #[arg(long)]
-    depth_band_m: Option<f32>,
-    /// Depth-aware culling: half width of the band, at least this share of the depth.
-    #[arg(long)]
-    depth_band_rel: Option<f32>,
-    /// Depth-aware culling: penalty per share of the box's centre in front of a candidate
-    /// object depth.
-    #[arg(long)]
-    occluder_weight: Option<f32>,
-    /// Depth-aware culling: a keypoint's depth is the nearest within this many pixels.
-    #[arg(long)]
-    depth_window: Option<usize>,
-    /// Depth-aware culling: radius of the local rule around outliers, as a share of the square
-    /// root of the box's area (0: off).
-    #[arg(long)]
-    local_radius: Option<f32>,
-    /// Depth-aware culling: cull a seated person's dynamic part only around its outliers, not
-    /// whole at its depth.
-    #[arg(long)]
-    seated_local: bool,
-    /// Outlier threshold of the geometry module in pixels (paper: 1.0).
-    #[arg(long)]
-    outlier_px: Option<f64>,
-    /// NHBC (ours_depth): a person box or part is also dynamic with 3 tracked points above this
-    /// residual in pixels (default 0.5; 0 turns it off, as the paper).
-    #[arg(long)]
-    person_subpixel: Option<f32>,
-    /// Per-keypoint motion (ours_kp): a culled keypoint whose residual is at most this is kept.
-    #[arg(long)]
-    kp_keep_px: Option<f32>,
-    /// Per-keypoint motion (ours_kp): a kept keypoint in a dynamic box whose residual exceeds
-    /// this is culled.
-    #[arg(long)]
-    kp_cull_px: Option<f32>,
-    /// Per-keypoint motion (ours_kp): largest forward-backward error of a usable track.
-    #[arg(long)]
-    kp_fb_px: Option<f32>,
-    /// Per-keypoint motion (ours_kp): LK window in pixels (default: the geometry module's 22).
-    #[arg(long)]
-    kp_window: Option<usize>,
-    /// Per-keypoint motion (ours_kp): where a small residual may keep a keypoint: whole (boxes
-    /// of standing people and other classes), seated (a seated person's parts), both, none.
-    #[arg(long)]
-    kp_keep_in: Option<String>,
-    /// Per-keypoint motion (ours_kp): a small epipolar distance may keep a keypoint too (by
-    /// default only a homography's transfer error does).
-    #[arg(long)]
-    kp_keep_fundamental: bool,
+    /// The settings tree's layers over the sequence's own, as `run` takes them: `ours` is a run
+    /// with them and every other row takes its dynamic settings from the same tree.
+    #[command(flatten)]
+    layers: crate::cmd::run::SettingsArgs,
     /// Write one CSV line per keypoint inside a dynamic box (frame, x, y, octave, truth,
     /// support truth, depth-aware decision, residual, forward-backward error, model, seated) to
     /// this file, for studying the per-keypoint evidence.
     #[arg(long)]
     dump_keypoints: Option<PathBuf>,
-    /// Unknown-object option: radius around box-less outliers, pixels (default 20).
-    #[arg(long)]
-    unknown_radius: Option<f32>,
-    /// Unknown-object option: fewest box-less outliers within the radius (default 2).
-    #[arg(long)]
-    unknown_min: Option<usize>,
-    /// `ours` without the unknown-object rule.
-    #[arg(long)]
-    no_unknown_objects: bool,
-    /// `ours` without the per-keypoint motion evidence.
-    #[arg(long)]
-    no_keypoint_motion: bool,
-    /// `ours` without the front-end's seated-part 3D motion test (`dynamic::seated_motion`).
-    #[arg(long)]
-    no_seated_motion: bool,
-    /// Ignore the sequence's depth (ours_depth then culls by the paper's rule).
+    /// Ignore the sequence's depth (ours_depth then culls by the paper's rule, and `ours` runs
+    /// the sequence monocular).
     #[arg(long)]
     no_depth: bool,
     /// Use at most this many frames (0: all).
@@ -116,66 +55,6 @@ pub struct Args {
     json: bool,
 }
 
-/// The bench's dynamic settings: the defaults with the flags laid over them.
-fn dynamic_settings(args: &Args) -> anyhow::Result<DynamicSettings> {
-    let mut settings = DynamicSettings::default();
-    if let Some(v) = args.depth_band_m {
-        settings.depth.band_min_m = v;
-    }
-    if let Some(v) = args.depth_band_rel {
-        settings.depth.band_relative = v;
-    }
-    if let Some(v) = args.outlier_px {
-        settings.geometry.outlier_threshold_px = v;
-    }
-    if let Some(v) = args.person_subpixel {
-        settings.judge.person_subpixel_px = (v > 0.0).then_some(v);
-    }
-    if let Some(v) = args.local_radius {
-        settings.depth.local_radius_fraction = v;
-    }
-    settings.depth.seated_parts_local = args.seated_local;
-    if let Some(v) = args.occluder_weight {
-        settings.depth.occluder_weight = v;
-    }
-    if let Some(v) = args.depth_window {
-        settings.depth.keypoint_window_px = v;
-    }
-    if let Some(v) = args.unknown_radius {
-        settings.cull.unknown_radius_px = v;
-    }
-    if let Some(v) = args.unknown_min {
-        settings.cull.unknown_min_outliers = v;
-    }
-    settings.cull.unknown_objects &= !args.no_unknown_objects;
-    settings.keypoint_motion.enabled &= !args.no_keypoint_motion;
-    if let Some(v) = args.kp_keep_px {
-        settings.keypoint_motion.keep_below_px = v;
-    }
-    if let Some(v) = args.kp_cull_px {
-        settings.keypoint_motion.cull_above_px = v;
-    }
-    if let Some(v) = args.kp_fb_px {
-        settings.keypoint_motion.max_fb_error_px = v;
-    }
-    if let Some(v) = args.kp_window {
-        settings.keypoint_motion.lk.window = v;
-    }
-    if let Some(v) = &args.kp_keep_in {
-        let (whole, seated) = match v.as_str() {
-            "whole" => (true, false),
-            "seated" => (false, true),
-            "both" => (true, true),
-            "none" => (false, false),
-            other => bail!("--kp-keep-in {other:?}: expected whole, seated, both or none"),
-        };
-        settings.keypoint_motion.keep_in_whole_boxes = whole;
-        settings.keypoint_motion.keep_in_seated_parts = seated;
-    }
-    settings.keypoint_motion.keep_with_fundamental |= args.kp_keep_fundamental;
-    Ok(settings)
-}
-
 pub fn run(args: Args) -> anyhow::Result<()> {
     let report = evaluate(&KeypointOptions {
         dataset: args.dataset.clone(),
@@ -183,8 +62,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         model: args.model.clone(),
         radius: args.radius,
         gt_radius: args.gt_radius,
-        settings: dynamic_settings(&args)?,
-        seated_motion: !args.no_seated_motion,
+        overrides: stillpoint_run::Overrides {
+            config: args.layers.config.clone(),
+            sets: args.layers.sets.clone(),
+            ..Default::default()
+        },
         use_depth: !args.no_depth,
         max_frames: args.max_frames,
         dump_keypoints: args.dump_keypoints.clone(),
@@ -227,6 +109,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             fmt_opt(m.support_recall),
             fmt_opt(m.clear_precision),
             fmt_opt(m.clear_recall)
+        );
+    }
+    if let Some(m) = report.methods.iter().find(|m| m.method == "ours") {
+        let static_kps = (m.counts.fp + m.counts.tn).max(1);
+        println!(
+            "ours: `stillpoint run` on these frames, scored on its own keypoints: {} culled, {} frames tracked, {:.1} % of the static keypoints culled",
+            report.ours_culled,
+            report.ours_tracked,
+            100.0 * m.counts.fp as f64 / static_kps as f64
         );
     }
     println!("motion models: {:?}", report.models);
