@@ -54,6 +54,10 @@ pub enum Evidence {
     MovingByTwoFrames,
     /// Enough tracks judged against the static world, and none moving.
     Still,
+    /// No motion seen by the two-frame check alone (no static-world check), on enough tracks:
+    /// stillness for an object that does not move on its own, nothing for one that does (a
+    /// person standing still moves again).
+    StillByTwoFrames,
     /// Too little to tell, or only the two-frame check spoke.
     Inconclusive,
 }
@@ -91,6 +95,12 @@ pub struct ObjectParams {
     /// and one frame of a bed's bedding deformed by children jumping on it made the whole bed
     /// a mover for good: monocular, its box took most of the image, and the map never started.
     pub unmovable_moving_frames: u32,
+    /// Movable classes that two-frame stillness ([`Evidence::StillByTwoFrames`], frames without
+    /// a static-world check) turns static after `still_frames_to_static` frames, as it does
+    /// furniture (ours: the vehicles 1-8). Without it, no parked car on a monocular street is
+    /// ever proven still and every one is culled as a mover; a car that moves again is moving
+    /// on its next frame of two-frame motion. Not people: a person standing still moves on.
+    pub still_by_two_frames_classes: Vec<u16>,
 }
 
 impl Default for ObjectParams {
@@ -107,6 +117,7 @@ impl Default for ObjectParams {
             forget_after_frames: 30,
             seated_parts_start_still: false,
             unmovable_moving_frames: 3,
+            still_by_two_frames_classes: vec![1, 2, 3, 5, 6, 7, 8],
         }
     }
 }
@@ -241,7 +252,9 @@ impl ObjectTracker {
                     obj.still_frames = 0;
                 }
                 Evidence::MovingByTwoFrames => {}
-                Evidence::Still => {
+                Evidence::StillByTwoFrames
+                    if movable && !p.still_by_two_frames_classes.contains(&st.class_id) => {}
+                Evidence::Still | Evidence::StillByTwoFrames => {
                     obj.still_frames = obj.still_frames.saturating_add(1);
                     if obj.still_frames >= p.still_frames_to_static {
                         obj.moving = false;
@@ -282,8 +295,9 @@ pub enum WorldCheck {
 
 /// The evidence of a box judged by the paper's rules: a dynamic verdict is motion, unless the
 /// static world's check was missing on a frame that should have had it (inconclusive); a static
-/// one is stillness only when its tracks were judged against the static world and at least
-/// `min_tracks` of them lie inside; anything else is inconclusive.
+/// one is stillness when its tracks were judged against the static world and at least
+/// `min_tracks` of them lie inside, two-frame stillness when there is no such check and at least
+/// `min_tracks` were tracked; anything else is inconclusive.
 pub fn evidence_of(state: &BoxState, world: WorldCheck, min_tracks: usize) -> Evidence {
     match state.verdict {
         Verdict::Dynamic if world == WorldCheck::Missing => Evidence::Inconclusive,
@@ -295,6 +309,9 @@ pub fn evidence_of(state: &BoxState, world: WorldCheck, min_tracks: usize) -> Ev
                 && state.outliers == 0 =>
         {
             Evidence::Still
+        }
+        Verdict::Static if world == WorldCheck::NotUsed && state.tracked >= min_tracks => {
+            Evidence::StillByTwoFrames
         }
         _ => Evidence::Inconclusive,
     }
@@ -383,7 +400,8 @@ mod tests {
         use WorldCheck::*;
         let still = state(0, 0.0, Verdict::Static);
         assert_eq!(evidence_of(&still, Judged, 8), Evidence::Still);
-        assert_eq!(evidence_of(&still, NotUsed, 8), Evidence::Inconclusive);
+        assert_eq!(evidence_of(&still, NotUsed, 8), Evidence::StillByTwoFrames);
+        assert_eq!(evidence_of(&still, NotUsed, 30), Evidence::Inconclusive);
         assert_eq!(evidence_of(&still, Missing, 8), Evidence::Inconclusive);
         assert_eq!(evidence_of(&still, Judged, 30), Evidence::Inconclusive);
         let moving = state(0, 0.0, Verdict::Dynamic);
@@ -424,6 +442,40 @@ mod tests {
                 Verdict::Dynamic
             };
             assert_eq!(s[0].verdict, expected, "frame {frame}");
+        }
+    }
+
+    /// Monocular: a painting taken for a TV turns moving on three frames of two-frame outliers
+    /// (hand-held blur); without a static-world check it must turn static again on two-frame
+    /// stillness, or it is culled, and the monocular map kept from starting, for good. So must
+    /// a parked car (a car is moving until proven still). A person who stands still stays a
+    /// mover.
+    #[test]
+    fn furniture_and_cars_turned_moving_by_two_frames_alone_turn_static_again() {
+        const TV: u16 = 62;
+        const CAR: u16 = 2;
+        let p = ObjectParams::default();
+        for (class, expected) in [
+            (TV, Verdict::Static),
+            (CAR, Verdict::Static),
+            (0, Verdict::Dynamic),
+        ] {
+            let mut t = ObjectTracker::default();
+            let mut frame = 0;
+            let mut step = |verdict: Verdict| {
+                frame += 1;
+                let mut s = [state(class, 0.0, verdict)];
+                let e = [evidence_of(&s[0], WorldCheck::NotUsed, p.still_min_tracks)];
+                t.update(frame, &mut s, &e, &p);
+                s[0].verdict
+            };
+            for _ in 0..p.unmovable_moving_frames {
+                step(Verdict::Dynamic);
+            }
+            for _ in 1..p.still_frames_to_static {
+                assert_eq!(step(Verdict::Static), Verdict::Dynamic);
+            }
+            assert_eq!(step(Verdict::Static), expected, "class {class}");
         }
     }
 
