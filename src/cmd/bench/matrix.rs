@@ -12,12 +12,9 @@ use stillpoint_synth::{KinectNoise, Noise, Preset};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Presets, comma-separated.
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "living_cross,living_close,living_turn,living_empty"
-    )]
+    /// Presets, comma-separated [default: living_cross, living_close, living_turn,
+    /// living_empty; with --monocular, street too].
+    #[arg(long, value_delimiter = ',')]
     pub presets: Vec<String>,
     /// Seeds: a list (0,1,2) or a range (0-4).
     #[arg(long, default_value = "0-4")]
@@ -79,8 +76,14 @@ fn parse_seeds(s: &str) -> anyhow::Result<Vec<u64>> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let seeds = parse_seeds(&args.seeds)?;
-    let presets: Vec<Preset> = args
-        .presets
+    let mut names: Vec<&str> = args.presets.iter().map(String::as_str).collect();
+    if names.is_empty() {
+        names = vec!["living_cross", "living_close", "living_turn", "living_empty"];
+        if args.monocular {
+            names.push("street");
+        }
+    }
+    let presets: Vec<Preset> = names
         .iter()
         .map(|p| {
             Preset::from_name(p).with_context(|| {
