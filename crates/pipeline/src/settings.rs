@@ -155,6 +155,16 @@ pub enum SettingsError {
         /// The parser's message.
         msg: String,
     },
+    /// A key that was a setting and moved.
+    #[error("{origin}: `{key}` is no longer a setting of its own: set `{now}`")]
+    MovedKey {
+        /// `FILE:LINE` or `--set ...`.
+        origin: String,
+        /// The dotted key.
+        key: String,
+        /// The key that holds the value now.
+        now: &'static str,
+    },
     /// A key that no setting has.
     #[error("{origin}: unknown key `{key}`")]
     UnknownKey {
@@ -180,6 +190,12 @@ pub enum SettingsError {
         arg: String,
     },
 }
+
+/// Keys that were settings and now live elsewhere: refused by name, with where they went.
+const MOVED_KEYS: [(&str, &str); 2] = [
+    ("slam.scale_factor", "orb.scale_factor"),
+    ("slam.n_levels", "orb.n_levels"),
+];
 
 /// A tree and where each of its values came from.
 #[derive(Clone, Debug)]
@@ -216,10 +232,14 @@ impl SettingsTree {
         }
     }
 
-    /// The settings the pipeline itself takes.
+    /// The settings the pipeline itself takes. The SLAM side's pyramid is the extractor's
+    /// (`orb.scale_factor`, `orb.n_levels`), whatever layer set it.
     pub fn pipeline(&self) -> PipelineSettings {
+        let mut slam = self.slam.clone();
+        slam.scale_factor = f64::from(self.orb.scale_factor);
+        slam.n_levels = self.orb.n_levels.max(1);
         PipelineSettings {
-            slam: self.slam.clone(),
+            slam,
             orb: self.orb.clone(),
             stereo: self.stereo.clone(),
         }
@@ -305,6 +325,13 @@ impl SettingsTree {
         let tree: Result<SettingsTree, _> =
             serde_ignored::deserialize(value, |path| unknown.push(path.to_string()));
         if let Some(key) = unknown.into_iter().next() {
+            if let Some(&(_, now)) = MOVED_KEYS.iter().find(|(old, _)| *old == key) {
+                return Err(SettingsError::MovedKey {
+                    origin: origin_of(&key),
+                    key,
+                    now,
+                });
+            }
             return Err(SettingsError::UnknownKey {
                 origin: origin_of(&key),
                 key,
@@ -544,6 +571,30 @@ mod tests {
             d.contains("front_end.dynamic.judge.ata_ratio = 0.4  # default"),
             "{d}"
         );
+    }
+
+    /// The pyramid has one home, `orb`: an override there reaches tracking and mapping (their
+    /// octave scales and weights), and the SLAM side has no copy to set apart.
+    #[test]
+    fn the_orb_pyramid_reaches_the_slam_side() {
+        let l = tree()
+            .layered(
+                &[],
+                &["orb.scale_factor=1.3".into(), "orb.n_levels=6".into()],
+            )
+            .unwrap();
+        let p = l.tree.pipeline();
+        assert_eq!(p.slam.scale_factor, f64::from(1.3f32));
+        assert_eq!(p.slam.n_levels, 6);
+        let e = tree()
+            .layered(&[], &["slam.scale_factor=1.3".into()])
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            "--set slam.scale_factor=1.3: `slam.scale_factor` is no longer a setting of its own: set `orb.scale_factor`"
+        );
+        assert!(!l.describe().contains("slam.scale_factor"));
     }
 
     #[test]

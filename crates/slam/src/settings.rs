@@ -3,6 +3,14 @@
 use serde::{Deserialize, Serialize};
 use stillpoint_geometry::PinholeCamera;
 
+fn default_scale_factor() -> f64 {
+    1.2
+}
+
+fn default_n_levels() -> usize {
+    8
+}
+
 /// Settings of tracking, local mapping and the optimisers.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct SlamSettings {
@@ -23,9 +31,13 @@ pub struct SlamSettings {
     pub th_depth: f64,
     /// Frames per second (`Camera.fps`): max frames between keyframes.
     pub fps: f64,
-    /// ORB pyramid scale factor (`ORBextractor.scaleFactor`, 1.2).
+    /// ORB pyramid scale factor (`ORBextractor.scaleFactor`, 1.2). Not a setting of its own:
+    /// the extractor's (`orb.scale_factor`) is copied here, so the two never disagree.
+    #[serde(skip, default = "default_scale_factor")]
     pub scale_factor: f64,
-    /// ORB pyramid levels (`ORBextractor.nLevels`, 8).
+    /// ORB pyramid levels (`ORBextractor.nLevels`, 8); the extractor's (`orb.n_levels`), as
+    /// `scale_factor`.
+    #[serde(skip, default = "default_n_levels")]
     pub n_levels: usize,
     /// Keypoints needed to initialise a map (ORB-SLAM, stereo and RGB-D: more than 500).
     pub init_min_keypoints: usize,
