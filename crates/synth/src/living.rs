@@ -11,7 +11,7 @@ use crate::scene::{Motion, Outfit, Route, Scene, coco, person_parts};
 use crate::texture::Style;
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::PI;
 use stillpoint_geometry::Se3;
 
 /// Room bounds of the living room: x, y, z ranges (metres).
@@ -42,55 +42,47 @@ pub fn build(preset: Preset, rng: &mut Pcg64Mcg, photos: &Photos) -> (Scene, Cam
     (s, cam)
 }
 
-fn wave(rng: &mut Pcg64Mcg, amp: f64, period: f64) -> Wave {
-    Wave {
-        amp,
-        period,
-        phase: rng.random_range(0.0..TAU),
-    }
-}
-
 /// The hand-held camera: a slow sway with a faster shake on every axis. Peaks: ~0.3 m/s and
 /// ~25 deg/s; with `fast_turn` the yaw swings +-26 deg every 5 s (peaks ~50 deg/s).
 fn handheld(fast_turn: bool, rng: &mut Pcg64Mcg) -> CameraPath {
     let d = |x: f64| x.to_radians();
     let pos = [
         vec![
-            wave(rng, 0.15, 9.0),
-            wave(rng, 0.03, 2.3),
-            wave(rng, 0.004, 0.7),
+            Wave::random(rng, 0.15, 9.0),
+            Wave::random(rng, 0.03, 2.3),
+            Wave::random(rng, 0.004, 0.7),
         ],
-        vec![wave(rng, 0.08, 7.0), wave(rng, 0.015, 1.9)],
+        vec![Wave::random(rng, 0.08, 7.0), Wave::random(rng, 0.015, 1.9)],
         vec![
-            wave(rng, 0.03, 3.3),
-            wave(rng, 0.006, 1.1),
-            wave(rng, 0.003, 0.55),
+            Wave::random(rng, 0.03, 3.3),
+            Wave::random(rng, 0.006, 1.1),
+            Wave::random(rng, 0.003, 0.55),
         ],
     ];
     let yaw = if fast_turn {
         vec![
-            wave(rng, d(26.0), 5.0),
-            wave(rng, d(3.0), 1.5),
-            wave(rng, d(0.5), 0.45),
+            Wave::random(rng, d(26.0), 5.0),
+            Wave::random(rng, d(3.0), 1.5),
+            Wave::random(rng, d(0.5), 0.45),
         ]
     } else {
         vec![
-            wave(rng, d(7.0), 7.0),
-            wave(rng, d(2.5), 2.1),
-            wave(rng, d(0.5), 0.5),
+            Wave::random(rng, d(7.0), 7.0),
+            Wave::random(rng, d(2.5), 2.1),
+            Wave::random(rng, d(0.5), 0.5),
         ]
     };
     let rot = [
         yaw,
         vec![
-            wave(rng, d(4.0), 6.0),
-            wave(rng, d(1.2), 1.7),
-            wave(rng, d(0.4), 0.45),
+            Wave::random(rng, d(4.0), 6.0),
+            Wave::random(rng, d(1.2), 1.7),
+            Wave::random(rng, d(0.4), 0.45),
         ],
         vec![
-            wave(rng, d(2.5), 8.0),
-            wave(rng, d(0.8), 2.3),
-            wave(rng, d(0.3), 0.6),
+            Wave::random(rng, d(2.5), 8.0),
+            Wave::random(rng, d(0.8), 2.3),
+            Wave::random(rng, d(0.3), 0.6),
         ],
     ];
     CameraPath::Handheld {

@@ -242,6 +242,17 @@ pub struct Wave {
     pub phase: f64,
 }
 
+impl Wave {
+    /// A sinusoid of amplitude `amp` and period `period` with a random phase.
+    pub fn random(rng: &mut Pcg64Mcg, amp: f64, period: f64) -> Wave {
+        Wave {
+            amp,
+            period,
+            phase: rng.random_range(0.0..TAU),
+        }
+    }
+}
+
 fn waves(t: f64, w: &[Wave]) -> f64 {
     w.iter().map(|w| w.amp * wave(t, w.period, w.phase)).sum()
 }

@@ -11,7 +11,7 @@ use crate::scene::{Motion, Route, Scene, coco, person_parts};
 use crate::texture::{Canvas, Style, random_colour};
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::PI;
 
 /// Half the width of the two driving lanes (m): lane centres at +-`LANE / 2`.
 pub const LANE: f64 = 3.5;
@@ -45,14 +45,6 @@ pub fn build(rng: &mut Pcg64Mcg, photos: &Photos) -> (Scene, CameraPath) {
     (s, cam)
 }
 
-fn wave(rng: &mut Pcg64Mcg, amp: f64, period: f64) -> Wave {
-    Wave {
-        amp,
-        period,
-        phase: rng.random_range(0.0..TAU),
-    }
-}
-
 /// The camera: along the right lane at `speed` m/s, 4 degrees down, with a gentle weave in the
 /// lane and the pitch and roll of a car on an uneven road.
 fn drive(rng: &mut Pcg64Mcg, speed: f64) -> CameraPath {
@@ -61,12 +53,21 @@ fn drive(rng: &mut Pcg64Mcg, speed: f64) -> CameraPath {
         start: P3::new(LANE / 2.0, 0.0, CAMERA_HEIGHT),
         speed,
         pitch: d(4.0),
-        sway: vec![wave(rng, 0.15, 7.0), wave(rng, 0.03, 2.5)],
-        bounce: vec![wave(rng, 0.01, 0.8), wave(rng, 0.005, 0.35)],
+        sway: vec![Wave::random(rng, 0.15, 7.0), Wave::random(rng, 0.03, 2.5)],
+        bounce: vec![Wave::random(rng, 0.01, 0.8), Wave::random(rng, 0.005, 0.35)],
         rot: [
-            vec![wave(rng, d(1.0), 7.0), wave(rng, d(0.3), 2.1)],
-            vec![wave(rng, d(0.4), 1.3), wave(rng, d(0.2), 0.5)],
-            vec![wave(rng, d(0.4), 2.7), wave(rng, d(0.15), 0.9)],
+            vec![
+                Wave::random(rng, d(1.0), 7.0),
+                Wave::random(rng, d(0.3), 2.1),
+            ],
+            vec![
+                Wave::random(rng, d(0.4), 1.3),
+                Wave::random(rng, d(0.2), 0.5),
+            ],
+            vec![
+                Wave::random(rng, d(0.4), 2.7),
+                Wave::random(rng, d(0.15), 0.9),
+            ],
         ],
     }
 }
