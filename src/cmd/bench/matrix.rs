@@ -78,7 +78,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let seeds = parse_seeds(&args.seeds)?;
     let mut names: Vec<&str> = args.presets.iter().map(String::as_str).collect();
     if names.is_empty() {
-        names = vec!["living_cross", "living_close", "living_turn", "living_empty"];
+        names = vec![
+            "living_cross",
+            "living_close",
+            "living_turn",
+            "living_empty",
+        ];
         if args.monocular {
             names.push("street");
         }
