@@ -62,8 +62,13 @@ pub fn synth_static(dir: &Path, frames: usize, seed: u64) {
 
 /// `stillpoint synth --preset walking_xyz --frames N [EXTRA...] --out DIR`; must succeed.
 pub fn synth_walking(dir: &Path, frames: usize, extra: &[&str]) {
+    synth_preset(dir, "walking_xyz", frames, extra);
+}
+
+/// `stillpoint synth --preset PRESET --frames N [EXTRA...] --out DIR`; must succeed.
+pub fn synth_preset(dir: &Path, preset: &str, frames: usize, extra: &[&str]) {
     let st = stillpoint()
-        .args(["synth", "--preset", "walking_xyz", "--frames"])
+        .args(["synth", "--preset", preset, "--frames"])
         .arg(frames.to_string())
         .args(extra)
         .arg("--out")

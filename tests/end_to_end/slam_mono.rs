@@ -136,18 +136,7 @@ fn blacken(seq: &Path, indices: impl Fn(usize) -> bool) {
 fn a_monocular_drive_down_a_street_keeps_the_moving_cars_out_of_the_map() {
     let dir = tempfile::tempdir().unwrap();
     let seq = dir.path().join("street");
-    let st = stillpoint()
-        .args([
-            "synth", "--preset", "street", "--frames", "120", "--masks", "--out",
-        ])
-        .arg(&seq)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    crate::common::synth_preset(&seq, "street", 120, &["--masks"]);
     std::fs::remove_file(seq.join("depth.txt")).unwrap();
     let run = |extra: &str| {
         let out = stillpoint()
