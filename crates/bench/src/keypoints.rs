@@ -12,7 +12,7 @@
 //! (`support_*`) and clear. Frame 0 has no previous frame and is skipped by every method.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 use stillpoint_detect::{DetectInput, DetectSettings, GtDetectorParams, open_detector};
@@ -65,7 +65,7 @@ pub struct KeypointOptions {
     /// judgement (no sub-pixel person rule) and culling (no unknown objects).
     pub overrides: Overrides,
     /// Use the sequence's depth (else ours_depth culls by the paper's rule, and `ours` runs the
-    /// sequence monocular, from a sibling folder `DATASET_mono` of links without the depth).
+    /// sequence monocular, from a temporary folder of links without the depth).
     pub use_depth: bool,
     /// Use at most this many frames (0: all).
     pub max_frames: usize,
@@ -541,19 +541,23 @@ struct RunDecisions {
 
 /// `stillpoint run` on the first `n` frames with the bench's detector and settings layers, in
 /// run's default mode: what it culled on each frame. Without depth, the sequence is run
-/// monocular from a sibling folder of links that leaves the depth out.
+/// monocular from a folder of links that leaves the depth out, made in the temporary folder
+/// (the dataset's own folder may be read-only) and removed after.
 fn run_decisions(o: &KeypointOptions, n: usize) -> Result<RunDecisions, BenchError> {
-    let dataset = if o.use_depth {
-        o.dataset.clone()
-    } else {
-        crate::matrix::without_depth(&o.dataset)?
-    };
+    let mono = (!o.use_depth).then(|| {
+        std::env::temp_dir()
+            .join(format!("stillpoint-bench-{}", std::process::id()))
+            .join(o.dataset.file_name().unwrap_or_default())
+    });
+    if let Some(mono) = &mono {
+        crate::matrix::link_without_depth(&o.dataset, mono)?;
+    }
     let options = RunOptions {
         detector: Some(o.detector.clone()),
         model: o.model.clone(),
         frames: Some(n),
         overrides: o.overrides.clone(),
-        ..RunOptions::new(dataset)
+        ..RunOptions::new(mono.clone().unwrap_or_else(|| o.dataset.clone()))
     };
     let mut frames = std::collections::BTreeMap::new();
     let summary = run_sequence(&options, &mut |e| {
@@ -567,7 +571,12 @@ fn run_decisions(o: &KeypointOptions, n: usize) -> Result<RunDecisions, BenchErr
                 },
             );
         }
-    })?;
+    });
+    // Links only: removing them leaves the sequence as it was.
+    if let Some(parent) = mono.as_deref().and_then(Path::parent) {
+        let _ = std::fs::remove_dir_all(parent);
+    }
+    let summary = summary?;
     Ok(RunDecisions {
         frames,
         culled: summary.culled_per_frame.iter().sum(),
@@ -620,7 +629,9 @@ mod tests {
             let run_dir = if use_depth {
                 dir.clone()
             } else {
-                dir.with_file_name("walking_xyz_mono")
+                // The bench left nothing beside the sequence.
+                assert!(!dir.with_file_name("walking_xyz_mono").exists());
+                crate::matrix::without_depth(&dir).unwrap()
             };
             let run = run_sequence(
                 &RunOptions {

@@ -144,8 +144,14 @@ pub(crate) fn without_depth(dir: &Path) -> Result<PathBuf, BenchError> {
     let mut name = dir.file_name().unwrap_or_default().to_os_string();
     name.push("_mono");
     let mono = dir.with_file_name(name);
+    link_without_depth(dir, &mono)?;
+    Ok(mono)
+}
+
+/// Fill `mono` with links to everything of `dir` but its depth (links already there are kept).
+pub(crate) fn link_without_depth(dir: &Path, mono: &Path) -> Result<(), BenchError> {
     let io = |what: &str, p: &Path| crate::io_error(format!("{what} {}", p.display()));
-    std::fs::create_dir_all(&mono).map_err(io("creating", &mono))?;
+    std::fs::create_dir_all(mono).map_err(io("creating", mono))?;
     for entry in std::fs::read_dir(dir).map_err(io("reading", dir))? {
         let entry = entry.map_err(io("reading", dir))?;
         let file = entry.file_name();
@@ -158,7 +164,7 @@ pub(crate) fn without_depth(dir: &Path) -> Result<PathBuf, BenchError> {
             std::os::unix::fs::symlink(&target, &link).map_err(io("linking", &link))?;
         }
     }
-    Ok(mono)
+    Ok(())
 }
 
 fn run_one(

@@ -38,7 +38,7 @@ pub struct Args {
     #[arg(long)]
     dump_keypoints: Option<PathBuf>,
     /// Ignore the sequence's depth (ours_depth then culls by the paper's rule, and `ours` runs
-    /// the sequence monocular, from a folder `DATASET_mono` of links made beside it).
+    /// the sequence monocular, from a temporary folder of links to it).
     #[arg(long)]
     no_depth: bool,
     /// Use at most this many frames (0: all).
