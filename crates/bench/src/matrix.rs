@@ -49,6 +49,9 @@ pub struct MatrixOptions {
     /// Run each sequence monocular: its depth withheld (a `PRESET_sSEED_mono` folder beside it
     /// without `depth.txt`); the ATE is then after a Sim(3) alignment.
     pub monocular: bool,
+    /// The settings tree's layers (`--config`, `--set`) over each sequence's own, as `run`
+    /// takes them; every run of the matrix gets them.
+    pub layers: stillpoint_run::Overrides,
     /// Set to stop the runs early.
     pub stop: Option<&'static AtomicBool>,
 }
@@ -181,10 +184,16 @@ fn run_one(
             model: o.model.clone(),
             stop: o.stop,
             overrides: stillpoint_run::Overrides {
+                config: o.layers.config.clone(),
                 sets: o
-                    .threaded
-                    .then(|| "slam.local_mapping_thread=true".to_string())
-                    .into_iter()
+                    .layers
+                    .sets
+                    .iter()
+                    .cloned()
+                    .chain(
+                        o.threaded
+                            .then(|| "slam.local_mapping_thread=true".to_string()),
+                    )
                     .collect(),
                 ..Default::default()
             },
@@ -432,6 +441,7 @@ mod tests {
             threaded: false,
             dense: false,
             monocular: false,
+            layers: Default::default(),
             stop: None,
         };
         let err = run_matrix(&o).unwrap_err().to_string();

@@ -54,6 +54,10 @@ pub struct Args {
     /// scene's true static surfaces.
     #[arg(long)]
     pub dense: bool,
+    /// The settings tree's layers over each sequence's own, as `run` takes them (every run
+    /// gets them; `--threaded` is `--set slam.local_mapping_thread=true`).
+    #[command(flatten)]
+    pub layers: crate::cmd::run::SettingsArgs,
     #[arg(long)]
     pub json: bool,
 }
@@ -115,6 +119,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         threaded: args.threaded,
         monocular: args.monocular,
         dense: args.dense,
+        layers: stillpoint_run::Overrides {
+            config: args.layers.config.clone(),
+            sets: args.layers.sets.clone(),
+            ..Default::default()
+        },
         stop: Some(crate::interrupt_flag()),
     })?;
     if args.json {
