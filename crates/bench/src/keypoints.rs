@@ -4,7 +4,8 @@
 //! sequence has depth), with the per-keypoint motion evidence (`ours_depth+kp`), what `stillpoint
 //! run` decides (`ours`: a run of the sequence with the same settings tree, in run's default
 //! mode, scored on that run's own keypoints; keypoints it keeps as track-only count as not
-//! culled), a person-box-only baseline (Crowd-SLAM: cull everything in person boxes) and a
+//! culled, and what an extraction without the feature budget finds where the run kept no
+//! corner counts as culled), a person-box-only baseline (Crowd-SLAM: cull everything in person boxes) and a
 //! detection-free baseline (epipolar outliers only, dilated to a radius). Also times the
 //! geometry module per frame, as a ratio to ORB extraction of the same frames.
 //!
@@ -169,6 +170,12 @@ pub struct KeypointReport {
     pub ours_culled: usize,
     /// Frames `ours`'s run tracked.
     pub ours_tracked: usize,
+    /// Keypoints an extraction without the feature budget finds on the pixels where `ours`'s
+    /// run kept no corner (`front_end.orb_exclusion`): scored in `ours` as culled.
+    pub ours_excluded: usize,
+    /// The median share of the static keypoints (centre off the generator's mask) that `ours`'s
+    /// run culled per frame: `run --json`'s `static_keypoints_culled_share`.
+    pub ours_static_culled_median: Option<f64>,
     /// Per frame.
     pub per_frame: Vec<FrameReport>,
 }
@@ -270,6 +277,7 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
     let mut stages = [0.0f64; 4];
     let mut models: Vec<(MotionModel, usize)> = Vec::new();
     let mut prev: Option<Gray8> = None;
+    let mut ours_excluded = 0usize;
     for (index, (t, mask_path)) in frames.iter().take(n).enumerate() {
         let frame = sequence
             .frame(index)
@@ -437,12 +445,27 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
         }
         // `ours` on its run's own keypoints, against the same mask.
         if let Some(d) = ours.frames.get(&index) {
-            let truth = strict_truth(&mask, &d.keypoints, o.gt_radius);
-            let fast_moving = fast_test_moving(&mask, &d.keypoints_with_octaves(), &scales);
-            counts[OURS].add(&d.dynamic, &truth);
-            totals[OURS].add(&d.dynamic, &truth);
-            support_totals[OURS].add(&d.dynamic, &support_truth(&fast_moving));
-            clear_totals[OURS].add_known(&d.dynamic, &clear_truth(&fast_moving));
+            let run_truth = strict_truth(&mask, &d.keypoints, o.gt_radius);
+            let run_fast = fast_test_moving(&mask, &d.keypoints_with_octaves(), &scales);
+            counts[OURS].add(&d.dynamic, &run_truth);
+            totals[OURS].add(&d.dynamic, &run_truth);
+            support_totals[OURS].add(&d.dynamic, &support_truth(&run_fast));
+            clear_totals[OURS].add_known(&d.dynamic, &clear_truth(&run_fast));
+            // The feature budget decided too: what an extraction without it finds on the
+            // excluded pixels counts as culled, scored against the same truth.
+            if let Some(excluded) = d.excluded.as_deref() {
+                let inside: Vec<usize> = (0..kps.len())
+                    .filter(|&i| excluded_at(excluded, kps[i]))
+                    .collect();
+                let pick = |v: &[bool]| inside.iter().map(|&i| v[i]).collect::<Vec<bool>>();
+                let culled = vec![true; inside.len()];
+                counts[OURS].add(&culled, &pick(&truth));
+                totals[OURS].add(&culled, &pick(&truth));
+                support_totals[OURS].add(&culled, &pick(&support));
+                let clear_inside: Vec<Option<bool>> = inside.iter().map(|&i| clear[i]).collect();
+                clear_totals[OURS].add_known(&culled, &clear_inside);
+                ours_excluded += inside.len();
+            }
         }
         let report = FrameReport {
             frame: index,
@@ -501,8 +524,16 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
         culling_ms_mean: mean(&ours_ms),
         ours_culled: ours.culled,
         ours_tracked: ours.tracked,
+        ours_static_culled_median: ours.static_culled_median,
+        ours_excluded,
         per_frame,
     })
+}
+
+/// The keypoint at `k` lies on a pixel where the feature budget kept no corner.
+fn excluded_at(excluded: &Gray8, k: [f32; 2]) -> bool {
+    let (x, y) = (k[0] as usize, k[1] as usize);
+    x < excluded.width && y < excluded.height && excluded.get(x, y) != 0
 }
 
 /// Where `ours` sits in [`METHODS`].
@@ -513,6 +544,7 @@ struct RunFrame {
     keypoints: Vec<[f32; 2]>,
     octaves: Vec<u8>,
     dynamic: Vec<bool>,
+    excluded: Option<std::sync::Arc<Gray8>>,
 }
 
 impl RunFrame {
@@ -537,6 +569,7 @@ struct RunDecisions {
     frames: std::collections::BTreeMap<usize, RunFrame>,
     culled: usize,
     tracked: usize,
+    static_culled_median: Option<f64>,
 }
 
 /// `stillpoint run` on the first `n` frames with the bench's detector and settings layers, in
@@ -568,6 +601,7 @@ fn run_decisions(o: &KeypointOptions, n: usize) -> Result<RunDecisions, BenchErr
                     keypoints: result.keypoints.clone(),
                     octaves: result.octaves.clone(),
                     dynamic: result.dynamic.clone(),
+                    excluded: result.excluded.clone(),
                 },
             );
         }
@@ -581,6 +615,7 @@ fn run_decisions(o: &KeypointOptions, n: usize) -> Result<RunDecisions, BenchErr
         frames,
         culled: summary.culled_per_frame.iter().sum(),
         tracked: summary.tracked,
+        static_culled_median: summary.static_culled_stats().map(|(_, median, _)| median),
     })
 }
 
@@ -610,6 +645,7 @@ mod tests {
             (false, vec![]),
             (true, vec!["front_end.orb_exclusion=false".to_string()]),
         ] {
+            let budget = sets.is_empty();
             let overrides = Overrides {
                 sets,
                 ..Overrides::default()
@@ -646,12 +682,24 @@ mod tests {
             assert!(culled > 0, "depth {use_depth}: nothing culled");
             assert_eq!(report.ours_culled, culled, "depth {use_depth}");
             assert_eq!(report.ours_tracked, run.tracked, "depth {use_depth}");
-            // Frame 0 is not scored; every other frame's culled keypoints are.
+            assert_eq!(
+                report.ours_static_culled_median,
+                run.static_culled_stats().map(|(_, median, _)| median),
+                "depth {use_depth}"
+            );
+            // Frame 0 is not scored; every other frame's culled keypoints are, and what the
+            // feature budget kept out counts as culled (monocular takes every corner in the
+            // map's first second, all of these 12 frames).
+            assert_eq!(
+                report.ours_excluded > 0,
+                budget && use_depth,
+                "depth {use_depth}"
+            );
             let ours = &report.methods[OURS];
             assert_eq!(ours.method, "ours");
             assert_eq!(
                 ours.counts.tp + ours.counts.fp,
-                culled - run.culled_per_frame[0],
+                culled - run.culled_per_frame[0] + report.ours_excluded,
                 "depth {use_depth}"
             );
         }

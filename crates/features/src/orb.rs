@@ -2,6 +2,7 @@
 //! v1.0): image pyramid, FAST on a grid of cells with a fallback threshold, quadtree ("octree")
 //! distribution, intensity-centroid angle, steered BRIEF on a blurred level.
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use crate::fast::{self, Corner};
@@ -126,8 +127,9 @@ pub struct OrbExtractor {
     /// Rectangles `[x1, y1, x2, y2]` (level-0 pixels) where no corner is kept, so the budget
     /// goes to the rest of the image.
     exclude: Vec<[f32; 4]>,
-    /// Level-0 mask (non-zero = keep no corner there), beside the rectangles.
-    exclude_mask: Option<Gray8>,
+    /// Level-0 mask (non-zero = keep no corner there), beside the rectangles; shared with
+    /// whoever set it, who may report it.
+    exclude_mask: Option<Arc<Gray8>>,
 }
 
 /// Which corner score picks the keypoint kept in each quadtree node.
@@ -223,7 +225,7 @@ impl OrbExtractor {
 
     /// Keep no corner where `mask` (level-0 pixels) is non-zero in the next extractions: a
     /// mover's own pixels rather than its whole box (`None` = no mask).
-    pub fn set_exclusion_mask(&mut self, mask: Option<Gray8>) {
+    pub fn set_exclusion_mask(&mut self, mask: Option<Arc<Gray8>>) {
         self.exclude_mask = mask;
     }
 
@@ -314,7 +316,7 @@ impl OrbExtractor {
             low_th,
             score: self.score,
             exclude: &self.exclude,
-            exclude_mask: self.exclude_mask.as_ref(),
+            exclude_mask: self.exclude_mask.as_deref(),
             features_per_level: &self.features_per_level,
             scale_factors: &self.scale_factors,
             umax: &self.umax,

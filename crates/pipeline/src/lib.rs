@@ -29,6 +29,7 @@ pub mod settings;
 
 pub use settings::{Layered, SettingsError, SettingsTree, Source};
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use stillpoint_datasets::{Frame, Sensor};
@@ -36,6 +37,7 @@ use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::DynamicFrontEnd;
 use stillpoint_frontend::{FilterInput, KeypointFilter};
 use stillpoint_geometry::Se3;
+use stillpoint_image::Gray8;
 use stillpoint_slam::data::Map;
 use stillpoint_slam::map_file::{MapFile, MapFileError};
 use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths};
@@ -128,6 +130,9 @@ pub struct FrameResult {
     pub keypoints: Vec<[f32; 2]>,
     /// Per keypoint: the pyramid level ORB found it on.
     pub octaves: Vec<u8>,
+    /// The pixels where ORB kept no corner (the feature budget: last frame's movers); `None`
+    /// when it kept them everywhere. Part of the front-end's decision, with [`Self::dynamic`].
+    pub excluded: Option<Arc<Gray8>>,
     /// Per keypoint: `true` = judged on a moving object and removed before tracking.
     pub dynamic: Vec<bool>,
     /// Per keypoint: kept for tracking but barred from creating map points (on an object not
@@ -287,13 +292,18 @@ impl Pipeline {
     pub fn track(&mut self, frame: &Frame) -> Result<FrameResult, PipelineError> {
         let mut timings = FrameTimings::default();
         let t0 = Instant::now();
-        if let Some(f) = self.front_end.as_ref() {
+        let mut excluded = self.front_end.as_ref().and_then(|f| {
             let (w, h) = (frame.gray.width, frame.gray.height);
-            let mask = f.orb_exclusion_mask(frame.depth.as_ref(), w, h);
-            self.orb.set_exclusion_mask(mask);
-        }
+            f.orb_exclusion_mask(frame.depth.as_ref(), w, h)
+                .map(Arc::new)
+        });
+        self.orb.set_exclusion_mask(excluded.clone());
         let left_orb = match self.orb_init.as_mut() {
-            Some(o) if self.system.wants_initial_features(frame.index) => o,
+            Some(o) if self.system.wants_initial_features(frame.index) => {
+                // The map's first frames take every corner (the mask is not the init's).
+                excluded = None;
+                o
+            }
             _ => &mut self.orb,
         };
         let orb_right = &mut self.orb_right;
@@ -439,6 +449,7 @@ impl Pipeline {
             state: report.state,
             keypoints,
             octaves,
+            excluded,
             dynamic,
             no_new_points,
             dynamic_boxes,

@@ -661,6 +661,7 @@ mod tests {
             state: stillpoint_slam::TrackingState::Ok,
             keypoints: vec![],
             octaves: vec![],
+            excluded: None,
             dynamic: vec![],
             no_new_points: vec![],
             dynamic_boxes: 0,

@@ -111,15 +111,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             fmt_opt(m.clear_recall)
         );
     }
-    if let Some(m) = report.methods.iter().find(|m| m.method == "ours") {
-        let static_kps = (m.counts.fp + m.counts.tn).max(1);
-        println!(
-            "ours: `stillpoint run` on these frames, scored on its own keypoints: {} culled, {} frames tracked, {:.1} % of the static keypoints culled",
-            report.ours_culled,
-            report.ours_tracked,
-            100.0 * m.counts.fp as f64 / static_kps as f64
-        );
-    }
+    println!(
+        "ours: `stillpoint run` on these frames, scored on its own keypoints: {} culled, {} more where the feature budget kept no corner, {} frames tracked, a median {} of the static keypoints culled per frame",
+        report.ours_culled,
+        report.ours_excluded,
+        report.ours_tracked,
+        report
+            .ours_static_culled_median
+            .map_or("-".to_string(), |s| format!("{:.1} %", 100.0 * s)),
+    );
     println!("motion models: {:?}", report.models);
     let s = report.geometry_stage_ms_mean;
     println!(
