@@ -44,7 +44,7 @@ use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths}
 use stillpoint_slam::module::loop_closing::LoopStats;
 use stillpoint_slam::place::Vocabulary;
 use stillpoint_slam::{
-    Descriptor, Feature, KeypointDepth, LoadedMapMode, SlamError, SlamSettings, System,
+    Backfilled, Descriptor, Feature, KeypointDepth, LoadedMapMode, SlamError, SlamSettings, System,
     TrackingState,
 };
 use stillpoint_trajectory::{Trajectory, TrajectoryError};
@@ -151,6 +151,10 @@ pub struct FrameResult {
     pub relocalised: bool,
     /// A new map was started.
     pub new_map: bool,
+    /// Monocular, on the frame that started a map: earlier frames of this run (between the
+    /// map's two first views) that got their poses now, oldest first. A run's trajectory and
+    /// its count of tracked frames take them in.
+    pub backfilled: Vec<Backfilled>,
     /// Time per stage.
     pub timings: FrameTimings,
 }
@@ -426,11 +430,12 @@ impl Pipeline {
         if let Some(f) = self.front_end.as_mut() {
             f.observe_pose(frame.index, report.pose_wc.as_ref());
         }
-        if let Some(p) = report.pose_wc
-            && self.stamps.last().is_none_or(|&l| frame.timestamp > l)
-        {
-            self.stamps.push(frame.timestamp);
-            self.poses.push(p);
+        let late = report.backfilled.iter().map(|b| (b.timestamp, b.pose_wc));
+        for (t, p) in late.chain(report.pose_wc.map(|p| (frame.timestamp, p))) {
+            if self.stamps.last().is_none_or(|&l| t > l) {
+                self.stamps.push(t);
+                self.poses.push(p);
+            }
         }
         // Tracking saw the kept keypoints only: spread its flags back over all of them.
         let matched = if report.matched.is_empty() {
@@ -458,6 +463,7 @@ impl Pipeline {
             new_keyframe: report.new_keyframe,
             relocalised: report.relocalised,
             new_map: report.new_map,
+            backfilled: report.backfilled,
             timings,
         })
     }

@@ -670,6 +670,7 @@ mod tests {
             new_keyframe: false,
             relocalised: false,
             new_map: false,
+            backfilled: vec![],
             timings: Default::default(),
         }
     }

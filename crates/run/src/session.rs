@@ -402,16 +402,20 @@ pub fn run_sequence(
             first_relocalisation = Some(culled.len() - 1);
         }
         new_maps += r.new_map as usize;
-        if let Some(p) = r.pose_wc {
+        // Earlier frames a new monocular map took in come first, in time order.
+        let late = r
+            .backfilled
+            .iter()
+            .map(|b| (b.index, b.timestamp, b.pose_wc));
+        for (index, t, p) in late.chain(r.pose_wc.map(|p| (i, frame.timestamp, p))) {
             tracked += 1;
-            if written.is_none_or(|l| frame.timestamp > l) {
-                written = Some(frame.timestamp);
+            if written.is_none_or(|l| t > l) {
+                written = Some(t);
                 if let Some(w) = writer.as_mut() {
-                    w.write(frame.timestamp, &p)
-                        .map_err(|source| RunError::Trajectory {
-                            context: format!("writing frame {i}"),
-                            source,
-                        })?;
+                    w.write(t, &p).map_err(|source| RunError::Trajectory {
+                        context: format!("writing frame {index}"),
+                        source,
+                    })?;
                 }
             }
         }

@@ -40,7 +40,7 @@ pub mod solve;
 mod system;
 
 pub use data::frame::{Descriptor, Feature, Frame, KeypointDepth};
-pub use module::tracking::TrackingState;
+pub use module::tracking::{Backfilled, TrackingState};
 pub use settings::SlamSettings;
 pub use system::{FrameReport, LoadedMapMode, System};
 

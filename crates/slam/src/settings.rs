@@ -228,6 +228,11 @@ pub struct MonoInitSettings {
     /// Seconds after the map starts during which frames are still extracted with
     /// `feature_factor` times the features (ORB-SLAM3: `mMaxFrames`, one second of frames).
     pub young_map_seconds: f64,
+    /// Ours: once the map stands, the frames between its two views (up to this many, the
+    /// newest) are tracked in it and get their poses late, so that a recording's trajectory
+    /// starts at the map's first keyframe rather than at the frame that had the parallax (0:
+    /// ORB-SLAM's way, those frames stay without a pose).
+    pub backfill_frames: usize,
 }
 
 impl Default for MonoInitSettings {
@@ -244,6 +249,7 @@ impl Default for MonoInitSettings {
             min_points_after_ba: 100,
             feature_factor: 5,
             young_map_seconds: 1.0,
+            backfill_frames: 100,
         }
     }
 }

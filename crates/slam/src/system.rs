@@ -48,6 +48,9 @@ pub struct FrameReport {
     /// Of `tracking_ms`, the time spent waiting for the map while local mapping or loop
     /// closing held it (ms).
     pub map_wait_ms: f64,
+    /// Monocular, on the frame that started a map: the earlier frames between its two views,
+    /// tracked in it (oldest first).
+    pub backfilled: Vec<crate::Backfilled>,
 }
 
 enum Mapping {
@@ -443,6 +446,16 @@ impl System {
                     }
                 }
             }
+            // Frames tracked late come before this one: the anchors stay in time order.
+            for b in &outcome.backfilled {
+                if let Some(k) = map.keyframes.get(&b.reference) {
+                    self.anchors.push((
+                        b.timestamp,
+                        b.reference,
+                        b.pose_wc.inverse() * k.pose_cw.inverse(),
+                    ));
+                }
+            }
             if let Some(wc) = outcome.pose_wc
                 && let Some(r) = self.tracker.reference_keyframe()
                 && let Some(k) = map.keyframes.get(&r)
@@ -498,6 +511,7 @@ impl System {
             new_map: outcome.new_map,
             tracking_ms,
             map_wait_ms,
+            backfilled: outcome.backfilled,
         })
     }
 

@@ -37,6 +37,10 @@ pub struct Initialisation {
     pub model: TwoViewModel,
     /// Parallax of the points, degrees (ORB-SLAM's measure: the 51st largest).
     pub parallax_deg: f64,
+    /// The frames offered between the two views, oldest first (at most
+    /// `MonoInitSettings::backfill_frames` of them, the newest): once the map stands they can
+    /// be tracked in it.
+    pub between: Vec<Frame>,
 }
 
 /// The monocular initialiser's state: the reference frame and where its keypoints were last
@@ -45,6 +49,8 @@ pub struct Initialisation {
 pub struct MonoInitializer {
     reference: Option<Frame>,
     prev_matched: Vec<Vec2>,
+    /// Frames offered since the reference that did not start the map.
+    between: Vec<Frame>,
 }
 
 impl MonoInitializer {
@@ -52,6 +58,18 @@ impl MonoInitializer {
     pub fn reset(&mut self) {
         self.reference = None;
         self.prev_matched.clear();
+        self.between.clear();
+    }
+
+    /// Keep `frame` for tracking once the map stands (the newest `keep` only).
+    fn remember(&mut self, frame: &Frame, keep: usize) {
+        if keep == 0 {
+            return;
+        }
+        if self.between.len() >= keep {
+            self.between.remove(0);
+        }
+        self.between.push(frame.clone());
     }
 
     /// Index of the reference frame, when there is one.
@@ -128,6 +146,7 @@ impl MonoInitializer {
                     matches = pairs.len(),
                     "no reconstruction: {why}"
                 );
+                self.remember(frame, p.backfill_frames);
                 return None;
             }
         };
@@ -157,6 +176,7 @@ impl MonoInitializer {
             self.reset();
             return None;
         };
+        let between = std::mem::take(&mut self.between);
         self.reset();
         Some(Initialisation {
             reference,
@@ -164,6 +184,7 @@ impl MonoInitializer {
             points,
             model: two_view.model,
             parallax_deg: two_view.parallax_deg,
+            between,
         })
     }
 }

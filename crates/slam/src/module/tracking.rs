@@ -54,6 +54,22 @@ pub struct TrackOutcome {
     pub relocalised: bool,
     /// The map started is a new one (the old one was lost for good).
     pub new_map: bool,
+    /// Monocular: the frames between the new map's two first views, tracked in it once it
+    /// stood (`MonoInitSettings::backfill_frames`), oldest first.
+    pub backfilled: Vec<Backfilled>,
+}
+
+/// A frame offered before its monocular map stood, tracked in that map afterwards.
+#[derive(Clone, Copy, Debug)]
+pub struct Backfilled {
+    /// Position of the frame in its sequence.
+    pub index: usize,
+    /// The frame's time (seconds).
+    pub timestamp: f64,
+    /// Camera-to-world pose.
+    pub pose_wc: Se3,
+    /// The keyframe it was tracked against.
+    pub reference: KfId,
 }
 
 /// One pose inlier of a tracked frame.
@@ -100,6 +116,8 @@ pub struct Tracker {
     reloc_candidates: Vec<KfId>,
     /// Monocular: the frame the current map was initialised at.
     pub map_started_at: Option<usize>,
+    /// Monocular: the frames between the two views of the map just started, tracked in it.
+    backfilled: Vec<Backfilled>,
 }
 
 impl Tracker {
@@ -123,6 +141,7 @@ impl Tracker {
             localize: false,
             reloc_candidates: Vec::new(),
             map_started_at: None,
+            backfilled: Vec::new(),
         }
     }
 
@@ -164,6 +183,7 @@ impl Tracker {
                 };
                 if let Some((first, kf)) = started {
                     out.initialised = true;
+                    out.backfilled = std::mem::take(&mut self.backfilled);
                     if first.is_some() {
                         out.new_map = std::mem::take(&mut self.new_map_pending);
                     }
@@ -359,7 +379,7 @@ impl Tracker {
         map: &mut Map,
         origin_cw: Se3,
     ) -> Option<(KfId, KfId)> {
-        let init = self.mono_init.add_frame(frame, &self.s)?;
+        let mut init = self.mono_init.add_frame(frame, &self.s)?;
         if map.current_keyframes().next().is_some() {
             map.start_new_map();
         }
@@ -393,9 +413,131 @@ impl Tracker {
             epoch = map.epoch,
             "monocular map initialised"
         );
+        let second = (init.pose21 * origin_cw, frame.index);
+        self.backfilled = self.track_between(
+            std::mem::take(&mut init.between),
+            &reference,
+            map,
+            [first, kf],
+            second,
+        );
+        if let Some(b) = self.backfilled.first() {
+            info!(
+                frames = self.backfilled.len(),
+                first = b.index,
+                "frames before the monocular map stood tracked in it"
+            );
+        }
         self.start_tracking_from(kf, frame.index);
         self.map_started_at = Some(frame.index);
         Some((first, kf))
+    }
+
+    /// The first view of a new monocular map (its first keyframe) and the frames offered
+    /// between its two views, tracked in it: the initial points projected from a pose between
+    /// the last frame tracked and the second view's (by frame index) and matched in wide
+    /// windows (as after a relocalisation), else matched to the nearer keyframe's points; then
+    /// pose optimisation and a second, narrow projection; kept with as many inliers as a
+    /// tracked frame.
+    fn track_between(
+        &self,
+        frames: Vec<Frame>,
+        first_view: &Frame,
+        map: &Map,
+        kfs: [KfId; 2],
+        second: (Se3, usize),
+    ) -> Vec<Backfilled> {
+        if self.s.mono_init.backfill_frames == 0 {
+            return Vec::new();
+        }
+        let (cw1, i1) = (
+            first_view.pose_cw.unwrap_or_else(Se3::identity),
+            first_view.index,
+        );
+        let (cw2, i2) = second;
+        let mut out = vec![Backfilled {
+            index: i1,
+            timestamp: first_view.timestamp,
+            pose_wc: cw1.inverse(),
+            reference: kfs[0],
+        }];
+        let points: BTreeSet<MpId> = kfs
+            .iter()
+            .filter_map(|k| map.keyframes.get(k))
+            .flat_map(|k| k.map_points.iter().flatten().copied())
+            .collect();
+        let (mut last_cw, mut last_index) = (cw1, i1);
+        for mut f in frames {
+            if f.index <= last_index || f.index >= i2 {
+                continue;
+            }
+            let t = (f.index - last_index) as f64 / (i2 - last_index) as f64;
+            let nearer = if f.index - i1 <= i2 - f.index {
+                kfs[0]
+            } else {
+                kfs[1]
+            };
+            f.map_points.iter_mut().for_each(|m| *m = None);
+            f.outliers.iter_mut().for_each(|o| *o = false);
+            f.pose_cw = Some(last_cw.lerp_slerp(&cw2, t));
+            let mut matches = self.project_points(&mut f, &points, map, 5.0);
+            if matches < self.s.motion_min_matches {
+                f.map_points.iter_mut().for_each(|m| *m = None);
+                matches = search_by_descriptors(
+                    &mut f,
+                    &map.keyframes[&nearer],
+                    map,
+                    self.s.ref_kf_ratio,
+                    self.s.th_low,
+                );
+            }
+            let mut inliers = 0;
+            if matches >= 15 {
+                self.optimize_frame(&mut f, map);
+                Self::discard_outliers(&mut f, map);
+                self.project_points(&mut f, &points, map, self.s.local_map_search_th);
+                inliers = self.optimize_frame(&mut f, map);
+            }
+            debug!(
+                frame = f.index,
+                matches, inliers, "frame before the map stood"
+            );
+            if inliers >= self.s.min_tracked_inliers
+                && let Some(pose) = f.pose_cw
+            {
+                out.push(Backfilled {
+                    index: f.index,
+                    timestamp: f.timestamp,
+                    pose_wc: pose.inverse(),
+                    reference: nearer,
+                });
+                (last_cw, last_index) = (pose, f.index);
+            }
+        }
+        out
+    }
+
+    /// Project `points` into `frame` from its pose and match them in windows of `th` (as
+    /// tracking the local map does); returns the frame's matches.
+    fn project_points(
+        &self,
+        frame: &mut Frame,
+        points: &BTreeSet<MpId>,
+        map: &Map,
+        th: f64,
+    ) -> usize {
+        let Some(pose) = frame.pose_cw else {
+            return 0;
+        };
+        let center = pose.inverse().translation.vector;
+        let taken: BTreeSet<MpId> = frame.map_points.iter().flatten().copied().collect();
+        let projected: Vec<_> = points
+            .iter()
+            .filter(|mp| !taken.contains(mp))
+            .filter_map(|&mp| project_in_frustum(map, mp, &pose, &center, &self.s))
+            .collect();
+        search_by_projection_local(frame, &projected, map, th, &self.s);
+        frame.map_points.iter().flatten().count()
     }
 
     /// Pose optimisation over the frame's matches; marks outliers, returns the inlier count.
