@@ -85,7 +85,8 @@ pub struct Args {
     /// Turn the dynamic front-end off (the ORB-SLAM3-like baseline).
     #[arg(long)]
     pub no_dynamic: bool,
-    /// Run local mapping inline after each keyframe (deterministic) instead of in its own thread.
+    /// Run local mapping inline after each keyframe (deterministic) instead of in its own thread:
+    /// `--set slam.local_mapping_thread=false` (already so for a recording unless `--realtime`).
     #[arg(long)]
     pub sequential: bool,
     /// Cull exactly as the paper's algorithm 3 (static boxes protect their keypoints): without
@@ -99,7 +100,7 @@ pub struct Args {
     #[command(flatten)]
     pub layers: SettingsArgs,
     /// Turn loop closing off (on by default: bag-of-words detection, SE3 verification,
-    /// essential-graph correction).
+    /// essential-graph correction): `--set slam.loop_closing.enabled=false`.
     #[arg(long)]
     pub no_loop_closing: bool,
     /// DBoW2 text vocabulary (ORB-SLAM's ORBvoc.txt) for loop detection; by default loop closing
@@ -395,6 +396,18 @@ pub fn print_culled_row(s: &RunSummary) {
     );
 }
 
+/// The flags that are shorthands for settings, as `--set`s laid before the user's own (which
+/// win): the run's settings tree, and `stillpoint settings`, see them as settings.
+fn shorthands(args: &Args) -> impl Iterator<Item = String> + use<> {
+    [
+        (args.sequential, "slam.local_mapping_thread=false"),
+        (args.no_loop_closing, "slam.loop_closing.enabled=false"),
+    ]
+    .into_iter()
+    .filter(|(on, _)| *on)
+    .map(|(_, set)| set.to_string())
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let kind = parse_kind(args.kind.as_deref())?;
     // clap requires one of them.
@@ -422,7 +435,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         settings: args.settings.clone(),
         out: Some(args.out.clone()),
         detector: (!args.no_dynamic).then(|| args.detector.clone()),
-        sequential: args.sequential,
         realtime: args.realtime,
         frames: args.frames,
         model: args.model.clone(),
@@ -433,8 +445,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         record: args.record.clone(),
         overrides: Overrides {
             config: args.layers.config.clone(),
-            sets: args.layers.sets.clone(),
-            no_loop_closing: args.no_loop_closing,
+            sets: shorthands(&args).chain(args.layers.sets.clone()).collect(),
             vocabulary: args.vocabulary.clone(),
             recording,
             media,
@@ -477,4 +488,43 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        run: Args,
+    }
+
+    /// `--sequential` and `--no-loop-closing` are settings: laid before `--set`, which wins.
+    #[test]
+    fn flags_that_are_settings_become_sets_before_the_users() {
+        let cli = Cli::parse_from([
+            "run",
+            "--dataset",
+            "d",
+            "--sequential",
+            "--no-loop-closing",
+            "--set",
+            "slam.local_mapping_thread=true",
+        ]);
+        let sets: Vec<String> = shorthands(&cli.run)
+            .chain(cli.run.layers.sets.clone())
+            .collect();
+        assert_eq!(
+            sets,
+            [
+                "slam.local_mapping_thread=false",
+                "slam.loop_closing.enabled=false",
+                "slam.local_mapping_thread=true",
+            ]
+        );
+        let plain = Cli::parse_from(["run", "--dataset", "d"]);
+        assert_eq!(shorthands(&plain.run).count(), 0);
+    }
 }

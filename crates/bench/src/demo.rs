@@ -43,7 +43,8 @@ pub struct DemoReport {
     pub moving_intervals: Vec<stillpoint_eval::periods::Interval>,
 }
 
-/// Render the sequence, run it twice (sequential local mapping, so deterministic) and compare.
+/// Render the sequence, run it twice (a file run: local mapping inline, so deterministic) and
+/// compare.
 pub fn demo(o: &DemoOptions, progress: &mut dyn FnMut(Event)) -> Result<DemoReport, BenchError> {
     let dir = match &o.keep {
         Some(d) => d.clone(),
@@ -69,7 +70,6 @@ pub fn demo(o: &DemoOptions, progress: &mut dyn FnMut(Event)) -> Result<DemoRepo
     })?;
     let moving_intervals = stillpoint_eval::periods::dataset_moving_intervals(&dir)?;
     let base = RunOptions {
-        sequential: true,
         stop: o.stop,
         ..RunOptions::new(dir.clone())
     };

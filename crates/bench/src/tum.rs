@@ -60,7 +60,7 @@ pub struct TumRow {
     pub rpe_trans_std: Option<f64>,
 }
 
-/// Run each sequence with the front-end off, then on (sequential local mapping).
+/// Run each sequence with the front-end off, then on (file runs: local mapping inline).
 pub fn paper_table(
     o: &TumOptions,
     progress: &mut dyn FnMut(Event),
@@ -71,7 +71,6 @@ pub fn paper_table(
             let s = run_sequence(
                 &RunOptions {
                     detector: on.then(|| o.detector.clone()),
-                    sequential: true,
                     frames: o.frames,
                     model: o.model.clone(),
                     stop: o.stop,

@@ -66,8 +66,6 @@ pub struct RunOptions {
     pub out: Option<PathBuf>,
     /// The front-end's detector (`yolox`, `gt`, `none`); `None` = dynamic front-end off.
     pub detector: Option<String>,
-    /// Local mapping inline after each keyframe (deterministic) instead of in its own thread.
-    pub sequential: bool,
     /// Only the first N frames (`Some(0)` is an error).
     pub frames: Option<usize>,
     /// The paper's culling only (algorithm 3; none of our culling rules).
@@ -111,7 +109,6 @@ impl RunOptions {
             settings: None,
             out: None,
             detector: None,
-            sequential: false,
             frames: None,
             paper_cull: false,
             model: None,
@@ -136,8 +133,6 @@ pub struct Overrides {
     pub config: Option<PathBuf>,
     /// `section.key=value` overrides (`--set`), applied after the file.
     pub sets: Vec<String>,
-    /// Loop closing off (`--no-loop-closing`).
-    pub no_loop_closing: bool,
     /// A DBoW2 text vocabulary instead of the one trained online.
     pub vocabulary: Option<PathBuf>,
     /// `dataset` is a ROS recording read from these topics (`--bag`).

@@ -122,11 +122,7 @@ pub fn run_sequence(
     if !layers.sources.contains_key("slam.local_mapping_thread") {
         pipeline_settings.slam.local_mapping_thread = live || o.realtime;
     }
-    if o.sequential {
-        pipeline_settings.slam.local_mapping_thread = false;
-    }
     let mapping_thread = pipeline_settings.slam.local_mapping_thread;
-    pipeline_settings.slam.loop_closing.enabled &= !o.overrides.no_loop_closing;
     let vocabulary = o
         .overrides
         .vocabulary
