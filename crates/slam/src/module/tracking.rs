@@ -208,6 +208,13 @@ impl Tracker {
                 if !ok {
                     ok = self.track_reference_keyframe(&mut frame, map);
                 }
+                if !ok && self.velocity.is_none() && self.last_frame.is_some() {
+                    // Just relocalised, no velocity yet, and too few descriptor matches to the
+                    // reference keyframe (a person filling a monocular view): the last frame's
+                    // matches, projected from where it stood (ours).
+                    ok = self.track_from_last_pose(&mut frame, map);
+                    by_motion = ok;
+                }
                 ok && {
                     let n = self.track_local_map(&mut frame, map);
                     out.inliers = n;
@@ -593,15 +600,29 @@ impl Tracker {
         let (Some(last), Some(v)) = (self.last_frame.as_ref(), self.velocity) else {
             return false;
         };
-        let Some(last_pose) = last.pose_cw else {
-            return false;
-        };
         let v = stillpoint_geometry::motion_over_gap(
             &v,
             self.velocity_dt,
             frame.timestamp - last.timestamp,
         );
-        frame.pose_cw = Some(v * last_pose);
+        self.track_with_motion(frame, map, v)
+    }
+
+    /// The motion model with no motion: the last frame's pose as the prior.
+    fn track_from_last_pose(&mut self, frame: &mut Frame, map: &Map) -> bool {
+        self.track_with_motion(frame, map, Se3::identity())
+    }
+
+    /// The last frame's matches projected into `frame` from `motion` times the last pose, in
+    /// windows of the motion model's radius (twice it when too few), then pose optimisation.
+    fn track_with_motion(&mut self, frame: &mut Frame, map: &Map, motion: Se3) -> bool {
+        let Some(last) = self.last_frame.as_ref() else {
+            return false;
+        };
+        let Some(last_pose) = last.pose_cw else {
+            return false;
+        };
+        frame.pose_cw = Some(motion * last_pose);
         frame.map_points.iter_mut().for_each(|m| *m = None);
         let r = self.s.motion_search_radius;
         let mut n = search_by_projection_last(frame, last, map, r, &self.s);
