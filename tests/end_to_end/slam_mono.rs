@@ -208,19 +208,15 @@ fn run_on_a_monocular_folder_reports_a_sim3_ate_and_survives_black_frames() {
     // ORB-SLAM's way (`backfill_frames = 0`): the frames before the map stood stay without a
     // pose, and the trajectory starts at the frame that had the parallax.
     let plain = tmp.path().join("plain.txt");
-    let out = stillpoint()
-        .args([
-            "run",
-            "--detector",
-            "none",
-            "--json",
+    let out = crate::common::run_without_detector_on(
+        &[
             "--dataset",
             path_str(&seq),
-        ])
-        .args(["--set", "slam.mono_init.backfill_frames=0", "--out"])
-        .arg(&plain)
-        .output()
-        .unwrap();
+            "--set",
+            "slam.mono_init.backfill_frames=0",
+        ],
+        &plain,
+    );
     let without = ok_json(&out);
     let t_without = stillpoint_trajectory::read_tum(&plain).unwrap();
     assert!(
