@@ -342,7 +342,8 @@ fn parse_orbslam_yaml_sized(
         scale_factor: d
             .number("ORBextractor.scaleFactor")?
             .map_or(defaults.scale_factor, |v| v as f32),
-        n_levels: int("ORBextractor.nLevels", defaults.n_levels as f64)?.max(1.0) as usize,
+        // 0 is refused by `check_values` (it ran as one level without a word).
+        n_levels: int("ORBextractor.nLevels", defaults.n_levels as f64)? as usize,
         ini_th_fast: int("ORBextractor.iniThFAST", defaults.ini_th_fast as f64)?.min(255.0) as u8,
         min_th_fast: int("ORBextractor.minThFAST", defaults.min_th_fast as f64)?.min(255.0) as u8,
         ..defaults

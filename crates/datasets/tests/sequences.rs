@@ -270,6 +270,10 @@ fn settings_out_of_range_are_errors_naming_file_line_and_key() {
             "DepthMapFactor: 5000",
             "DepthMapFactor: 5000\nORBextractor.nFeatures: 0",
         ),
+        (
+            "DepthMapFactor: 5000",
+            "DepthMapFactor: 5000\nORBextractor.nLevels: 0",
+        ),
     ] {
         let text = base.replace(change, key);
         let e = parse_orbslam_yaml(&text, "bad.yaml".as_ref())
