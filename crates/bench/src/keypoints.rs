@@ -530,10 +530,12 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
     })
 }
 
-/// The keypoint at `k` lies on a pixel where the feature budget kept no corner.
+/// The keypoint at `k` lies on a pixel where the feature budget kept no corner (looked up as
+/// the extractor does).
 fn excluded_at(excluded: &Gray8, k: [f32; 2]) -> bool {
-    let (x, y) = (k[0] as usize, k[1] as usize);
-    x < excluded.width && y < excluded.height && excluded.get(x, y) != 0
+    excluded
+        .get_checked(k[0] as isize, k[1] as isize)
+        .is_some_and(|m| m != 0)
 }
 
 /// Where `ours` sits in [`METHODS`].

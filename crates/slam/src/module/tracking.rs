@@ -116,8 +116,6 @@ pub struct Tracker {
     reloc_candidates: Vec<KfId>,
     /// Monocular: the frame the current map was initialised at.
     pub map_started_at: Option<usize>,
-    /// Monocular: the frames between the two views of the map just started, tracked in it.
-    backfilled: Vec<Backfilled>,
 }
 
 impl Tracker {
@@ -141,7 +139,6 @@ impl Tracker {
             localize: false,
             reloc_candidates: Vec::new(),
             map_started_at: None,
-            backfilled: Vec::new(),
         }
     }
 
@@ -176,14 +173,14 @@ impl Tracker {
                 // Monocular maps start from two keyframes (the reference one comes first).
                 let started = if self.s.monocular {
                     self.initialise_monocular(&mut frame, map, origin)
-                        .map(|(first, kf)| (Some(first), kf))
+                        .map(|(first, kf, between)| (Some(first), kf, between))
                 } else {
                     self.initialise(&mut frame, map, origin)
-                        .map(|kf| (None, kf))
+                        .map(|kf| (None, kf, Vec::new()))
                 };
-                if let Some((first, kf)) = started {
+                if let Some((first, kf, between)) = started {
                     out.initialised = true;
-                    out.backfilled = std::mem::take(&mut self.backfilled);
+                    out.backfilled = between;
                     if first.is_some() {
                         out.new_map = std::mem::take(&mut self.new_map_pending);
                     }
@@ -212,7 +209,7 @@ impl Tracker {
                     // Just relocalised, no velocity yet, and too few descriptor matches to the
                     // reference keyframe (a person filling a monocular view): the last frame's
                     // matches, projected from where it stood (ours).
-                    ok = self.track_from_last_pose(&mut frame, map);
+                    ok = self.track_with_motion(&mut frame, map, Se3::identity());
                     by_motion = ok;
                 }
                 ok && {
@@ -379,13 +376,13 @@ impl Tracker {
     /// Monocular initialisation: the frame goes to the two-view initialiser; once it reconstructs,
     /// the reference frame and this one become the first two keyframes of a map (a new one when
     /// the current map has keyframes) at `origin_cw`, and the triangulated points its points.
-    /// Returns (reference keyframe, current keyframe).
+    /// Returns (reference keyframe, current keyframe, the frames between tracked in the map).
     fn initialise_monocular(
         &mut self,
         frame: &mut Frame,
         map: &mut Map,
         origin_cw: Se3,
-    ) -> Option<(KfId, KfId)> {
+    ) -> Option<(KfId, KfId, Vec<Backfilled>)> {
         let mut init = self.mono_init.add_frame(frame, &self.s)?;
         if map.current_keyframes().next().is_some() {
             map.start_new_map();
@@ -421,23 +418,23 @@ impl Tracker {
             "monocular map initialised"
         );
         let second = (init.pose21 * origin_cw, frame.index);
-        self.backfilled = self.track_between(
+        let between = self.track_between(
             std::mem::take(&mut init.between),
             &reference,
             map,
             [first, kf],
             second,
         );
-        if let Some(b) = self.backfilled.first() {
+        if let Some(b) = between.first() {
             info!(
-                frames = self.backfilled.len(),
+                frames = between.len(),
                 first = b.index,
                 "frames before the monocular map stood tracked in it"
             );
         }
         self.start_tracking_from(kf, frame.index);
         self.map_started_at = Some(frame.index);
-        Some((first, kf))
+        Some((first, kf, between))
     }
 
     /// The first view of a new monocular map (its first keyframe) and the frames offered
@@ -606,11 +603,6 @@ impl Tracker {
             frame.timestamp - last.timestamp,
         );
         self.track_with_motion(frame, map, v)
-    }
-
-    /// The motion model with no motion: the last frame's pose as the prior.
-    fn track_from_last_pose(&mut self, frame: &mut Frame, map: &Map) -> bool {
-        self.track_with_motion(frame, map, Se3::identity())
     }
 
     /// The last frame's matches projected into `frame` from `motion` times the last pose, in
