@@ -12,7 +12,10 @@
 //!   ([`DepthParams::outlier_weight`], [`DepthParams::outlier_half_count`]: many outliers
 //!   outweigh the centre, a single one does not), minus the share of the central samples in
 //!   front of the band ([`DepthParams::occluder_weight`]: the mover is in front of what it
-//!   hides), refined to the median of the central samples in that band;
+//!   hides) and the share of the box's tracked points that moved with the static world in the
+//!   band ([`DepthParams::static_weight`]: the background is where the static points are), plus
+//!   a bonus within the band the object had in the last frame ([`DepthParams::prior_weight`]),
+//!   refined to the median of the central samples in that band;
 //! - the band is that depth ± max([`DepthParams::band_min_m`],
 //!   [`DepthParams::band_relative`] x depth);
 //! - a keypoint with a valid depth is culled when its depth lies in the band of a dynamic box
@@ -23,6 +26,9 @@
 //!   geometric outlier of the box and in that outlier's band is culled too (a hand reaching in
 //!   front of the body); outliers behind the object's band are background at its silhouette and
 //!   do not count (on synth walking_xyz: recall 0.955 → 0.966 at 0.009 precision);
+//! - static-neighbour rule: a keypoint with a tracked point that moved with the static world
+//!   within [`DepthParams::static_radius_px`] at its depth, and no moving one, is kept (the
+//!   floor at a walker's feet, the desk at his hip);
 //! - a keypoint without depth, or in a dynamic box whose depth could not be estimated (too few
 //!   valid samples), is judged by the paper's rule (culled unless a static box holds it).
 //!
@@ -121,19 +127,25 @@ pub fn object_depth(
     bbox: &BBox,
     tracked: &[TrackedPoint],
     depth: &DepthMetres,
+    prior: Option<&ObjectDepth>,
     p: &DepthParams,
 ) -> Option<ObjectDepth> {
     let central = central_samples(bbox, depth, p);
     if central.len() < p.min_samples.max(1) {
         return None;
     }
-    let mut outliers: Vec<f32> = tracked
-        .iter()
-        .filter(|t| t.outlier && bbox.contains_strict(t.cur[0], t.cur[1]))
-        .map(|t| depth_near(depth, t.cur, p.keypoint_window_px, p.min_valid_m))
-        .filter(|&d| valid(d, p))
-        .collect();
-    outliers.sort_by(f32::total_cmp);
+    let depths_of = |outlier: bool| {
+        let mut v: Vec<f32> = tracked
+            .iter()
+            .filter(|t| t.outlier == outlier && bbox.contains_strict(t.cur[0], t.cur[1]))
+            .map(|t| depth_near(depth, t.cur, p.keypoint_window_px, p.min_valid_m))
+            .filter(|&d| valid(d, p))
+            .collect();
+        v.sort_by(f32::total_cmp);
+        v
+    };
+    let outliers = depths_of(true);
+    let inliers = depths_of(false);
     let in_band = |sorted: &[f32], d: f32| {
         let (near, far) = depth_band(d, p);
         sorted.partition_point(|&v| v <= far) - sorted.partition_point(|&v| v < near)
@@ -149,7 +161,15 @@ pub fn object_depth(
         // it is more likely background seen past the object.
         let (near, _) = depth_band(d, p);
         let in_front = central.partition_point(|&v| v < near) as f32 / central.len() as f32;
-        c + p.outlier_weight * o - p.occluder_weight * in_front
+        // The static world moved as the camera did: its depths are not the mover's.
+        let still = if inliers.is_empty() {
+            0.0
+        } else {
+            in_band(&inliers, d) as f32 / inliers.len() as f32
+        };
+        let known = prior.is_some_and(|o| o.holds(d)) as u8 as f32;
+        c + p.outlier_weight * o - p.occluder_weight * in_front - p.static_weight * still
+            + p.prior_weight * known
     };
     // Candidates: the central samples (thinned to at most ~256) and the outliers' depths.
     let step = (central.len() / 256).max(1);
@@ -157,6 +177,7 @@ pub fn object_depth(
         .iter()
         .step_by(step)
         .chain(&outliers)
+        .chain(prior.map(|o| &o.metres))
         .copied()
         .map(|d| (score(d), d))
         .fold(None::<(f32, f32)>, |acc, (s, d)| match acc {
@@ -226,8 +247,9 @@ fn central_samples(bbox: &BBox, depth: &DepthMetres, p: &DepthParams) -> Vec<f32
     samples
 }
 
-/// Fill [`BoxState::depth`] of every dynamic box with [`object_depth`]; static boxes are left
-/// without one (their keypoints are never culled for their own sake).
+/// Fill [`BoxState::depth`] of every dynamic box with [`object_depth`], the depth it holds
+/// going in (its object's in the last frame, if any) the prior; static boxes are left without
+/// one (their keypoints are never culled for their own sake).
 pub fn estimate_object_depths(
     states: &mut [BoxState],
     tracked: &[TrackedPoint],
@@ -236,7 +258,7 @@ pub fn estimate_object_depths(
 ) {
     for s in states.iter_mut() {
         s.depth = if s.verdict == Verdict::Dynamic {
-            object_depth(&s.bbox, tracked, depth, p)
+            object_depth(&s.bbox, tracked, depth, s.depth.as_ref(), p)
         } else {
             None
         };
@@ -316,6 +338,7 @@ pub fn cull_with_depth(input: &DepthCullInput, cull: &CullParams, p: &DepthParam
             (pts, radius)
         })
         .collect();
+    let neighbours = StaticNeighbours::new(tracked, tracked_depths, states, p);
     // Unknown-object option: the outliers in no box, with their depths.
     let boxless: Vec<DepthPoint> = if cull.unknown_objects {
         tracked
@@ -365,6 +388,9 @@ pub fn cull_with_depth(input: &DepthCullInput, cull: &CullParams, p: &DepthParam
             }
             let d = keypoint_depths.get(i).copied().unwrap_or(0.0);
             let protected = || states.iter().filter(|s| inside(s)).any(protects);
+            if valid(d, p) && neighbours.keep([x, y], d, p) {
+                return false;
+            }
             dynamic.any(|(s, (outliers, radius))| match s.depth {
                 Some(o) if valid(d, p) => {
                     let whole = !(p.seated_parts_local && s.part != BoxPart::Whole);
@@ -381,6 +407,57 @@ pub fn cull_with_depth(input: &DepthCullInput, cull: &CullParams, p: &DepthParam
             })
         })
         .collect()
+}
+
+/// The tracked points inside a frame's dynamic boxes with their depths: where a mover's band
+/// holds static world ([`DepthParams::static_radius_px`]).
+#[derive(Clone, Debug, Default)]
+pub struct StaticNeighbours {
+    points: Vec<(TrackedPoint, f32)>,
+}
+
+impl StaticNeighbours {
+    /// The points of `tracked` (depths `tracked_depths`, missing when short) inside a dynamic
+    /// box of `states`; none when the rule is off.
+    pub fn new(
+        tracked: &[TrackedPoint],
+        tracked_depths: &[f32],
+        states: &[BoxState],
+        p: &DepthParams,
+    ) -> Self {
+        if p.static_radius_px <= 0.0 {
+            return Self::default();
+        }
+        let points = tracked
+            .iter()
+            .zip(tracked_depths.iter().chain(std::iter::repeat(&0.0)))
+            .filter(|(t, _)| {
+                states
+                    .iter()
+                    .any(|s| s.is_dynamic() && s.bbox.contains_strict(t.cur[0], t.cur[1]))
+            })
+            .map(|(t, &d)| (*t, d))
+            .collect();
+        Self { points }
+    }
+
+    /// A point that moved with the static world lies within [`DepthParams::static_radius_px`]
+    /// of `at` at depth `d` (± [`DepthParams::static_depth_m`]), and no moving one does.
+    pub fn keep(&self, at: [f32; 2], d: f32, p: &DepthParams) -> bool {
+        let r2 = p.static_radius_px * p.static_radius_px;
+        let mut still = false;
+        for (t, td) in &self.points {
+            let (dx, dy) = (t.cur[0] - at[0], t.cur[1] - at[1]);
+            if dx * dx + dy * dy > r2 {
+                continue;
+            }
+            if t.outlier {
+                return false;
+            }
+            still |= valid(*td, p) && (td - d).abs() <= p.static_depth_m;
+        }
+        still
+    }
 }
 
 /// The whole culling step for one frame: depth-aware when `depth` is given and
@@ -472,6 +549,36 @@ mod tests {
     }
 
     #[test]
+    fn the_floor_at_a_walkers_feet_is_kept_beside_static_tracks() {
+        // A walker at 2 m before a wall at 4 m; the floor in his box's lower part at 2.1 m.
+        let person = det(PERSON, 240.0, 40.0, 360.0, 440.0);
+        let depth = depth_map(
+            4.0,
+            &[([240, 380, 360, 440], 2.1), ([260, 60, 340, 380], 2.0)],
+        );
+        let tracked = [
+            pt(300.0, 200.0, true),
+            pt(320.0, 300.0, true),
+            pt(250.0, 420.0, false), // floor, moved with the static world
+            pt(300.0, 104.0, false), // a still track on the chest...
+            pt(305.0, 96.0, true),   // ... beside a moving one
+        ];
+        let mut states = judge_boxes(&[person], &tracked, &JudgeParams::default());
+        let keypoints = [
+            [255.0, 425.0], // floor beside the static track: kept
+            [340.0, 425.0], // floor with no track near: in the band, culled
+            [300.0, 100.0], // chest beside a moving track: culled
+            [300.0, 250.0], // chest: culled
+        ];
+        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &settings());
+        assert_eq!(removed, vec![false, true, true, true]);
+        let mut off = settings();
+        off.depth.static_radius_px = 0.0;
+        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &off);
+        assert_eq!(removed, vec![true, true, true, true]);
+    }
+
+    #[test]
     fn chair_in_front_of_a_walker_keeps_its_points_the_walker_loses_his() {
         // Walker at 3 m, body 260..340; a chair at 2 m in front of his legs; wall at 5 m.
         // The chair's box is wider than its silhouette, as detector boxes are.
@@ -559,20 +666,41 @@ mod tests {
             .map(|i| pt(250.0, 100.0 + 50.0 * i as f32, true))
             .chain([pt(150.0, 200.0, false), pt(380.0, 100.0, true)]) // one bad track on the wall
             .collect();
-        let o = object_depth(&bbox, &tracked, &depth, &DepthParams::default()).expect("depth");
+        let o =
+            object_depth(&bbox, &tracked, &depth, None, &DepthParams::default()).expect("depth");
         assert!(o.central_share < 0.5, "{o:?}");
         assert_eq!(o.metres, 2.0);
         assert_eq!((o.outliers_with_depth, o.outliers_in_band), (6, 5));
-        // Without outliers the centre's mode wins: the wall.
-        let none = object_depth(&bbox, &[], &depth, &DepthParams::default()).expect("depth");
+        // Without outliers the centre's mode wins: the wall...
+        let p = DepthParams::default();
+        let none = object_depth(&bbox, &[], &depth, None, &p).expect("depth");
         assert_eq!(none.metres, 4.0);
+        // ... unless the last frame's band held the person (a walker's depth changes by
+        // centimetres a frame) or the wall's tracks moved as the static world did.
+        let last = object_depth(&bbox, &tracked, &depth, None, &p).expect("depth");
+        let prior = object_depth(&bbox, &[], &depth, Some(&last), &p).expect("depth");
+        assert_eq!(prior.metres, 2.0);
+        let wall_still: Vec<TrackedPoint> = (0..20)
+            .map(|i| {
+                let x = if i < 10 { 110.0 } else { 210.0 } + 10.0 * i as f32;
+                pt(x, 60.0 + (i % 2) as f32 * 300.0, false)
+            })
+            .collect();
+        let still = object_depth(&bbox, &wall_still, &depth, None, &p).expect("depth");
+        assert_eq!(still.metres, 2.0);
+        let no_static = DepthParams {
+            static_weight: 0.0,
+            ..p.clone()
+        };
+        let ignored = object_depth(&bbox, &wall_still, &depth, None, &no_static).expect("depth");
+        assert_eq!(ignored.metres, 4.0);
         // Degenerate boxes give no estimate, never a panic.
         for b in [
             BBox::new(f32::NAN, 0.0, 10.0, 10.0),
             BBox::new(50.0, 50.0, 10.0, 10.0),
             BBox::new(-500.0, -500.0, -400.0, -400.0),
         ] {
-            assert!(object_depth(&b, &tracked, &depth, &DepthParams::default()).is_none());
+            assert!(object_depth(&b, &tracked, &depth, None, &DepthParams::default()).is_none());
         }
     }
 
@@ -628,14 +756,14 @@ mod tests {
             pt(120.0, 200.0, true),
         ];
         let p = DepthParams::default();
-        let o = object_depth(&bbox, &tracked, &depth, &p).expect("depth");
+        let o = object_depth(&bbox, &tracked, &depth, None, &p).expect("depth");
         assert_eq!(o.metres, 1.4, "{o:?}");
         // Without the occluder rule the three background outliers win.
         let off = DepthParams {
             occluder_weight: 0.0,
             ..p
         };
-        let o = object_depth(&bbox, &tracked, &depth, &off).expect("depth");
+        let o = object_depth(&bbox, &tracked, &depth, None, &off).expect("depth");
         assert_eq!(o.metres, 2.3, "{o:?}");
     }
 

@@ -7,7 +7,8 @@
 //! frames by box overlap, and its verdict comes from the object's state, with hysteresis:
 //! - an object of a movable class (people, animals, vehicles: [`ObjectParams::movable_classes`])
 //!   starts as moving: nothing is known of it yet;
-//! - evidence of motion makes any object moving at once;
+//! - evidence of motion makes an object of a movable class moving at once, furniture only
+//!   while it comes frame after frame ([`ObjectParams::unmovable_moving_frames`] in a row);
 //! - a moving object becomes static only after [`ObjectParams::still_frames_to_static`]
 //!   consecutive frames of evidence that it is still ([`Evidence::Still`]: enough tracks in its
 //!   box, judged against the static world, none moving); a frame without conclusive evidence
@@ -89,13 +90,13 @@ pub struct ObjectParams {
     /// case, a person at a desk, whose still torso the map may use from the first frame; one
     /// frame of motion evidence makes a part moving as for any object.
     pub seated_parts_start_still: bool,
-    /// Consecutive frames of [`Evidence::MovingByTwoFrames`] before an object of a class that
-    /// does not move on its own (not in `movable_classes`: a bed, a sofa, a table) turns moving
-    /// (ours: 6). Without a static-world check one frame of a bed's bedding deformed by children
-    /// jumping on it made the whole bed a mover, and a hand-held camera turning fast gave a
-    /// painting taken for a TV three frames of outliers in a row; culled, they kept the
-    /// monocular map from starting (at 3, synth living_turn seen monocular with YOLOX started
-    /// at frames 38 and 109 on two seeds; at 6, 11 and 13).
+    /// Consecutive frames of motion evidence before an object of a class that does not move on
+    /// its own (not in `movable_classes`: a bed, a sofa, a table) turns moving, and it stays
+    /// moving only while they keep coming (ours: 6). One frame of a bed's bedding deformed by
+    /// children jumping on it made the whole bed a mover; a hand-held camera turning fast gives
+    /// a painting taken for a TV a few frames of outliers in a row; a walker in front of a
+    /// table puts outliers in its box now and then. Culled, such furniture kept a monocular map
+    /// from starting and took a static room's keypoints from an RGB-D run.
     pub unmovable_moving_frames: u32,
     /// Movable classes that two-frame stillness ([`Evidence::StillByTwoFrames`], frames without
     /// a static-world check) turns static after `still_frames_to_static` frames, as it does
@@ -240,9 +241,22 @@ impl ObjectTracker {
             let seen = evidence.get(s).copied().unwrap_or(Evidence::Inconclusive);
             obj.moving_hints = match seen {
                 Evidence::MovingByTwoFrames => obj.moving_hints.saturating_add(1),
+                Evidence::Moving if !movable => obj.moving_hints.saturating_add(1),
                 _ => 0,
             };
             match seen {
+                // Furniture moves only while the evidence keeps coming, frame after frame: a
+                // walker in front of a table, chair or screen puts outliers in its box now and
+                // then, and one such frame kept the table "moving" (and culled) until 15 clean
+                // frames in a row, which a box beside a walker never has.
+                _ if !movable => {
+                    obj.moving = obj.moving_hints >= p.unmovable_moving_frames;
+                    if obj.moving {
+                        obj.still_frames = 0;
+                    } else if matches!(seen, Evidence::Still | Evidence::StillByTwoFrames) {
+                        obj.still_frames = obj.still_frames.saturating_add(1);
+                    }
+                }
                 Evidence::Moving => {
                     obj.moving = true;
                     obj.still_frames = 0;
@@ -387,12 +401,38 @@ mod tests {
         );
         assert!(d[0].may_create_points && !d[0].movable);
         assert_ne!(d[0].id, d[1].id);
-        let mut s = [state(56, 5.0, Verdict::Dynamic)];
-        let d2 = t.update(1, &mut s, &[Evidence::Moving], &p);
-        assert_eq!((s[0].verdict, d2[0].id), (Verdict::Dynamic, d[0].id));
+        // A walker before the chair puts outliers in its box now and then: still static. Motion
+        // frame after frame makes it move, for as long as it lasts.
+        let n = p.unmovable_moving_frames as usize;
+        let mut chair = |frame: usize, e: Evidence| {
+            let mut s = [state(56, 5.0, Verdict::Dynamic)];
+            let d = t.update(frame, &mut s, &[e], &p);
+            (s[0].verdict, d[0].id)
+        };
+        for frame in 1..=3 * n {
+            let e = if frame % n == 0 {
+                Evidence::Inconclusive
+            } else {
+                Evidence::Moving
+            };
+            assert_eq!(chair(frame, e), (Verdict::Static, d[0].id), "frame {frame}");
+        }
+        let pushed: Vec<Verdict> = (0..n + 2)
+            .map(|i| chair(3 * n + 1 + i, Evidence::Moving).0)
+            .collect();
+        assert_eq!(
+            &pushed[n - 2..],
+            &[
+                Verdict::Static,
+                Verdict::Dynamic,
+                Verdict::Dynamic,
+                Verdict::Dynamic
+            ]
+        );
+        assert_eq!(chair(4 * n + 3, Evidence::Inconclusive).0, Verdict::Static);
         // Forgotten after `forget_after_frames` unseen: a new object.
         let mut s = [state(56, 5.0, Verdict::Static)];
-        let d3 = t.update(40, &mut s, &[Evidence::Inconclusive], &p);
+        let d3 = t.update(4 * n + 40, &mut s, &[Evidence::Inconclusive], &p);
         assert_ne!(d3[0].id, d[0].id);
         assert_eq!(s[0].verdict, Verdict::Static);
     }
@@ -448,10 +488,10 @@ mod tests {
     }
 
     /// Monocular: a painting taken for a TV turns moving on a run of frames of two-frame outliers
-    /// (a hand-held camera turning fast); without a static-world check it must turn static again on two-frame
-    /// stillness, or it is culled, and the monocular map kept from starting, for good. So must
-    /// a parked car (a car is moving until proven still). A person who stands still stays a
-    /// mover.
+    /// (a hand-held camera turning fast); without a static-world check it must turn static again
+    /// as they stop, or it is culled, and the monocular map kept from starting, for good. A
+    /// parked car (a car is moving until proven still) turns static on two-frame stillness. A
+    /// person who stands still stays a mover.
     #[test]
     fn furniture_and_cars_turned_moving_by_two_frames_alone_turn_static_again() {
         const TV: u16 = 62;
@@ -473,6 +513,11 @@ mod tests {
             };
             for _ in 0..p.unmovable_moving_frames {
                 step(Verdict::Dynamic);
+            }
+            if class == TV {
+                // Furniture moves only while the evidence lasts.
+                assert_eq!(step(Verdict::Static), Verdict::Static);
+                continue;
             }
             for _ in 1..p.still_frames_to_static {
                 assert_eq!(step(Verdict::Static), Verdict::Dynamic);

@@ -283,10 +283,28 @@ pub struct DepthParams {
     /// 0.248 / 0.815 → 0.303 / 0.940; walking 0.000-0.015 more precision at the same recall
     /// (0 = the rule off; 2.0 measured the same within 0.007).
     pub occluder_weight: f32,
+    /// Penalty on a candidate depth per share of the box's tracked points that moved with the
+    /// static world (geometric inliers) lying in its band (ours: 0.5): the background the mover
+    /// stands before is where the static points are. Without it, a person close to the camera
+    /// at the image's edge, whose box's centre is mostly the shelf behind him, got the shelf's
+    /// band.
+    pub static_weight: f32,
+    /// Bonus for a candidate depth within the band the object had in the last frame (ours:
+    /// 0.5; [`BoxState::depth`](crate::BoxState::depth) going into the culling): a walker's
+    /// depth changes by centimetres a frame, while a box's centre can turn from the person to
+    /// the wall behind him from one frame to the next (a close person at the image edge).
+    pub prior_weight: f32,
     /// Also cull keypoints near a geometric outlier of a dynamic box and at that outlier's depth
     /// (its band), within this share of the square root of the box's area (ours: 0.25; a hand
     /// reaching in front of the body, an arm of a seated person). 0 turns the local rule off.
     pub local_radius_fraction: f32,
+    /// Keep a keypoint in a mover's band when a tracked point that moved with the static world
+    /// lies within this many pixels at its depth (± [`DepthParams::static_depth_m`]) and no
+    /// moving one does (ours: 12; 0 = off): the floor at a walker's feet and the desk beside
+    /// his hip share his depth, not his motion.
+    pub static_radius_px: f32,
+    /// Depth difference within which such a static neighbour counts (ours: 0.1 m).
+    pub static_depth_m: f32,
     /// For the parts of a seated person (NHBC's split) cull only by the local rule, not the whole
     /// part at the person's depth (ours, default false: a seated person moves a hand or the head
     /// while the torso stays, but on synth sitting this traded recall 0.96 → 0.45 for precision
@@ -312,7 +330,11 @@ impl Default for DepthParams {
             outlier_weight: 1.5,
             outlier_half_count: 3.0,
             occluder_weight: 1.0,
+            static_weight: 0.5,
+            prior_weight: 0.5,
             local_radius_fraction: 0.25,
+            static_radius_px: 12.0,
+            static_depth_m: 0.1,
             seated_parts_local: false,
             min_valid_m: 0.05,
             keypoint_window_px: 1,

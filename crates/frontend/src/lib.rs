@@ -65,6 +65,7 @@ use stillpoint_detect::{
 use stillpoint_dynamic::{
     BoxPart, BoxState, CulledFrame, DynamicSettings, Evidence, ObjectDecision, ObjectTracker,
     RememberedBox, SeatedMotionParams, TrackedPoint, Verdict, WorldCheck, WorldSource,
+    depth::ObjectDepth,
 };
 use stillpoint_features::LkPyramid;
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
@@ -392,6 +393,10 @@ pub struct DynamicFrontEnd {
     /// The frame last judged and the boxes the memory carried into it (the detector missed
     /// them there), for the overlays and recordings that tell them apart.
     last_carried: (usize, Vec<stillpoint_geometry::BBox>),
+    /// The depth band the culling found for each object judged moving in the last frame (by
+    /// object id): the masks of its pixels reuse it. Estimated again from the box alone, a thin
+    /// walker's band fell on the wall behind him (most of his box's centre).
+    object_depths: Vec<(u32, ObjectDepth)>,
 }
 
 impl DynamicFrontEnd {
@@ -433,6 +438,7 @@ impl DynamicFrontEnd {
             last_world: None,
             last_world_motion: None,
             last_carried: (usize::MAX, Vec::new()),
+            object_depths: Vec::new(),
         }
     }
 
@@ -452,7 +458,7 @@ impl DynamicFrontEnd {
         if !self.settings.orb_exclusion {
             return Vec::new();
         }
-        self.moving_boxes()
+        self.moving_boxes().into_iter().map(|(r, _)| r).collect()
     }
 
     /// The objects seen in frame `index` (box, class, moving or not): what an overlay of the
@@ -477,15 +483,34 @@ impl DynamicFrontEnd {
     }
 
     /// The boxes of the objects judged moving in the last judged frame, grown by
-    /// [`FrontEndSettings::orb_exclusion_margin`] of their size on each side.
-    fn moving_boxes(&self) -> Vec<[f32; 4]> {
+    /// [`FrontEndSettings::orb_exclusion_margin`] of their size on each side, with the depth
+    /// band the culling found for each.
+    fn moving_boxes(&self) -> Vec<ObjectRegion> {
         let last = self.objects.objects().iter().map(|o| o.last_seen).max();
         self.objects
             .objects()
             .iter()
             .filter(|o| o.moving && Some(o.last_seen) == last)
-            .map(|o| self.grown(&o.bbox))
+            .map(|o| (self.grown(&o.bbox), self.depth_of(o.id)))
             .collect()
+    }
+
+    /// The depth band the culling found for object `id` in the last judged frame.
+    fn depth_of(&self, id: u32) -> Option<ObjectDepth> {
+        self.object_depths
+            .iter()
+            .find(|(o, _)| *o == id)
+            .map(|&(_, depth)| depth)
+    }
+
+    /// Remember the depth band of each object of the judged boxes `states` (`decisions` in
+    /// the same order).
+    fn remember_depths(&mut self, states: &[BoxState], decisions: &[ObjectDecision]) {
+        self.object_depths = states
+            .iter()
+            .zip(decisions)
+            .filter_map(|(s, d)| s.depth.map(|depth| (d.id, depth)))
+            .collect();
     }
 
     /// [`DynamicFrontEnd::orb_exclusion`] narrowed to the movers' own pixels when the next
@@ -499,7 +524,10 @@ impl DynamicFrontEnd {
         width: usize,
         height: usize,
     ) -> Option<Gray8> {
-        let rects = self.orb_exclusion();
+        if !self.settings.orb_exclusion {
+            return None;
+        }
+        let rects = self.moving_boxes();
         (!rects.is_empty()).then(|| {
             mover_mask(
                 &rects,
@@ -530,11 +558,11 @@ impl DynamicFrontEnd {
     /// `None` when there is no such object.
     pub fn movable_surface_mask(&self, index: usize, depth: &DepthMetres) -> Option<Gray8> {
         let movable = &self.settings.dynamic.objects.movable_classes;
-        let rects: Vec<[f32; 4]> = self
+        let rects: Vec<ObjectRegion> = self
             .objects_in_view(index)
             .into_iter()
             .filter(|o| o.moving || movable.contains(&o.class_id))
-            .map(|o| self.grown(&o.bbox))
+            .map(|o| (self.grown(&o.bbox), self.depth_of(o.id)))
             .collect();
         self.surface_mask(&rects, depth, true)
     }
@@ -542,7 +570,7 @@ impl DynamicFrontEnd {
     /// [`mover_mask`] of `rects` on a depth image; `None` when there is no rectangle.
     fn surface_mask(
         &self,
-        rects: &[[f32; 4]],
+        rects: &[ObjectRegion],
         depth: &DepthMetres,
         up_to_far: bool,
     ) -> Option<Gray8> {
@@ -875,6 +903,7 @@ impl DynamicFrontEnd {
             frame.depth,
             &self.settings.dynamic,
         );
+        self.remember_depths(&states, &decisions);
         out.no_new_points =
             self.no_new_points(kps, &out.dynamic, &states, &[], frame.depth.is_some());
         self.add_hygiene(&mut out, kps, &states, &decisions, frame.depth);
@@ -961,16 +990,15 @@ impl DynamicFrontEnd {
     }
 }
 
-/// Run the detector on the frame's colour image, or on its gray image replicated into three
-/// channels when the camera is gray (KITTI `image_0/1`, EuRoC); a failure is logged and counts as
-/// no detection (the geometry check still runs).
-/// The pixels of movers (255) inside their boxes (`[x1, y1, x2, y2]`): with depth, those within
-/// the object's depth band (`dynamic::depth::object_depth`, as the culling finds it); without
-/// depth, or with too few depth samples, the whole box.
-/// The pixels of `rects` within each box's object depth band (or, `up_to_far`, anything in
-/// front of the band's far end too); whole boxes without depth.
+/// A mover's box (`[x1, y1, x2, y2]`) and the depth band the culling found for it, if any.
+type ObjectRegion = ([f32; 4], Option<ObjectDepth>);
+
+/// The pixels of movers (255) inside their boxes: with depth, those within each object's depth
+/// band (the culling's, else estimated from the box alone by `dynamic::depth::object_depth`)
+/// or, `up_to_far`, anything in front of the band's far end too; without depth, or with too
+/// few depth samples, the whole box.
 fn mover_mask(
-    rects: &[[f32; 4]],
+    rects: &[ObjectRegion],
     depth: Option<&DepthMetres>,
     d: &stillpoint_dynamic::DepthParams,
     width: usize,
@@ -978,12 +1006,14 @@ fn mover_mask(
     up_to_far: bool,
 ) -> Gray8 {
     let mut mask = Gray8::new(width, height, 0);
-    for r in rects {
+    for (r, known) in rects {
         let clamp = |v: f32, hi: usize| (v.max(0.0) as usize).min(hi);
         let (x1, y1) = (clamp(r[0], width), clamp(r[1], height));
         let (x2, y2) = (clamp(r[2], width), clamp(r[3], height));
         let bbox = stillpoint_geometry::BBox::new(r[0], r[1], r[2], r[3]);
-        let object = depth.and_then(|z| stillpoint_dynamic::depth::object_depth(&bbox, &[], z, d));
+        let object = depth.and_then(|z| {
+            known.or_else(|| stillpoint_dynamic::depth::object_depth(&bbox, &[], z, None, d))
+        });
         for y in y1..y2 {
             for x in x1..x2 {
                 let on_mover = match (object, depth) {
@@ -1001,6 +1031,9 @@ fn mover_mask(
     mask
 }
 
+/// Run the detector on the frame's colour image, or on its gray image replicated into three
+/// channels when the camera is gray (KITTI `image_0/1`, EuRoC); a failure is logged and counts as
+/// no detection (the geometry check still runs).
 fn detect(detector: &mut dyn Detector, frame: &FilterInput) -> Vec<Detection> {
     let replicated;
     let rgb = match frame.rgb {
@@ -1198,6 +1231,11 @@ impl DynamicFrontEnd {
             .objects
             .update(frame.index, &mut states, &evidence, &settings.objects);
         self.memory = stillpoint_dynamic::remember(&states, dets.len(), &carried);
+        // Each moving box starts from its object's depth band in the last frame (the culling's
+        // prior).
+        for (s, d) in states.iter_mut().zip(&decisions) {
+            s.depth = s.is_dynamic().then(|| self.depth_of(d.id)).flatten();
+        }
         out.dynamic_boxes = states
             .iter()
             .filter(|s| s.verdict == Verdict::Dynamic)
@@ -1214,6 +1252,7 @@ impl DynamicFrontEnd {
             Some((&prev_pyramid, &pyramid)),
             settings,
         );
+        self.remember_depths(&states, &decisions);
         tracing::debug!(
             "frame {}: box states {:?}",
             frame.index,
@@ -1657,7 +1696,7 @@ mod tests {
             }
         }
         let params = stillpoint_dynamic::DepthParams::default();
-        let rect = [50.0, 50.0, 150.0, 150.0];
+        let rect = ([50.0, 50.0, 150.0, 150.0], None);
         let mask = mover_mask(&[rect], Some(&depth), &params, 200, 200, false);
         assert_eq!(mask.get(100, 100), 255, "the person");
         assert_eq!(mask.get(60, 100), 0, "the wall beside them, inside the box");
@@ -1665,6 +1704,25 @@ mod tests {
         // Without depth the whole box.
         let whole = mover_mask(&[rect], None, &params, 200, 200, false);
         assert_eq!((whole.get(60, 100), whole.get(10, 10)), (255, 0));
+        // A thin person: the box's centre is mostly wall, which the box alone takes for the
+        // mover; the band the culling found (with the person's moving tracks) is kept instead.
+        let mut thin = DepthMetres::new(200, 200, 4.0);
+        for y in 50..150 {
+            for x in 95..105 {
+                thin.set(x, y, 1.5);
+            }
+        }
+        let blind = mover_mask(&[rect], Some(&thin), &params, 200, 200, false);
+        assert_eq!((blind.get(100, 100), blind.get(60, 100)), (0, 255));
+        let band = stillpoint_dynamic::depth::object_depth(
+            &stillpoint_geometry::BBox::new(95.0, 50.0, 105.0, 150.0),
+            &[],
+            &thin,
+            None,
+            &params,
+        );
+        let known = mover_mask(&[(rect.0, band)], Some(&thin), &params, 200, 200, false);
+        assert_eq!((known.get(100, 100), known.get(60, 100)), (255, 0));
     }
 
     /// The detector on its own thread: each frame takes the newest boxes, detected on an
