@@ -1,25 +1,24 @@
-//! YOLOX + dynamic front-end + SLAM over a TUM RGB-D folder: `--example tum -- DIR traj.txt`
-use stillpoint_detect::{DetectSettings, GtDetectorParams, open_detector};
-use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
-use stillpoint_pipeline::{Pipeline, PipelineSettings};
+//! YOLOX, the dynamic front-end and SLAM over a TUM RGB-D folder, with `stillpoint` as the one
+//! dependency: `cargo run --release --example tum -- DATASET_DIR trajectory.txt`.
+use stillpoint::{DetectSettings, DynamicFrontEnd, FrontEndSettings, Pipeline, PipelineSettings};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
     let [_, dir, out] = &args[..] else {
         return Err("usage: tum DATASET_DIR TRAJECTORY.txt".into());
     };
-    let seq = stillpoint_datasets::open(dir.as_ref(), None, None)?;
-    let (detect, gt) = (DetectSettings::default(), GtDetectorParams::default());
-    let yolox = open_detector("yolox", &detect, None, gt)?;
+    let seq = stillpoint::open(dir.as_ref(), None, None)?;
+    let detect = DetectSettings::default();
+    let yolox = stillpoint::open_detector("yolox", &detect, None, Default::default())?;
     let front_end = DynamicFrontEnd::new(yolox, FrontEndSettings::default());
     let settings = PipelineSettings::from_dataset(seq.settings());
     let mut slam = Pipeline::new(settings, Some(front_end), None);
     for i in 0..seq.len() {
         let r = slam.track(&seq.frame(i)?)?;
-        eprintln!("frame {i}: {:?}, {} culled", r.state, r.culled());
+        eprintln!("frame {i}: {:?}, {} keypoints culled", r.state, r.culled());
     }
     let run = slam.finish()?;
-    stillpoint_trajectory::write_tum(out.as_ref(), &run.trajectory)?;
+    stillpoint::write_tum(out.as_ref(), &run.trajectory)?;
     eprintln!(
         "{} poses, {} map points",
         run.trajectory.len(),
