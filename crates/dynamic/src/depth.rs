@@ -12,10 +12,10 @@
 //!   ([`DepthParams::outlier_weight`], [`DepthParams::outlier_half_count`]: many outliers
 //!   outweigh the centre, a single one does not), minus the share of the central samples in
 //!   front of the band ([`DepthParams::occluder_weight`]: the mover is in front of what it
-//!   hides) and the share of the box's tracked points that moved with the static world in the
-//!   band ([`DepthParams::static_weight`]: the background is where the static points are), plus
-//!   a bonus within the band the object had in the last frame ([`DepthParams::prior_weight`]),
-//!   refined to the median of the central samples in that band;
+//!   hides), plus a bonus within the band the object had in the last frame
+//!   ([`DepthParams::prior_weight`]), refined to the median of the central samples in that
+//!   band; a person no farther than a box of its height allows
+//!   ([`DepthParams::person_max_height_m`]);
 //! - the band is that depth ± max([`DepthParams::band_min_m`],
 //!   [`DepthParams::band_relative`] x depth);
 //! - a keypoint with a valid depth is culled when its depth lies in the band of a dynamic box
@@ -40,8 +40,11 @@ use crate::judge::{BoxPart, BoxState, Verdict};
 use crate::motion_consistency::TrackedPoint;
 use crate::settings::{CullParams, DepthParams, DynamicSettings};
 use serde::Serialize;
-use stillpoint_geometry::BBox;
+use stillpoint_geometry::{BBox, PinholeCamera};
 use stillpoint_image::DepthMetres;
+
+/// COCO's person class.
+const PERSON: u16 = 0;
 
 /// The estimated depth of the moving object in a dynamic box, and the evidence for it.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -128,24 +131,20 @@ pub fn object_depth(
     tracked: &[TrackedPoint],
     depth: &DepthMetres,
     prior: Option<&ObjectDepth>,
+    farthest: f32,
     p: &DepthParams,
 ) -> Option<ObjectDepth> {
     let central = central_samples(bbox, depth, p);
     if central.len() < p.min_samples.max(1) {
         return None;
     }
-    let depths_of = |outlier: bool| {
-        let mut v: Vec<f32> = tracked
-            .iter()
-            .filter(|t| t.outlier == outlier && bbox.contains_strict(t.cur[0], t.cur[1]))
-            .map(|t| depth_near(depth, t.cur, p.keypoint_window_px, p.min_valid_m))
-            .filter(|&d| valid(d, p))
-            .collect();
-        v.sort_by(f32::total_cmp);
-        v
-    };
-    let outliers = depths_of(true);
-    let inliers = depths_of(false);
+    let mut outliers: Vec<f32> = tracked
+        .iter()
+        .filter(|t| t.outlier && bbox.contains_strict(t.cur[0], t.cur[1]))
+        .map(|t| depth_near(depth, t.cur, p.keypoint_window_px, p.min_valid_m))
+        .filter(|&d| valid(d, p))
+        .collect();
+    outliers.sort_by(f32::total_cmp);
     let in_band = |sorted: &[f32], d: f32| {
         let (near, far) = depth_band(d, p);
         sorted.partition_point(|&v| v <= far) - sorted.partition_point(|&v| v < near)
@@ -161,24 +160,23 @@ pub fn object_depth(
         // it is more likely background seen past the object.
         let (near, _) = depth_band(d, p);
         let in_front = central.partition_point(|&v| v < near) as f32 / central.len() as f32;
-        // The static world moved as the camera did: its depths are not the mover's.
-        let still = if inliers.is_empty() {
-            0.0
-        } else {
-            in_band(&inliers, d) as f32 / inliers.len() as f32
-        };
         let known = prior.is_some_and(|o| o.holds(d)) as u8 as f32;
-        c + p.outlier_weight * o - p.occluder_weight * in_front - p.static_weight * still
-            + p.prior_weight * known
+        c + p.outlier_weight * o - p.occluder_weight * in_front + p.prior_weight * known
     };
-    // Candidates: the central samples (thinned to at most ~256) and the outliers' depths.
+    // Candidates: the central samples (thinned to at most ~256), the outliers' depths and the
+    // prior, no farther than `farthest` while any is.
     let step = (central.len() / 256).max(1);
-    let best = central
-        .iter()
-        .step_by(step)
-        .chain(&outliers)
-        .chain(prior.map(|o| &o.metres))
-        .copied()
+    let candidates = || {
+        central
+            .iter()
+            .step_by(step)
+            .chain(&outliers)
+            .chain(prior.map(|o| &o.metres))
+            .copied()
+    };
+    let within = candidates().any(|d| d <= farthest);
+    let best = candidates()
+        .filter(|&d| !within || d <= farthest)
         .map(|d| (score(d), d))
         .fold(None::<(f32, f32)>, |acc, (s, d)| match acc {
             // Ties go to the nearer depth: the mover is in front of what it hides.
@@ -248,20 +246,41 @@ fn central_samples(bbox: &BBox, depth: &DepthMetres, p: &DepthParams) -> Vec<f32
 }
 
 /// Fill [`BoxState::depth`] of every dynamic box with [`object_depth`], the depth it holds
-/// going in (its object's in the last frame, if any) the prior; static boxes are left without
-/// one (their keypoints are never culled for their own sake).
+/// going in (its object's in the last frame, if any) the prior, a person no farther than
+/// [`person_farthest`]; static boxes are left without one (their keypoints are never culled
+/// for their own sake).
 pub fn estimate_object_depths(
     states: &mut [BoxState],
     tracked: &[TrackedPoint],
     depth: &DepthMetres,
+    camera: Option<&PinholeCamera>,
     p: &DepthParams,
 ) {
     for s in states.iter_mut() {
         s.depth = if s.verdict == Verdict::Dynamic {
-            object_depth(&s.bbox, tracked, depth, s.depth.as_ref(), p)
+            let farthest = person_farthest(s, camera, p);
+            object_depth(&s.bbox, tracked, depth, s.depth.as_ref(), farthest, p)
         } else {
             None
         };
+    }
+}
+
+/// The farthest a person can be whose box (or NHBC part) is as tall as `state`'s: no one is
+/// taller than [`DepthParams::person_max_height_m`], so a box `h` pixels tall lies within
+/// `fy x H / h` (a box cut by the image's edge is taller still). Infinite for other classes,
+/// without a camera or with the bound off.
+pub fn person_farthest(state: &BoxState, camera: Option<&PinholeCamera>, p: &DepthParams) -> f32 {
+    match camera {
+        Some(c) if state.class_id == PERSON && p.person_max_height_m > 0.0 => {
+            let h = state.bbox.height();
+            if h > 1.0 {
+                (c.fy as f32 * p.person_max_height_m / h).max(p.min_valid_m)
+            } else {
+                f32::INFINITY
+            }
+        }
+        _ => f32::INFINITY,
     }
 }
 
@@ -472,7 +491,7 @@ pub fn cull_frame(
 ) -> Vec<bool> {
     match depth {
         Some(depth) if s.depth.enabled && !depth.is_empty() => {
-            estimate_object_depths(states, tracked, depth, &s.depth);
+            estimate_object_depths(states, tracked, depth, s.world.camera.as_ref(), &s.depth);
             let depths = keypoint_depths(depth, keypoints, &s.depth);
             let cur: Vec<[f32; 2]> = tracked.iter().map(|t| t.cur).collect();
             let tracked_depths = keypoint_depths(depth, &cur, &s.depth);
@@ -666,41 +685,67 @@ mod tests {
             .map(|i| pt(250.0, 100.0 + 50.0 * i as f32, true))
             .chain([pt(150.0, 200.0, false), pt(380.0, 100.0, true)]) // one bad track on the wall
             .collect();
-        let o =
-            object_depth(&bbox, &tracked, &depth, None, &DepthParams::default()).expect("depth");
+        let o = object_depth(
+            &bbox,
+            &tracked,
+            &depth,
+            None,
+            f32::INFINITY,
+            &DepthParams::default(),
+        )
+        .expect("depth");
         assert!(o.central_share < 0.5, "{o:?}");
         assert_eq!(o.metres, 2.0);
         assert_eq!((o.outliers_with_depth, o.outliers_in_band), (6, 5));
         // Without outliers the centre's mode wins: the wall...
         let p = DepthParams::default();
-        let none = object_depth(&bbox, &[], &depth, None, &p).expect("depth");
+        let none = object_depth(&bbox, &[], &depth, None, f32::INFINITY, &p).expect("depth");
         assert_eq!(none.metres, 4.0);
         // ... unless the last frame's band held the person (a walker's depth changes by
-        // centimetres a frame) or the wall's tracks moved as the static world did.
-        let last = object_depth(&bbox, &tracked, &depth, None, &p).expect("depth");
-        let prior = object_depth(&bbox, &[], &depth, Some(&last), &p).expect("depth");
+        // centimetres a frame), or the person's box is too tall for anyone at the wall's depth.
+        let last = object_depth(&bbox, &tracked, &depth, None, f32::INFINITY, &p).expect("depth");
+        let prior =
+            object_depth(&bbox, &[], &depth, Some(&last), f32::INFINITY, &p).expect("depth");
         assert_eq!(prior.metres, 2.0);
-        let wall_still: Vec<TrackedPoint> = (0..20)
-            .map(|i| {
-                let x = if i < 10 { 110.0 } else { 210.0 } + 10.0 * i as f32;
-                pt(x, 60.0 + (i % 2) as f32 * 300.0, false)
-            })
-            .collect();
-        let still = object_depth(&bbox, &wall_still, &depth, None, &p).expect("depth");
-        assert_eq!(still.metres, 2.0);
-        let no_static = DepthParams {
-            static_weight: 0.0,
-            ..p.clone()
+        let bounded = object_depth(&bbox, &[], &depth, None, 3.0, &p).expect("depth");
+        assert_eq!(bounded.metres, 2.0);
+        // A person's box 400 px tall at fy 500 is within 2.5 m; a chair's is not bounded.
+        let camera = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let walker = BoxState {
+            bbox,
+            class_id: PERSON,
+            detection: 0,
+            part: BoxPart::Whole,
+            rule: crate::judge::Rule::Nhbc,
+            verdict: Verdict::Dynamic,
+            tracked: 0,
+            outliers: 0,
+            depth: None,
         };
-        let ignored = object_depth(&bbox, &wall_still, &depth, None, &no_static).expect("depth");
-        assert_eq!(ignored.metres, 4.0);
+        assert_eq!(person_farthest(&walker, Some(&camera), &p), 2.5);
+        let chair = BoxState {
+            class_id: CHAIR,
+            ..walker
+        };
+        assert_eq!(person_farthest(&chair, Some(&camera), &p), f32::INFINITY);
+        assert_eq!(person_farthest(&walker, None, &p), f32::INFINITY);
         // Degenerate boxes give no estimate, never a panic.
         for b in [
             BBox::new(f32::NAN, 0.0, 10.0, 10.0),
             BBox::new(50.0, 50.0, 10.0, 10.0),
             BBox::new(-500.0, -500.0, -400.0, -400.0),
         ] {
-            assert!(object_depth(&b, &tracked, &depth, None, &DepthParams::default()).is_none());
+            assert!(
+                object_depth(
+                    &b,
+                    &tracked,
+                    &depth,
+                    None,
+                    f32::INFINITY,
+                    &DepthParams::default()
+                )
+                .is_none()
+            );
         }
     }
 
@@ -756,14 +801,14 @@ mod tests {
             pt(120.0, 200.0, true),
         ];
         let p = DepthParams::default();
-        let o = object_depth(&bbox, &tracked, &depth, None, &p).expect("depth");
+        let o = object_depth(&bbox, &tracked, &depth, None, f32::INFINITY, &p).expect("depth");
         assert_eq!(o.metres, 1.4, "{o:?}");
         // Without the occluder rule the three background outliers win.
         let off = DepthParams {
             occluder_weight: 0.0,
             ..p
         };
-        let o = object_depth(&bbox, &tracked, &depth, None, &off).expect("depth");
+        let o = object_depth(&bbox, &tracked, &depth, None, f32::INFINITY, &off).expect("depth");
         assert_eq!(o.metres, 2.3, "{o:?}");
     }
 

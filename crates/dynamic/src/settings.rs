@@ -283,12 +283,10 @@ pub struct DepthParams {
     /// 0.248 / 0.815 → 0.303 / 0.940; walking 0.000-0.015 more precision at the same recall
     /// (0 = the rule off; 2.0 measured the same within 0.007).
     pub occluder_weight: f32,
-    /// Penalty on a candidate depth per share of the box's tracked points that moved with the
-    /// static world (geometric inliers) lying in its band (ours: 0.5): the background the mover
-    /// stands before is where the static points are. Without it, a person close to the camera
-    /// at the image's edge, whose box's centre is mostly the shelf behind him, got the shelf's
-    /// band.
-    pub static_weight: f32,
+    /// The tallest a person is, metres (ours: 2.0; 0 = no bound): a person's box `h` pixels
+    /// tall lies within `fy x this / h`, so the wall behind a walker in a stride, most of his
+    /// box's centre, is never taken for him.
+    pub person_max_height_m: f32,
     /// Bonus for a candidate depth within the band the object had in the last frame (ours:
     /// 0.5; [`BoxState::depth`](crate::BoxState::depth) going into the culling): a walker's
     /// depth changes by centimetres a frame, while a box's centre can turn from the person to
@@ -330,7 +328,7 @@ impl Default for DepthParams {
             outlier_weight: 1.5,
             outlier_half_count: 3.0,
             occluder_weight: 1.0,
-            static_weight: 0.5,
+            person_max_height_m: 2.0,
             prior_weight: 0.5,
             local_radius_fraction: 0.25,
             static_radius_px: 12.0,

@@ -1012,7 +1012,9 @@ fn mover_mask(
         let (x2, y2) = (clamp(r[2], width), clamp(r[3], height));
         let bbox = stillpoint_geometry::BBox::new(r[0], r[1], r[2], r[3]);
         let object = depth.and_then(|z| {
-            known.or_else(|| stillpoint_dynamic::depth::object_depth(&bbox, &[], z, None, d))
+            known.or_else(|| {
+                stillpoint_dynamic::depth::object_depth(&bbox, &[], z, None, f32::INFINITY, d)
+            })
         });
         for y in y1..y2 {
             for x in x1..x2 {
@@ -1719,6 +1721,7 @@ mod tests {
             &[],
             &thin,
             None,
+            f32::INFINITY,
             &params,
         );
         let known = mover_mask(&[(rect.0, band)], Some(&thin), &params, 200, 200, false);
