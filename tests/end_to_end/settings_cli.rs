@@ -11,7 +11,7 @@ fn settings_shows_each_value_with_its_source() {
     let out = stillpoint()
         .args(["settings", "--config"])
         .arg(&config)
-        .args(["--set", "slam.kf_count_blocked_close=true"])
+        .args(["--set", "slam.kf_weak_tracking_inliers=40"])
         .output()
         .unwrap();
     assert!(
@@ -24,7 +24,7 @@ fn settings_shows_each_value_with_its_source() {
     assert!(text.lines().any(|l| l == from_file), "{text}");
     assert!(
         text.lines()
-            .any(|l| l == "slam.kf_count_blocked_close = true  # --set")
+            .any(|l| l == "slam.kf_weak_tracking_inliers = 40  # --set")
     );
     assert!(
         text.lines()

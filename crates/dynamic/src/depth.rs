@@ -36,7 +36,7 @@
 //! option of [`crate::cull_with`]).
 
 use crate::cull::cull_with;
-use crate::judge::{BoxPart, BoxState, Verdict};
+use crate::judge::{BoxState, Verdict};
 use crate::motion_consistency::TrackedPoint;
 use crate::settings::{CullParams, DepthParams, DynamicSettings};
 use serde::Serialize;
@@ -412,7 +412,6 @@ pub fn cull_with_depth(input: &DepthCullInput, cull: &CullParams, p: &DepthParam
             }
             dynamic.any(|(s, (outliers, radius))| match s.depth {
                 Some(o) if valid(d, p) => {
-                    let whole = !(p.seated_parts_local && s.part != BoxPart::Whole);
                     let near_outlier = || {
                         outliers.iter().any(|&(at, od)| {
                             let (near, far) = depth_band(od, p);
@@ -420,7 +419,7 @@ pub fn cull_with_depth(input: &DepthCullInput, cull: &CullParams, p: &DepthParam
                             d >= near && d <= far && dx * dx + dy * dy <= radius * radius
                         })
                     };
-                    (whole && o.holds(d)) || near_outlier()
+                    o.holds(d) || near_outlier()
                 }
                 _ => !protected(),
             })
@@ -518,7 +517,7 @@ pub fn cull_frame(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::judge::judge_boxes;
+    use crate::judge::{BoxPart, judge_boxes};
     use crate::paper_cases::{det, pt};
     use crate::settings::JudgeParams;
 

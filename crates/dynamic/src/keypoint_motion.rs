@@ -224,14 +224,10 @@ pub fn apply_keypoint_motion(
             if dynamic.peek().is_none() {
                 return was;
             }
-            let keep_allowed = dynamic.all(|s| {
-                if s.part == BoxPart::Whole {
-                    p.keep_in_whole_boxes
-                } else {
-                    p.keep_in_seated_parts
-                }
-            }) && (m.model != MotionModel::Fundamental
-                || p.keep_with_fundamental);
+            // A seated person's hand often moves less than half a pixel between frames, and
+            // the epipolar test is blind along the epipolar line: neither keeps a keypoint.
+            let keep_allowed = dynamic.all(|s| s.part == BoxPart::Whole && p.keep_in_whole_boxes)
+                && m.model != MotionModel::Fundamental;
             if was && keep_allowed && m.residual <= p.keep_below_px {
                 false
             } else if !was && m.residual > p.cull_above_px {
@@ -291,8 +287,7 @@ pub fn cull_frame_with_evidence(
     // Track only the keypoints a rule could change: culled ones, when the model may keep them;
     // kept ones, when the cull rule is on.
     let km = &s.keypoint_motion;
-    let may_keep = (km.keep_in_whole_boxes || km.keep_in_seated_parts)
-        && (check.model != MotionModel::Fundamental || km.keep_with_fundamental);
+    let may_keep = km.keep_in_whole_boxes && check.model != MotionModel::Fundamental;
     let may_cull = km.cull_above_px.is_finite();
     let candidates: Vec<bool> = in_dynamic_box(keypoints, states)
         .iter()
@@ -395,12 +390,6 @@ mod tests {
         let top = person(BoxPart::SeatedTop, whole.bbox);
         let removed = apply_keypoint_motion(&kps, &[true; 4], &[top], &ev, &km);
         assert_eq!(removed, vec![true; 4]);
-        let seated_too = KeypointMotionParams {
-            keep_in_seated_parts: true,
-            ..km.clone()
-        };
-        let removed = apply_keypoint_motion(&kps, &[true; 4], &[top], &ev, &seated_too);
-        assert_eq!(removed, vec![true, true, false, false]);
         // The whole step: only the keypoints inside the dynamic box are looked at.
         let mut states = [whole];
         let s = DynamicSettings::default();
@@ -445,12 +434,6 @@ mod tests {
         let states = [person(BoxPart::Whole, bbox)];
         let removed = apply_keypoint_motion(&kps, &[true; 5], &states, &motion, &km);
         assert_eq!(removed, vec![true, true, true, false, true]);
-        let with_f = KeypointMotionParams {
-            keep_with_fundamental: true,
-            ..km.clone()
-        };
-        let removed = apply_keypoint_motion(&kps, &[true; 5], &states, &motion, &with_f);
-        assert_eq!(removed, vec![false, true, true, false, true]);
         // The optional cull rule: a kept keypoint in a dynamic box that broke the model.
         let cull = KeypointMotionParams {
             cull_above_px: 1.0,

@@ -136,7 +136,7 @@
 //! between frames, as little as LK's noise on the still torso: culling the whole person at its
 //! depth caps precision near 0.3; keeping keypoints whose own track fits the model raised
 //! sitting_static precision to 0.43 but dropped recall to 0.40, and culling only around the
-//! outliers ([`DepthParams::seated_parts_local`]) 0.36-0.50 at recall 0.39-0.45, so both are off.
+//! outliers 0.36-0.50 at recall 0.39-0.45, so neither is done.
 
 #![deny(missing_docs)]
 

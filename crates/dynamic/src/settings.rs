@@ -303,11 +303,6 @@ pub struct DepthParams {
     pub static_radius_px: f32,
     /// Depth difference within which such a static neighbour counts (ours: 0.1 m).
     pub static_depth_m: f32,
-    /// For the parts of a seated person (NHBC's split) cull only by the local rule, not the whole
-    /// part at the person's depth (ours, default false: a seated person moves a hand or the head
-    /// while the torso stays, but on synth sitting this traded recall 0.96 → 0.45 for precision
-    /// 0.26 → 0.36, and walkers cut by the image border look seated to NHBC).
-    pub seated_parts_local: bool,
     /// Depths at or below this, or not finite, are missing (Kinect: no reading is 0).
     pub min_valid_m: f32,
     /// A keypoint's depth is the nearest valid depth within this many pixels of it (ours: 1, a
@@ -333,7 +328,6 @@ impl Default for DepthParams {
             local_radius_fraction: 0.25,
             static_radius_px: 12.0,
             static_depth_m: 0.1,
-            seated_parts_local: false,
             min_valid_m: 0.05,
             keypoint_window_px: 1,
         }
@@ -402,15 +396,6 @@ pub struct KeypointMotionParams {
     /// a walker's parts move by pixels, so a keypoint that fits the background model is
     /// background seen inside the box.
     pub keep_in_whole_boxes: bool,
-    /// Let a small residual keep keypoints in a seated person's parts (ours, off: a seated
-    /// person's hand often moves less than half a pixel between frames, so its keypoints fit
-    /// the background model too; on synth sitting_static precision 0.27 → 0.43 but recall
-    /// 0.95 → 0.40).
-    pub keep_in_seated_parts: bool,
-    /// Let a small epipolar distance keep a keypoint (ours, off): the epipolar test is blind to
-    /// motion along the epipolar line (walking_xyz recall 0.985 → 0.851, walking_rpy 0.983 →
-    /// 0.732 with it); a homography's transfer error sees every motion.
-    pub keep_with_fundamental: bool,
 }
 
 impl Default for KeypointMotionParams {
@@ -426,8 +411,6 @@ impl Default for KeypointMotionParams {
             keep_below_px: 0.5,
             cull_above_px: f32::INFINITY,
             keep_in_whole_boxes: true,
-            keep_in_seated_parts: false,
-            keep_with_fundamental: false,
         }
     }
 }

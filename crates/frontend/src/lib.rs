@@ -111,27 +111,6 @@ pub struct FrontEndSettings {
     /// guard kept a static highway's keypoints from making points, and the map thinned (KITTI
     /// 01, first 51 frames: 43 keyframes without the front-end, 31 with it).
     pub outlier_guard_without_depth: bool,
-    /// Ours: keypoints culled only because they lie in a mostly still part of a seated person
-    /// (NHBC's split; see `seated_still_max_outlier_share`) are tracked against the map but
-    /// create no map points, and seated people are not taken as moving on the first frame. Why:
-    /// on synth sitting_xyz (gt boxes) the front-end made ATE worse than no front-end (0.64 /
-    /// 0.47 / 0.44 cm against 0.38 / 0.24 / 0.22 for seeds 0 / 1 / 2); culling only the keypoints
-    /// on the generator's moving-pixel masks gave 0.35 / 0.22 / 0.20, so the harm was culling
-    /// the still torso and legs (~200 near keypoints a frame), not the moving hands kept. With
-    /// this rule: sitting_xyz 0.37 / 0.25 / 0.22; walking_xyz 0.62 -> 0.58, walking_halfsphere
-    /// 0.75 -> 0.64, static 0.42 unchanged; but YOLOX walking_halfsphere 1.89 -> 1.94 and
-    /// 1.14 -> 1.63 (seed 1), walking_xyz 1.04 -> 1.01, sitting 0.46 -> 0.41 (300 frames,
-    /// `stillpoint run --sequential`). Off by default for that: on the first frame every person
-    /// box NHBC splits (height <= 3 x width, walkers too) goes into the initial map. Without the
-    /// first-frame part it does not help (sitting 0.61 / 0.46 / 0.42, halfsphere 1.54).
-    /// Adding `SlamSettings::point_max_rejections = 3` repairs halfsphere (1.79, 1.14) but costs
-    /// YOLOX walking_xyz 1.36 and sitting 0.54.
-    pub seated_track_only: bool,
-    /// A seated person's part counts as mostly still for `seated_track_only` when at most this
-    /// share of its tracked points are geometric outliers (ours: 0.3; measured on synth gt boxes,
-    /// seated parts median 0.11-0.15, p90 0.40-0.50; walkers cut by the border that NHBC takes
-    /// for seated: p10 0.33-0.42, median 0.61-0.78).
-    pub seated_still_max_outlier_share: f32,
     /// Ours (RGB-D): culled keypoints whose only dynamic boxes are seated people's parts get a
     /// 3D motion test (`dynamic::seated_motion`): camera motion from the static tracks with the
     /// depth of both frames, each keypoint lifted with its depth, moved back and compared with
@@ -219,8 +198,6 @@ impl Default for FrontEndSettings {
             outlier_guard_radius_px: 60.0,
             outlier_guard_min: 1,
             outlier_guard_without_depth: false,
-            seated_track_only: false,
-            seated_still_max_outlier_share: 0.3,
             seated_motion: SeatedMotionParams::default(),
             seated_kept_on_first_frame: true,
             seated_kept_make_points: false,
@@ -867,7 +844,6 @@ impl DynamicFrontEnd {
         out.semantic_ms = t0.elapsed().as_secs_f64() * 1e3;
         let mut states = stillpoint_dynamic::judge_boxes(&dets, &[], &self.settings.dynamic.judge);
         if self.settings.people_move_on_first_frame {
-            let track_only = self.settings.seated_track_only;
             let first_kept = self.settings.seated_kept_on_first_frame;
             let height = frame.gray.height as f32;
             // A box cut by the top or bottom edge has an unknown height, so NHBC's seated call
@@ -876,9 +852,7 @@ impl DynamicFrontEnd {
             let cut = |s: &BoxState| cut_vertically(s, height, top);
             for s in states.iter_mut().filter(|s| {
                 let seated = s.part != BoxPart::Whole;
-                s.class_id == PERSON_CLASS
-                    && !(track_only && seated)
-                    && !(first_kept && seated && !cut(s))
+                s.class_id == PERSON_CLASS && !(first_kept && seated && !cut(s))
             }) {
                 s.verdict = Verdict::Dynamic;
             }
@@ -1298,25 +1272,7 @@ impl DynamicFrontEnd {
             }
             _ => culled.removed,
         };
-        let mut track_only = seated_kept;
-        if self.settings.seated_track_only {
-            let still = seated_only(
-                kps,
-                &out.dynamic,
-                &states,
-                self.settings.seated_still_max_outlier_share,
-            );
-            for (d, t) in out.dynamic.iter_mut().zip(&still) {
-                *d &= !t;
-            }
-            if track_only.is_empty() {
-                track_only = still;
-            } else {
-                for (t, s) in track_only.iter_mut().zip(&still) {
-                    *t |= s;
-                }
-            }
-        }
+        let track_only = seated_kept;
         out.no_new_points = self.no_new_points(
             kps,
             &out.dynamic,
@@ -1504,34 +1460,6 @@ fn cut_vertically(s: &BoxState, height: f32, top_fraction: f32) -> bool {
         BoxPart::SeatedBottom => (y2 - (y2 - y1) / (1.0 - top_fraction).max(1e-3), y2),
     };
     y1 <= TRUNCATED_MARGIN_PX || y2 >= height - 1.0 - TRUNCATED_MARGIN_PX
-}
-
-/// A part of a seated person (NHBC's split) that is mostly still: at least
-/// [`MIN_TRACKED_FOR_SHARE`] tracked points, of which at most `max_share` are outliers.
-fn seated_still(s: &BoxState, max_share: f32) -> bool {
-    s.part != BoxPart::Whole
-        && s.tracked >= MIN_TRACKED_FOR_SHARE
-        && s.outliers as f32 <= max_share * s.tracked as f32
-}
-
-/// Fewer tracked points in a box than this say nothing about its share of outliers.
-const MIN_TRACKED_FOR_SHARE: usize = 5;
-
-/// Culled keypoints whose only dynamic boxes are mostly still parts of seated people.
-fn seated_only(
-    kps: &[[f32; 2]],
-    dynamic: &[bool],
-    states: &[BoxState],
-    max_share: f32,
-) -> Vec<bool> {
-    kps.iter()
-        .zip(dynamic)
-        .map(|(&kp, &d)| {
-            d && stillpoint_dynamic::only_in_dynamic_boxes_where(states, kp, |s| {
-                seated_still(s, max_share)
-            })
-        })
-        .collect()
 }
 
 /// Kept keypoints inside a dynamic box and inside a box that protects them (static or unknown
@@ -1908,35 +1836,6 @@ mod tests {
         for out in run(&mut none, &frames, &kps) {
             assert!(out.dynamic.iter().all(|d| !d));
             assert_eq!(out.dynamic_boxes, 0);
-        }
-    }
-
-    #[test]
-    fn mostly_still_seated_parts_are_tracked_not_culled() {
-        let part = |part, tracked, outliers| BoxState {
-            bbox: stillpoint_detect::BBox::new(100.0, 100.0, 200.0, 300.0),
-            class_id: PERSON_CLASS,
-            detection: 0,
-            part,
-            rule: stillpoint_dynamic::Rule::Nhbc,
-            verdict: Verdict::Dynamic,
-            tracked,
-            outliers,
-            depth: None,
-        };
-        let kps = [[150.0, 150.0], [400.0, 150.0]];
-        let culled = [true, true];
-        // A seated torso with a moving hand: 2 of 20 tracked points are outliers.
-        let still = [part(BoxPart::SeatedTop, 20, 2)];
-        assert_eq!(seated_only(&kps, &culled, &still, 0.3), vec![true, false]);
-        // Mostly outliers (a walker cut by the border looks seated), too few points, or a whole
-        // person: culled as before.
-        for states in [
-            [part(BoxPart::SeatedTop, 20, 12)],
-            [part(BoxPart::SeatedTop, 3, 0)],
-            [part(BoxPart::Whole, 20, 2)],
-        ] {
-            assert_eq!(seated_only(&kps, &culled, &states, 0.3), vec![false, false]);
         }
     }
 

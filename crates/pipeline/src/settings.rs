@@ -165,6 +165,16 @@ pub enum SettingsError {
         /// The key that holds the value now.
         now: &'static str,
     },
+    /// A key that was a setting and was removed.
+    #[error("{origin}: `{key}` was removed: {why}")]
+    RemovedKey {
+        /// `FILE:LINE` or `--set ...`.
+        origin: String,
+        /// The dotted key.
+        key: String,
+        /// Why, and what does its work now.
+        why: &'static str,
+    },
     /// A key that no setting has.
     #[error("{origin}: unknown key `{key}`")]
     UnknownKey {
@@ -195,6 +205,39 @@ pub enum SettingsError {
 const MOVED_KEYS: [(&str, &str); 2] = [
     ("slam.scale_factor", "orb.scale_factor"),
     ("slam.n_levels", "orb.n_levels"),
+];
+
+/// Settings that were removed, and why: switches measured worse than the default and off by
+/// default (their measurements are in docs/).
+const REMOVED_KEYS: [(&str, &str); 7] = [
+    (
+        "front_end.seated_track_only",
+        "seated people's still parts are judged by `front_end.seated_motion` (measured worse with YOLOX)",
+    ),
+    (
+        "front_end.seated_still_max_outlier_share",
+        "it served `front_end.seated_track_only`, removed",
+    ),
+    (
+        "front_end.dynamic.depth.seated_parts_local",
+        "a seated person's part is culled at its depth band (local only: recall 0.96 -> 0.45)",
+    ),
+    (
+        "front_end.dynamic.keypoint_motion.keep_in_seated_parts",
+        "a seated person's hand moves under half a pixel: its keypoints stay culled",
+    ),
+    (
+        "front_end.dynamic.keypoint_motion.keep_with_fundamental",
+        "the epipolar test is blind along the epipolar line: it keeps no keypoint",
+    ),
+    (
+        "slam.no_points_from_pose_outliers",
+        "`slam.point_max_rejections` and the front-end's outlier guard do its work",
+    ),
+    (
+        "slam.kf_count_blocked_close",
+        "keypoints that may not make map points never ask for a keyframe",
+    ),
 ];
 
 /// A tree and where each of its values came from.
@@ -325,6 +368,13 @@ impl SettingsTree {
         let tree: Result<SettingsTree, _> =
             serde_ignored::deserialize(value, |path| unknown.push(path.to_string()));
         if let Some(key) = unknown.into_iter().next() {
+            if let Some(&(_, why)) = REMOVED_KEYS.iter().find(|(old, _)| *old == key) {
+                return Err(SettingsError::RemovedKey {
+                    origin: origin_of(&key),
+                    key,
+                    why,
+                });
+            }
             if let Some(&(_, now)) = MOVED_KEYS.iter().find(|(old, _)| *old == key) {
                 return Err(SettingsError::MovedKey {
                     origin: origin_of(&key),
@@ -619,6 +669,15 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert_eq!(e, "--set slam.no_such=1: unknown key `slam.no_such`");
+        // A removed setting is named with what does its work now.
+        let e = tree()
+            .layered(&[], &["slam.kf_count_blocked_close=true".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("--set slam.kf_count_blocked_close=true: `slam.kf_count_blocked_close` was removed: "),
+            "{e}"
+        );
         // The detector's table denies unknown fields itself: the same error.
         std::fs::write(&path, "[detect]\nthreads = 2\nconf_treshold = 0.2\n").unwrap();
         let e = tree().layered(&[&path], &[]).unwrap_err().to_string();

@@ -63,7 +63,9 @@ fn the_front_end_keeps_walkers_out_and_the_baseline_is_pulled() {
         off * 100.0
     );
     assert_eq!(tracked, 90);
-    assert!(culled > 90 * 50, "{culled} keypoints culled");
+    // ORB's budget keeps most of the walkers' corners from being extracted at all; what it
+    // leaves on them is culled.
+    assert!(culled > 90 * 30, "{culled} keypoints culled");
     assert_eq!(none_culled, 0);
     assert!(on < 0.02, "ATE {on}");
     assert!(off > 2.0 * on, "off {off} on {on}");

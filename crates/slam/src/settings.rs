@@ -82,9 +82,6 @@ pub struct SlamSettings {
     pub kf_close_tracked_max: usize,
     /// ... untracked close points above this force a keyframe (ORB-SLAM3: 100 / 70).
     pub kf_close_untracked_min: usize,
-    /// Count keypoints that may not create map points (on a possible mover) among the close
-    /// untracked ones that ask for a keyframe (ORB-SLAM counts every keypoint).
-    pub kf_count_blocked_close: bool,
     /// Fewer tracked inliers than this also ask for a keyframe (ours, not in ORB-SLAM3: 50). In
     /// dynamic scenes the front-end removes a third to half of the keypoints; measured on
     /// synthetic walking_xyz (gt boxes), inliers sank from ~100 to 42 over 18 frames without a
@@ -93,14 +90,6 @@ pub struct SlamSettings {
     /// presets unchanged; 70 inserted keyframes on poorly tracked frames (walking_xyz 2.6 cm).
     /// 0 gives ORB-SLAM3's rule.
     pub kf_weak_tracking_inliers: usize,
-    /// Ours: keypoints whose match failed the chi-square test of the frame's final pose
-    /// optimisation (local-map tracking) create no map points if the frame becomes a keyframe.
-    /// ORB-SLAM3 drops the match and lets the keypoint create a fresh point; in a dynamic scene
-    /// such a keypoint is most often on a mover the front-end missed. Off: measured on 300-frame
-    /// synth (`stillpoint run --sequential`), static 0.42 -> 0.45 cm ATE, walking_halfsphere gt
-    /// 0.83 -> 0.74, YOLOX walking_xyz 28.1 -> 24.7 (with the front-end's outlier guard the
-    /// gain is gone: 1.45 -> 1.37 cm at 40 px), so not worth a worse static scene.
-    pub no_points_from_pose_outliers: bool,
     /// Ours: a map point rejected by the chi-square test of local-map tracking this many times,
     /// and at least as often as it was found, is erased at once (0 = off). ORB-SLAM3 only culls
     /// points by found/visible during their first 3 keyframes; a point on a mover that the
@@ -304,9 +293,7 @@ impl SlamSettings {
             kf_ref_ratio: 0.75,
             kf_close_tracked_max: 100,
             kf_close_untracked_min: 70,
-            kf_count_blocked_close: false,
             kf_weak_tracking_inliers: 50,
-            no_points_from_pose_outliers: false,
             point_max_rejections: 0,
             erase_seen_through_after: 2,
             trajectory_settle_keyframes: default_settle_keyframes(),

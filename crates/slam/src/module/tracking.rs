@@ -760,11 +760,7 @@ impl Tracker {
                 continue;
             };
             if frame.outliers[i] {
-                // The final pose rejects this match: the keypoint (ours) creates no new point
-                // and a point that keeps failing (ours) goes.
-                if self.s.no_points_from_pose_outliers {
-                    frame.no_new_point[i] = true;
-                }
+                // The final pose rejects this match: a point that keeps failing (ours) goes.
                 if count && let Some(p) = map.points.get_mut(&mp) {
                     p.rejected += 1;
                     let max = self.s.point_max_rejections;
@@ -848,7 +844,7 @@ impl Tracker {
         for i in 0..frame.len() {
             let z = frame.depth[i];
             // Keypoints that may not create points (on a possible mover) ask for no keyframe.
-            if z > 0.0 && z < close && (self.s.kf_count_blocked_close || !frame.no_new_point[i]) {
+            if z > 0.0 && z < close && !frame.no_new_point[i] {
                 if frame.map_points[i].is_some() && !frame.outliers[i] {
                     tracked_close += 1;
                 } else {
