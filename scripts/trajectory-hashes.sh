@@ -11,7 +11,7 @@ shared="${STILLPOINT_SHARED:-../shared}"
 bin=target/release/stillpoint
 out="${TMPDIR:-/tmp}/stillpoint-hashes"
 mkdir -p "$out"
-common=(--seeds 0 --modes gt,yolox --set slam.local_mapping_thread=false --out "$out"
+common=(--log warn --seeds 0 --modes gt,yolox --set slam.local_mapping_thread=false --out "$out"
   --textures "$shared/data/tum/fr3_walking_xyz_first_frame"
   --model "$shared/models/yolox_nano_480x640.onnx")
 "$bin" bench matrix --presets living_cross,living_close,living_turn,living_empty "${common[@]}" >/dev/null

@@ -66,17 +66,6 @@ fn process_cpu_ns() -> Option<u64> {
     Some(total)
 }
 
-/// The median (mean of the middle two of an even count); `v` is sorted in place.
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 /// Time every model x backend x thread count.
 pub fn measure(o: &DetectorOptions) -> Result<DetectorReport, BenchError> {
     if o.runs == 0 || o.threads.contains(&0) {
@@ -134,7 +123,7 @@ pub fn measure(o: &DetectorOptions) -> Result<DetectorReport, BenchError> {
                     boxes = det.detect(&input).map_err(failed)?.len();
                 }
                 let cpu_before = process_cpu_ns();
-                let mut times: Vec<f64> = (0..o.runs)
+                let times: Vec<f64> = (0..o.runs)
                     .map(|_| {
                         let t = Instant::now();
                         det.detect(&input).map(|d| {
@@ -149,7 +138,7 @@ pub fn measure(o: &DetectorOptions) -> Result<DetectorReport, BenchError> {
                     _ => f64::NAN,
                 };
                 let min = times.iter().copied().fold(f64::INFINITY, f64::min);
-                let med = median(&mut times);
+                let med = stillpoint_eval::stats::median(&times);
                 let (h, w) = det.input_size();
                 tracing::info!("{} {h}x{w} {threads} thread(s): {med:.1} ms", be.as_str());
                 rows.push(DetectorRow {
@@ -173,15 +162,4 @@ pub fn measure(o: &DetectorOptions) -> Result<DetectorReport, BenchError> {
         image_size: [rgb.width, rgb.height],
         rows,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_median_of_an_even_count_is_the_mean_of_the_middle_two() {
-        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
-        assert_eq!(median(&mut [5.0, 1.0, 3.0]), 3.0);
-    }
 }

@@ -238,10 +238,9 @@ fn load_average() -> Option<f64> {
         .ok()
 }
 
+/// [`stillpoint_eval::stats::median`]; `None` when empty.
 fn median(xs: &[f64]) -> Option<f64> {
-    let mut v = xs.to_vec();
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied()
+    (!xs.is_empty()).then(|| stillpoint_eval::stats::median(xs))
 }
 
 /// Time our stages and OpenCV's, alternating rounds.
