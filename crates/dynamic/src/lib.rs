@@ -65,15 +65,17 @@
 //!   box whose own backward LK track fits the frame's homography within 0.5 px is kept
 //!   (background at the walker's depth).
 //! - Unknown objects ([`CullParams::unknown_objects`], the paper's option, on): keypoints with 3
-//!   outliers in no box within 40 px, at their depth, go. `stillpoint run --detector yolox` on
-//!   synth walking_xyz: ATE 28.1 → 11.4 cm (YOLOX misses walkers); gt boxes 0.63 → 0.69 cm.
+//!   outliers in no box within 40 px, at their depth, go (a detector misses walkers).
 //! - The object's depth prefers the front: a candidate depth loses the share of the box's centre
-//!   in front of it ([`DepthParams::occluder_weight`]; Kinect-noise sitting_static recall
-//!   0.815 → 0.940).
+//!   in front of it ([`DepthParams::occluder_weight`]); it keeps near the object's band in the
+//!   last frame ([`DepthParams::prior_weight`]), and a person is no farther than a box of its
+//!   height allows ([`DepthParams::person_max_height_m`]). A keypoint beside a track that moved
+//!   with the static world, at its depth, stays ([`DepthParams::static_radius_px`]: the floor at
+//!   a walker's feet).
 //! - Seated people's parts on RGB-D ([`seated_motion`](mod@seated_motion), used by the
 //!   front-end): a culled keypoint whose 3D reprojection residual (camera motion from the static
 //!   tracks with the depth of both frames, 3-point rigid RANSAC) is at most 0.5 px is kept:
-//!   the still torso and legs. Synth sitting_xyz with gt boxes, ATE 0.64 -> 0.35 cm.
+//!   the still torso and legs.
 //! - Box memory ([`memory`]): a box judged dynamic is carried, shifted by the optical flow, into
 //!   up to 5 following frames in which the detector misses the object.
 //! - Motion against the static world ([`world_motion`](mod@world_motion), RGB-D): the outliers
@@ -81,62 +83,12 @@
 //!   two-frame F; only corner-like tracks speak (in a plain room a quarter of the tracks slide
 //!   along edges or follow sensor noise).
 //! - Objects over time ([`objects`]): box verdicts with hysteresis; a movable object's keypoints
-//!   make map points only after 60 still frames (the front-end applies it).
+//!   make map points only after 60 still frames (the front-end applies it); furniture is a mover
+//!   only while motion evidence comes frame after frame (a walker in front of a table puts
+//!   outliers in its box now and then).
 //!
-//! Measured with `stillpoint bench dynamic --dataset D [--detector yolox]` on `stillpoint synth
-//! --preset P --frames 20 --masks [--noise kinect]`: precision / recall of the dynamic-keypoint
-//! decision against the moving-pixel masks. paper = algorithms 1 + 3 as published, ours = the
-//! front-end's whole per-frame decision with the defaults (`frontend::DynamicFrontEnd`: box
-//! memory and, on RGB-D, the seated-part 3D test; its track-only keypoints count as kept).
-//! Two ground truths: strict (the keypoint's own pixel moves) and clear (keypoints whose FAST
-//! test, centre and 16-pixel circle at their level, straddles a moving silhouette are not
-//! scored: ~25 % of the keypoints on walking sequences, ~15 % on sitting ones).
-//!
-//! Ground-truth boxes:
-//!
-//! | sequence           | paper     | ours strict | ours clear | ours, Kinect, clear | person boxes  | outliers only |
-//! |--------------------|-----------|-------------|------------|---------------------|---------------|---------------|
-//! | walking_xyz        | .412/.840 | .753/.980   | .960/.991  | .949/.994           | .418/1.000    | .425/.532     |
-//! | walking_static     | .299/.907 | .665/.983   | .945/.977  | .950/.981           | .315/1.000    | .381/.754     |
-//! | walking_rpy        | .410/.751 | .751/.980   | .983/.989  | .995/.989           | .367/1.000    | .432/.515     |
-//! | walking_halfsphere | .394/.832 | .718/.960   | .919/.993  | .949/.995           | .402/1.000    | .455/.584     |
-//! | sitting_xyz        | .113/.692 | .160/.655   | .082/.454  | .134/.938           | .107/1.000    | .172/.191     |
-//! | sitting_static     | .140/.740 | .256/.585   | .131/.356  | .143/.437           | .127/1.000    | .176/.156     |
-//!
-//! The seated-part 3D test lowers both numbers on sitting (without it, `--no-seated-motion`:
-//! sitting_xyz .186/.930, clear .125/.906, Kinect clear .132/.950; sitting_static .283/.949,
-//! .196/.984, .197/.978) and still halves sitting_xyz's ATE: the masks mark every part that
-//! moved at all, and the keypoints it keeps (residual <= 0.5 px) are ~30 % on such parts
-//! (sitting_xyz: 308 moving, 706 still of 1014 kept), which the strict count scores as misses.
-//! Walkers: within 0.001 (box memory).
-//!
-//! YOLOX boxes (yolox_nano 480x640; it misses many procedural people), strict (both ours
-//! columns with the front-end's box memory: recall +0.03 to +0.25 over the bare culling step;
-//! without the seated test, sitting_xyz .461/.281, sitting_static .337/.185):
-//!
-//! | sequence           | paper     | ours, no unknown objects | ours      | person boxes |
-//! |--------------------|-----------|--------------------------|-----------|--------------|
-//! | walking_xyz        | .445/.418 | .749/.521                | .720/.632 | .409/.372    |
-//! | walking_static     | .354/.668 | .665/.781                | .642/.923 | .330/.634    |
-//! | walking_rpy        | .425/.545 | .757/.780                | .743/.859 | .399/.529    |
-//! | walking_halfsphere | .430/.537 | .722/.763                | .688/.826 | .391/.506    |
-//! | sitting_xyz        | -/.000    | .510/.138                | .437/.255 | .241/.037    |
-//! | sitting_static     | .168/.142 | .359/.185                | .359/.185 | .000/.000    |
-//!
-//! `stillpoint run --sequential` on synth 300-frame sequences with these defaults (the
-//! per-keypoint evidence not yet called by `run`), ATE RMSE: walking_xyz YOLOX 11.0 cm, gt
-//! 0.61 cm; walking_halfsphere YOLOX 2.02 cm, gt 0.67 cm (session start: 28.1 / 0.63 and
-//! 2.96 / 0.82 cm).
-//!
-//! On walkers with gt boxes ours reaches the target (recall >= 0.95 at precision >= 0.9) on the
-//! clear ground truth only: at the strict one, most false positives are occlusion corners whose
-//! FAST circle straddles the silhouette, which move with the person; no motion evidence can
-//! keep them, nor should it. On seated people the masks mark only the moving limbs (7 % of the
-//! image against 24 % for the people) and a moving hand often moves less than half a pixel
-//! between frames, as little as LK's noise on the still torso: culling the whole person at its
-//! depth caps precision near 0.3; keeping keypoints whose own track fits the model raised
-//! sitting_static precision to 0.43 but dropped recall to 0.40, and culling only around the
-//! outliers 0.36-0.50 at recall 0.39-0.45, so neither is done.
+//! How well the decision does against the generator's masks (`stillpoint bench dynamic`), with
+//! its commands: `docs/monocular.md` ("What `bench dynamic` measures") and `docs/paper.md`.
 
 #![deny(missing_docs)]
 
