@@ -430,14 +430,14 @@ pub fn cull_with_depth(input: &DepthCullInput, cull: &CullParams, p: &DepthParam
 /// The tracked points inside a frame's dynamic boxes with their depths: where a mover's band
 /// holds static world ([`DepthParams::static_radius_px`]).
 #[derive(Clone, Debug, Default)]
-pub struct StaticNeighbours {
+struct StaticNeighbours {
     points: Vec<(TrackedPoint, f32)>,
 }
 
 impl StaticNeighbours {
     /// The points of `tracked` (depths `tracked_depths`, missing when short) inside a dynamic
     /// box of `states`; none when the rule is off.
-    pub fn new(
+    fn new(
         tracked: &[TrackedPoint],
         tracked_depths: &[f32],
         states: &[BoxState],
@@ -461,7 +461,7 @@ impl StaticNeighbours {
 
     /// A point that moved with the static world lies within [`DepthParams::static_radius_px`]
     /// of `at` at depth `d` (± [`DepthParams::static_depth_m`]), and no moving one does.
-    pub fn keep(&self, at: [f32; 2], d: f32, p: &DepthParams) -> bool {
+    fn keep(&self, at: [f32; 2], d: f32, p: &DepthParams) -> bool {
         let r2 = p.static_radius_px * p.static_radius_px;
         let mut still = false;
         for (t, td) in &self.points {

@@ -140,7 +140,7 @@ pub struct TrackedObject {
     pub moving: bool,
     /// Consecutive frames of [`Evidence::Still`] (reset by motion).
     pub still_frames: u32,
-    /// Consecutive frames of [`Evidence::MovingByTwoFrames`].
+    /// Consecutive frames of motion evidence ([`Evidence::Moving`] or [`Evidence::MovingByTwoFrames`]).
     pub moving_hints: u32,
     /// Frame it was last seen in.
     pub last_seen: usize,
@@ -240,8 +240,9 @@ impl ObjectTracker {
             obj.seen += 1;
             let seen = evidence.get(s).copied().unwrap_or(Evidence::Inconclusive);
             obj.moving_hints = match seen {
-                Evidence::MovingByTwoFrames => obj.moving_hints.saturating_add(1),
-                Evidence::Moving if !movable => obj.moving_hints.saturating_add(1),
+                Evidence::Moving | Evidence::MovingByTwoFrames => {
+                    obj.moving_hints.saturating_add(1)
+                }
                 _ => 0,
             };
             match seen {
@@ -257,19 +258,12 @@ impl ObjectTracker {
                         obj.still_frames = obj.still_frames.saturating_add(1);
                     }
                 }
-                Evidence::Moving => {
+                Evidence::Moving | Evidence::MovingByTwoFrames => {
                     obj.moving = true;
                     obj.still_frames = 0;
                 }
-                Evidence::MovingByTwoFrames
-                    if movable || obj.moving_hints >= p.unmovable_moving_frames =>
-                {
-                    obj.moving = true;
-                    obj.still_frames = 0;
-                }
-                Evidence::MovingByTwoFrames => {}
                 Evidence::StillByTwoFrames
-                    if movable && !p.still_by_two_frames_classes.contains(&st.class_id) => {}
+                    if !p.still_by_two_frames_classes.contains(&st.class_id) => {}
                 Evidence::Still | Evidence::StillByTwoFrames => {
                     obj.still_frames = obj.still_frames.saturating_add(1);
                     if obj.still_frames >= p.still_frames_to_static {

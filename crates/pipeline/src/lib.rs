@@ -115,6 +115,18 @@ pub struct FrameTimings {
     pub map_wait_ms: f64,
 }
 
+impl FrameResult {
+    /// The poses this frame gave, in time order: the earlier frames a new monocular map took
+    /// in ([`Self::backfilled`]), then this frame's own when tracked; (index, time, pose).
+    pub fn poses_in_time_order(&self) -> impl Iterator<Item = (usize, f64, Se3)> + '_ {
+        let late = self
+            .backfilled
+            .iter()
+            .map(|b| (b.index, b.timestamp, b.pose_wc));
+        late.chain(self.pose_wc.map(|p| (self.index, self.timestamp, p)))
+    }
+}
+
 /// What happened to one frame.
 #[derive(Clone, Debug)]
 pub struct FrameResult {
@@ -430,13 +442,6 @@ impl Pipeline {
         if let Some(f) = self.front_end.as_mut() {
             f.observe_pose(frame.index, report.pose_wc.as_ref());
         }
-        let late = report.backfilled.iter().map(|b| (b.timestamp, b.pose_wc));
-        for (t, p) in late.chain(report.pose_wc.map(|p| (frame.timestamp, p))) {
-            if self.stamps.last().is_none_or(|&l| t > l) {
-                self.stamps.push(t);
-                self.poses.push(p);
-            }
-        }
         // Tracking saw the kept keypoints only: spread its flags back over all of them.
         let matched = if report.matched.is_empty() {
             Vec::new()
@@ -447,7 +452,7 @@ impl Pipeline {
                 .map(|&d| !d && kept.next().copied().unwrap_or(false))
                 .collect()
         };
-        Ok(FrameResult {
+        let result = FrameResult {
             index: frame.index,
             timestamp: frame.timestamp,
             pose_wc: report.pose_wc,
@@ -465,7 +470,14 @@ impl Pipeline {
             new_map: report.new_map,
             backfilled: report.backfilled,
             timings,
-        })
+        };
+        for (_, t, p) in result.poses_in_time_order() {
+            if self.stamps.last().is_none_or(|&l| t > l) {
+                self.stamps.push(t);
+                self.poses.push(p);
+            }
+        }
+        Ok(result)
     }
 
     /// Map hygiene after tracking (RGB-D; the points the depth image sees through leave in

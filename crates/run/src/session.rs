@@ -399,11 +399,7 @@ pub fn run_sequence(
         }
         new_maps += r.new_map as usize;
         // Earlier frames a new monocular map took in come first, in time order.
-        let late = r
-            .backfilled
-            .iter()
-            .map(|b| (b.index, b.timestamp, b.pose_wc));
-        for (index, t, p) in late.chain(r.pose_wc.map(|p| (i, frame.timestamp, p))) {
+        for (index, t, p) in r.poses_in_time_order() {
             tracked += 1;
             if written.is_none_or(|l| t > l) {
                 written = Some(t);

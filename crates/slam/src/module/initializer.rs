@@ -3,6 +3,8 @@
 //! a two-view reconstruction; then the initial map is the two frames and the triangulated points,
 //! refined by bundle adjustment and scaled to a median scene depth of 1.
 
+use std::collections::VecDeque;
+
 use stillpoint_geometry::{Se3, Vec2, Vec3};
 use tracing::debug;
 
@@ -50,7 +52,7 @@ pub struct MonoInitializer {
     reference: Option<Frame>,
     prev_matched: Vec<Vec2>,
     /// Frames offered since the reference that did not start the map.
-    between: Vec<Frame>,
+    between: VecDeque<Frame>,
 }
 
 impl MonoInitializer {
@@ -67,9 +69,9 @@ impl MonoInitializer {
             return;
         }
         if self.between.len() >= keep {
-            self.between.remove(0);
+            self.between.pop_front();
         }
-        self.between.push(frame.clone());
+        self.between.push_back(frame.clone());
     }
 
     /// Index of the reference frame, when there is one.
@@ -176,7 +178,7 @@ impl MonoInitializer {
             self.reset();
             return None;
         };
-        let between = std::mem::take(&mut self.between);
+        let between = std::mem::take(&mut self.between).into();
         self.reset();
         Some(Initialisation {
             reference,

@@ -30,6 +30,10 @@ pub enum TrackingState {
     Lost,
 }
 
+/// Fewest descriptor matches to a keyframe worth a pose optimisation (ORB-SLAM's 15: the
+/// reference keyframe, relocalisation, and frames before a monocular map stood).
+const MIN_DESCRIPTOR_MATCHES: usize = 15;
+
 /// What happened to one frame.
 #[derive(Clone, Debug, Default)]
 pub struct TrackOutcome {
@@ -496,7 +500,7 @@ impl Tracker {
                 );
             }
             let mut inliers = 0;
-            if matches >= 15 {
+            if matches >= MIN_DESCRIPTOR_MATCHES {
                 self.optimize_frame(&mut f, map);
                 Self::discard_outliers(&mut f, map);
                 self.project_points(&mut f, &points, map, self.s.local_map_search_th);
@@ -651,7 +655,7 @@ impl Tracker {
             self.s.ref_kf_ratio,
             self.s.th_low,
         );
-        if n < 15 {
+        if n < MIN_DESCRIPTOR_MATCHES {
             debug!(
                 frame = frame.index,
                 matches = n,
@@ -947,7 +951,7 @@ impl Tracker {
             frame.map_points.iter_mut().for_each(|m| *m = None);
             frame.outliers.iter_mut().for_each(|o| *o = false);
             let n = search_by_descriptors(frame, kf, map, 0.75, self.s.th_low);
-            if n < 15 {
+            if n < MIN_DESCRIPTOR_MATCHES {
                 continue;
             }
             let mut idx = Vec::new();
