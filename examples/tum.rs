@@ -12,7 +12,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let yolox = stillpoint::open_detector("yolox", &detect, None, Default::default())?;
     let front_end = DynamicFrontEnd::new(yolox, FrontEndSettings::default());
     let settings = PipelineSettings::from_dataset(seq.settings());
-    let mut slam = Pipeline::new(settings, Some(front_end), None);
+    let mut slam = Pipeline::new(settings, Some(Box::new(front_end)), None);
     for i in 0..seq.len() {
         let r = slam.track(&seq.frame(i)?)?;
         eprintln!("frame {i}: {:?}, {} keypoints culled", r.state, r.culled());

@@ -8,7 +8,7 @@
 //! let seq = stillpoint::open("rgbd_dataset_freiburg3_walking_xyz".as_ref(), None, None)?;
 //! let yolox = stillpoint::open_detector("yolox", &DetectSettings::default(), None, Default::default())?;
 //! let front_end = DynamicFrontEnd::new(yolox, FrontEndSettings::default());
-//! let mut slam = Pipeline::new(PipelineSettings::from_dataset(seq.settings()), Some(front_end), None);
+//! let mut slam = Pipeline::new(PipelineSettings::from_dataset(seq.settings()), Some(Box::new(front_end)), None);
 //! for i in 0..seq.len() {
 //!     let frame = slam.track(&seq.frame(i)?)?; // pose, state, keypoints culled or kept
 //! }
@@ -25,7 +25,7 @@ pub use stillpoint_datasets::{
 pub use stillpoint_detect::{
     COCO_CLASSES, DetectSettings, Detection, Detector, GtDetectorParams, open_detector,
 };
-pub use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings, KeypointFilter};
+pub use stillpoint_frontend::{DynamicFrontEnd, FrontEnd, FrontEndSettings, Judgement};
 pub use stillpoint_pipeline::{
     Finished, FrameResult, Pipeline, PipelineError, PipelineSettings, SettingsTree,
 };

@@ -17,7 +17,7 @@ use stillpoint_detect::{
 };
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
-use stillpoint_frontend::{FilterInput, KeypointFilter};
+use stillpoint_frontend::{FrameInput, FrontEnd};
 
 /// YOLOX that also hands its boxes to the test.
 struct Recording {
@@ -60,12 +60,13 @@ fn real_walkers_are_culled_and_the_office_is_kept() {
             .map(|k| [k.x, k.y])
             .collect();
         let out = front.judge(
-            &FilterInput {
+            &FrameInput {
                 index: i,
                 timestamp: *t,
                 gray: &gray,
                 rgb: Some(&rgb),
                 depth: None,
+                previous: None,
             },
             &kps,
         );

@@ -34,8 +34,7 @@ use std::time::Instant;
 
 use stillpoint_datasets::{Frame, Sensor};
 use stillpoint_features::{OrbExtractor, OrbParams};
-use stillpoint_frontend::DynamicFrontEnd;
-use stillpoint_frontend::{FilterInput, KeypointFilter};
+use stillpoint_frontend::{EraseRecent, FrameInput, FrontEnd, PreviousPose, Regions, SceneObjects};
 use stillpoint_geometry::Se3;
 use stillpoint_image::Gray8;
 use stillpoint_slam::data::Map;
@@ -152,6 +151,9 @@ pub struct FrameResult {
     pub no_new_points: Vec<bool>,
     /// Boxes the front-end judged moving.
     pub dynamic_boxes: usize,
+    /// The objects the front-end saw in the frame (for overlays, recordings and static dense
+    /// maps); empty without a front-end.
+    pub objects: SceneObjects,
     /// Map points matched by tracking (pose inliers).
     pub inliers: usize,
     /// Per keypoint: matched to a map point and kept by the pose (culled keypoints never are);
@@ -209,7 +211,11 @@ pub struct Pipeline {
     orb_init: Option<OrbExtractor>,
     /// Stereo: the right image gets its own extractor (its pyramid is kept for matching).
     orb_right: OrbExtractor,
-    front_end: Option<DynamicFrontEnd>,
+    front_end: Option<Box<dyn FrontEnd>>,
+    /// What the front-end's last judgement said the next frame's ORB should skip.
+    skip_next: Regions,
+    /// The last frame fed and its pose, for the front-end's next frame.
+    previous: Option<PreviousPose>,
     stereo: StereoParams,
     bf: f64,
     fx: f64,
@@ -223,7 +229,7 @@ impl Pipeline {
     /// `settings` where its own settings left it unset.
     pub fn new(
         settings: PipelineSettings,
-        front_end: Option<DynamicFrontEnd>,
+        front_end: Option<Box<dyn FrontEnd>>,
         vocabulary: Option<Vocabulary>,
     ) -> Self {
         let system = System::with_vocabulary(settings.slam.clone(), vocabulary);
@@ -251,7 +257,7 @@ impl Pipeline {
     /// ```
     pub fn with_map(
         settings: PipelineSettings,
-        front_end: Option<DynamicFrontEnd>,
+        front_end: Option<Box<dyn FrontEnd>>,
         vocabulary: Option<Vocabulary>,
         map: MapFile,
         mode: LoadedMapMode,
@@ -267,12 +273,12 @@ impl Pipeline {
 
     fn with_system(
         settings: PipelineSettings,
-        mut front_end: Option<DynamicFrontEnd>,
+        mut front_end: Option<Box<dyn FrontEnd>>,
         system: System,
     ) -> Self {
         let slam = settings.slam;
         if let Some(f) = front_end.as_mut() {
-            f.use_camera(slam.camera);
+            f.start(slam.camera);
         }
         let orb_init = slam.monocular.then(|| {
             OrbExtractor::new(OrbParams {
@@ -285,6 +291,8 @@ impl Pipeline {
             orb_init,
             orb_right: OrbExtractor::new(settings.orb),
             front_end,
+            skip_next: Regions::default(),
+            previous: None,
             stereo: settings.stereo,
             bf: slam.bf,
             fx: slam.camera.fx,
@@ -299,20 +307,15 @@ impl Pipeline {
         &self.system
     }
 
-    /// The dynamic front-end, when there is one.
-    pub fn front_end(&self) -> Option<&DynamicFrontEnd> {
-        self.front_end.as_ref()
-    }
-
     /// Track one frame: features, the front-end's judgement, depth, pose.
     pub fn track(&mut self, frame: &Frame) -> Result<FrameResult, PipelineError> {
         let mut timings = FrameTimings::default();
         let t0 = Instant::now();
-        let mut excluded = self.front_end.as_ref().and_then(|f| {
-            let (w, h) = (frame.gray.width, frame.gray.height);
-            f.orb_exclusion_mask(frame.depth.as_ref(), w, h)
-                .map(Arc::new)
-        });
+        let (w, h) = (frame.gray.width, frame.gray.height);
+        let mut excluded = self
+            .skip_next
+            .mask(frame.depth.as_ref(), w, h)
+            .map(Arc::new);
         self.orb.set_exclusion_mask(excluded.clone());
         let left_orb = match self.orb_init.as_mut() {
             Some(o) if self.system.wants_initial_features(frame.index) => {
@@ -323,12 +326,13 @@ impl Pipeline {
             _ => &mut self.orb,
         };
         let orb_right = &mut self.orb_right;
-        let input = FilterInput {
+        let input = FrameInput {
             index: frame.index,
             timestamp: frame.timestamp,
             gray: &frame.gray,
             rgb: frame.rgb.as_ref(),
             depth: frame.depth.as_ref(),
+            previous: self.previous.take(),
         };
         let front_end = &mut self.front_end;
         // Left and right images in parallel, as ORB-SLAM does, and beside them the front-end's
@@ -347,10 +351,10 @@ impl Pipeline {
                 let left = left_orb.extract_on(&frame.gray, threads);
                 (left, ms(t0))
             });
-            let measured = front_end.as_mut().and_then(|f| {
+            let measured = front_end.as_mut().is_some_and(|f| {
                 std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| f.measure(&input)))
                     .map_err(|_| tracing::warn!("frame {}: the motion check panicked", input.index))
-                    .ok()
+                    .is_ok()
             });
             let right = right.and_then(|h| h.join().ok());
             let (left, orb_ms) = match left.join() {
@@ -365,16 +369,20 @@ impl Pipeline {
         let octaves: Vec<u8> = features.iter().map(|k| k.octave).collect();
         let mut descriptors = feats.descriptors;
         let (mut dynamic, mut no_new_points, mut dynamic_boxes) = (Vec::new(), Vec::new(), 0);
-        if let (Some(f), Some(measured)) = (self.front_end.as_mut(), measured) {
-            let outcome = f.judge_measured(&input, measured, &keypoints);
-            timings.semantic_ms = outcome.semantic_ms;
-            timings.geometry_ms = outcome.geometry_ms;
-            dynamic_boxes = outcome.dynamic_boxes;
-            remove_dynamic(&mut features, &mut descriptors, &outcome.dynamic);
-            if outcome.no_new_points.len() == outcome.dynamic.len() {
-                no_new_points = outcome.no_new_points;
+        let (mut objects, mut erase_recent) = (SceneObjects::default(), None);
+        if let (Some(f), true) = (self.front_end.as_mut(), measured) {
+            let judged = f.judge(&input, &keypoints);
+            timings.semantic_ms = judged.semantic_ms;
+            timings.geometry_ms = judged.geometry_ms;
+            dynamic_boxes = judged.dynamic_boxes;
+            remove_dynamic(&mut features, &mut descriptors, &judged.dynamic);
+            if judged.no_new_points.len() == judged.dynamic.len() {
+                no_new_points = judged.no_new_points;
             }
-            dynamic = outcome.dynamic;
+            dynamic = judged.dynamic;
+            self.skip_next = judged.skip_next;
+            erase_recent = judged.erase_recent;
+            objects = judged.objects;
         }
         if dynamic.len() != keypoints.len() {
             dynamic = vec![false; keypoints.len()];
@@ -421,7 +429,7 @@ impl Pipeline {
             Some(d) => KeypointDepth::PerKeypoint(d),
             None => frame.depth.as_ref().into(),
         };
-        let hygiene = self.recent_points_on_movers_eraser(frame);
+        let hygiene = self.recent_points_on_movers_eraser(frame, erase_recent);
         let report = self
             .system
             .track_rgbd_masked_then(
@@ -439,9 +447,10 @@ impl Pipeline {
             })?;
         timings.tracking_ms = report.tracking_ms;
         timings.map_wait_ms = report.map_wait_ms;
-        if let Some(f) = self.front_end.as_mut() {
-            f.observe_pose(frame.index, report.pose_wc.as_ref());
-        }
+        self.previous = Some(PreviousPose {
+            index: frame.index,
+            pose_wc: report.pose_wc,
+        });
         // Tracking saw the kept keypoints only: spread its flags back over all of them.
         let matched = if report.matched.is_empty() {
             Vec::new()
@@ -463,6 +472,7 @@ impl Pipeline {
             dynamic,
             no_new_points,
             dynamic_boxes,
+            objects,
             inliers: report.inliers,
             matched,
             new_keyframe: report.new_keyframe,
@@ -488,18 +498,15 @@ impl Pipeline {
     fn recent_points_on_movers_eraser<'a>(
         &self,
         frame: &'a Frame,
+        erase: Option<EraseRecent>,
     ) -> Option<impl FnOnce(&mut Map, &Se3) + 'a> {
-        let (Some(f), Some(depth), false) = (
-            self.front_end.as_ref(),
-            frame.depth.as_ref(),
-            self.system.localizing(),
-        ) else {
+        let (Some(erase), Some(depth), false) =
+            (erase, frame.depth.as_ref(), self.system.localizing())
+        else {
             return None;
         };
-        let mask = f.mover_surface_mask(depth)?;
-        let since = frame
-            .index
-            .saturating_sub(f.settings().erase_recent_mover_points_frames);
+        let mask = erase.movers.mask(Some(depth), depth.width, depth.height)?;
+        let since = erase.since;
         let cam = self.system.settings.camera;
         let index = frame.index;
         Some(move |m: &mut Map, pose_wc: &Se3| {

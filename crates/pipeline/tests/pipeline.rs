@@ -3,7 +3,7 @@
 //! baseline on the same frames is pulled by the walkers.
 
 use stillpoint_detect::{GtDetectorParams, open_detector};
-use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
+use stillpoint_frontend::{DynamicFrontEnd, FrontEnd, FrontEndSettings};
 use stillpoint_pipeline::{Pipeline, PipelineSettings};
 use stillpoint_synth::{Preset, SynthConfig, WriteOptions, write_sequence};
 use stillpoint_trajectory::{Alignment, AteOptions, Trajectory, ate, read_tum};
@@ -21,7 +21,7 @@ fn run(dir: &std::path::Path, with_front_end: bool) -> (f64, usize, usize) {
             GtDetectorParams::default(),
         )
         .unwrap();
-        DynamicFrontEnd::new(detector, FrontEndSettings::default())
+        Box::new(DynamicFrontEnd::new(detector, FrontEndSettings::default())) as Box<dyn FrontEnd>
     });
     let mut slam = Pipeline::new(settings, front_end, None);
     let mut culled = 0;

@@ -6,7 +6,6 @@ use std::path::Path;
 
 use stillpoint_datasets::Frame;
 use stillpoint_detect::draw::{draw_box, draw_dot};
-use stillpoint_dynamic::TrackedObject;
 use stillpoint_image::Rgb8;
 use stillpoint_pipeline::FrameResult;
 
@@ -20,7 +19,7 @@ pub const CULLED: [u8; 3] = [255, 0, 0];
 pub const STATIC: [u8; 3] = [0, 160, 255];
 
 /// The frame's colour image (or its gray one) with its keypoints and objects drawn on it.
-pub fn draw_overlay(frame: &Frame, result: &FrameResult, objects: &[&TrackedObject]) -> Rgb8 {
+pub fn draw_overlay(frame: &Frame, result: &FrameResult) -> Rgb8 {
     let mut img = match &frame.rgb {
         Some(rgb) => rgb.clone(),
         None => {
@@ -29,7 +28,7 @@ pub fn draw_overlay(frame: &Frame, result: &FrameResult, objects: &[&TrackedObje
             Rgb8::from_vec(g.width, g.height, data).unwrap_or_else(|_| Rgb8::new(1, 1, [0; 3]))
         }
     };
-    for o in objects {
+    for o in &result.objects.tracked {
         let (colour, state) = if o.moving {
             (CULLED, "moving")
         } else {

@@ -89,10 +89,6 @@ pub struct FrameRecord<'a> {
     pub frame: &'a Frame,
     /// What the pipeline made of it.
     pub result: &'a FrameResult,
-    /// The objects the front-end saw in it.
-    pub objects: &'a [&'a TrackedObject],
-    /// Of their boxes, those the memory carried into the frame.
-    pub carried: &'a [BBox],
     /// The camera (intrinsics for the calibration and for lifting culled keypoints).
     pub camera: &'a PinholeCamera,
 }
@@ -175,7 +171,7 @@ impl Recorder {
         self.write(
             "/camera/annotations",
             stamp,
-            &annotations_json(stamp, f.result, f.objects, f.carried),
+            &annotations_json(stamp, f.result),
         )?;
         if let Some(pose) = f.result.pose_wc {
             self.path_so_far.push((stamp, pose));
@@ -465,12 +461,8 @@ const LINE_LOOP: u8 = 2;
 /// `foxglove.ImageAnnotations` of a frame: keypoints matched green, kept yellow, culled red
 /// (one points annotation each), and each object's box (a line loop) with its class and state
 /// as text: moving red, static blue, carried by the memory orange.
-pub fn annotations_json(
-    stamp: f64,
-    r: &FrameResult,
-    objects: &[&TrackedObject],
-    carried: &[BBox],
-) -> Value {
+pub fn annotations_json(stamp: f64, r: &FrameResult) -> Value {
+    let (objects, carried) = (&r.objects.tracked, &r.objects.carried[..]);
     let time = time_json(stamp);
     let mut groups: [(Vec<Value>, [u8; 3]); 3] = [
         (Vec::new(), MATCHED),
@@ -602,8 +594,6 @@ mod tests {
             rec.frame(&FrameRecord {
                 frame: &frame,
                 result: &result,
-                objects: &[],
-                carried: &[],
                 camera: &camera,
             })
             .unwrap();
@@ -633,6 +623,7 @@ mod tests {
             dynamic: vec![],
             no_new_points: vec![],
             dynamic_boxes: 0,
+            objects: Default::default(),
             inliers: 0,
             matched: vec![],
             new_keyframe: false,

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use stillpoint_datasets::{Sensor, Sequence};
 use stillpoint_detect::GtDetectorParams;
-use stillpoint_frontend::{DynamicFrontEnd, FrontEndSettings};
+use stillpoint_frontend::{DynamicFrontEnd, FrontEnd, FrontEndSettings};
 use stillpoint_pipeline::{FrameResult, FrameTimings, Layered, Pipeline, SettingsTree};
 use stillpoint_trajectory::TumWriter;
 
@@ -199,18 +199,17 @@ pub fn run_sequence(
                 None => detector.name().to_string(),
             };
             let front = DynamicFrontEnd::new(detector, tree.front_end.clone());
-            if tree.front_end.detector_in_background || o.realtime {
-                Some(
-                    front
-                        .detect_in_background()
-                        .map_err(|source| RunError::Detector {
-                            context: format!("starting the {name} detector's thread"),
-                            source,
-                        })?,
-                )
+            let front = if tree.front_end.detector_in_background || o.realtime {
+                front
+                    .detect_in_background()
+                    .map_err(|source| RunError::Detector {
+                        context: format!("starting the {name} detector's thread"),
+                        source,
+                    })?
             } else {
-                Some(front)
-            }
+                front
+            };
+            Some(Box::new(front) as Box<dyn FrontEnd>)
         }
     };
     let detector_name = detector_desc;
@@ -413,9 +412,10 @@ pub fn run_sequence(
         }
         if let (Some(d), Some(depth), true) = (dense.as_mut(), &frame.depth, r.new_keyframe) {
             // The pixels of movers and of people (still or not) stay out of the static cloud.
-            let skip = pipeline
-                .front_end()
-                .and_then(|f| f.movable_surface_mask(frame.index, depth));
+            let skip = r
+                .objects
+                .movable
+                .mask(Some(depth), depth.width, depth.height);
             d.add_keyframe(
                 frame.timestamp,
                 depth,
@@ -425,11 +425,7 @@ pub fn run_sequence(
             );
         }
         if let Some(dir) = &o.overlay {
-            let objects = pipeline
-                .front_end()
-                .map(|f| f.objects_in_view(frame.index))
-                .unwrap_or_default();
-            let img = crate::overlay::draw_overlay(&frame, &r, &objects);
+            let img = crate::overlay::draw_overlay(&frame, &r);
             let path = crate::overlay::overlay_path(dir, frame.index);
             stillpoint_image::write_rgb(&path, &img).map_err(|e| RunError::Io {
                 context: format!("writing {}", path.display()),
@@ -438,16 +434,9 @@ pub fn run_sequence(
         }
         if let Some(rec) = recorder.as_mut() {
             let t0 = Instant::now();
-            let front = pipeline.front_end();
-            let objects = front
-                .map(|f| f.objects_in_view(frame.index))
-                .unwrap_or_default();
-            let carried = front.map_or(&[][..], |f| f.carried_in_view(frame.index));
             rec.frame(&crate::record::FrameRecord {
                 frame: &frame,
                 result: &r,
-                objects: &objects,
-                carried,
                 camera: &camera_model,
             })?;
             if r.new_keyframe {

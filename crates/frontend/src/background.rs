@@ -1,0 +1,178 @@
+//! The detector on its own thread, and the boxes it finished carried to the current frame.
+
+use stillpoint_detect::{DetectError, Detection, Detector, DetectorThread};
+
+use crate::{FrameInput, FrontEndSettings};
+
+/// The detector on its own thread ([`DynamicFrontEnd::detect_in_background`]): each frame hands
+/// it the frame when it is idle and takes the newest boxes it has finished, carried from their
+/// frame to the current one by the median flow of the corners tracked inside each box, frame by
+/// frame; tracking never waits for it (but on the first frame, so that the first map is judged).
+pub(crate) struct BackgroundDetector {
+    thread: DetectorThread,
+    /// A frame is with the detector.
+    busy: bool,
+    /// The timestamp of the last frame handed to the detector.
+    last_sent: Option<f64>,
+    /// [`FrontEndSettings::background_detect_interval_s`].
+    interval_s: f64,
+    /// [`FrontEndSettings::background_detect_at_side_edge`].
+    at_side_edge_every_frame: bool,
+    /// The newest finished boxes, already carried to frame `at`, and the frame they were
+    /// detected on.
+    latest: Option<CarriedDetections>,
+    /// Corner tracks into each recent frame (frame index, tracks), to carry boxes detected on
+    /// an earlier frame.
+    tracks: std::collections::VecDeque<(usize, Vec<stillpoint_dynamic::TrackedPoint>)>,
+}
+
+/// Boxes detected on frame `detected`, moved to frame `at`.
+struct CarriedDetections {
+    detected: usize,
+    at: usize,
+    boxes: Vec<Detection>,
+}
+
+/// Whether a box reaches the left or right edge of an image `width` pixels wide (within
+/// [`stillpoint_dynamic::AT_BORDER_PX`], as boxes carried in view keep such edges): someone
+/// coming into view, or leaving it.
+fn at_side_edge(boxes: &[Detection], width: f32) -> bool {
+    use stillpoint_dynamic::AT_BORDER_PX;
+    boxes
+        .iter()
+        .any(|d| d.bbox.x1 <= AT_BORDER_PX || d.bbox.x2 >= width - AT_BORDER_PX)
+}
+
+/// Frames after which boxes carried from an older detection are dropped.
+const MAX_DETECTION_AGE: usize = 15;
+
+impl BackgroundDetector {
+    /// `detector` on a thread of its own, `settings.background_detect_nice` steps below the
+    /// caller's priority.
+    pub(crate) fn spawn(
+        detector: Box<dyn Detector>,
+        settings: &FrontEndSettings,
+    ) -> Result<Self, DetectError> {
+        let nice = settings.background_detect_nice;
+        let thread = DetectorThread::spawn(move || {
+            stillpoint_detect::lower_this_thread_priority(nice);
+            Ok(detector)
+        })?;
+        Ok(Self {
+            thread,
+            busy: false,
+            last_sent: None,
+            interval_s: settings.background_detect_interval_s,
+            at_side_edge_every_frame: settings.background_detect_at_side_edge,
+            latest: None,
+            tracks: std::collections::VecDeque::new(),
+        })
+    }
+
+    /// Boxes for frame `index` (whose corner tracks are `tracks`): collect what the thread has
+    /// finished, carry the newest to this frame, and hand the thread this frame when it is idle.
+    pub(crate) fn boxes_for(
+        &mut self,
+        frame: &FrameInput,
+        tracks: &[stillpoint_dynamic::TrackedPoint],
+    ) -> Vec<Detection> {
+        self.tracks.push_back((frame.index, tracks.to_vec()));
+        while self.tracks.len() > MAX_DETECTION_AGE + 1 {
+            self.tracks.pop_front();
+        }
+        while let Some((detected, result)) = self.thread.try_recv() {
+            self.busy = false;
+            let boxes = result.unwrap_or_else(|e| {
+                tracing::warn!("frame {detected}: detector failed: {e}");
+                Vec::new()
+            });
+            self.latest = Some(CarriedDetections {
+                detected,
+                at: detected,
+                boxes,
+            });
+        }
+        if let Some(l) = self.latest.as_mut() {
+            let from = l.at;
+            let (w, h) = (frame.gray.width as f32, frame.gray.height as f32);
+            for (index, pts) in self.tracks.iter().filter(|(i, _)| *i > from) {
+                for d in &mut l.boxes {
+                    d.bbox = stillpoint_dynamic::moved_by_flow_in_view(&d.bbox, pts, w, h);
+                }
+                l.at = *index;
+            }
+        }
+        let entering = self
+            .latest
+            .as_ref()
+            .is_some_and(|l| at_side_edge(&l.boxes, frame.gray.width as f32));
+        let due = (entering && self.at_side_edge_every_frame)
+            || self
+                .last_sent
+                .is_none_or(|t| frame.timestamp - t >= self.interval_s);
+        if !self.busy && due {
+            self.send(frame);
+        }
+        match &self.latest {
+            Some(l) if frame.index.saturating_sub(l.detected) <= MAX_DETECTION_AGE => {
+                l.boxes.clone()
+            }
+            _ => Vec::new(),
+        }
+    }
+
+    fn send(&mut self, frame: &FrameInput) {
+        let rgb = match frame.rgb {
+            Some(rgb) => rgb.clone(),
+            None => stillpoint_image::gray_to_rgb(frame.gray),
+        };
+        match self.thread.send(frame.index, frame.timestamp, rgb) {
+            Ok(()) => {
+                self.busy = true;
+                self.last_sent = Some(frame.timestamp);
+            }
+            Err(e) => tracing::warn!("frame {}: {e}", frame.index),
+        }
+    }
+
+    /// The first frame: wait for its boxes.
+    pub(crate) fn boxes_of_first(&mut self, frame: &FrameInput) -> Vec<Detection> {
+        self.send(frame);
+        let boxes = match self.thread.recv() {
+            Ok((_, Ok(b))) => b,
+            Ok((_, Err(e))) | Err(e) => {
+                tracing::warn!("frame {}: detector failed: {e}", frame.index);
+                Vec::new()
+            }
+        };
+        self.busy = false;
+        self.latest = Some(CarriedDetections {
+            detected: frame.index,
+            at: frame.index,
+            boxes: boxes.clone(),
+        });
+        boxes
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::PERSON_CLASS;
+
+    #[test]
+    fn boxes_at_the_left_or_right_edge_are_told_apart() {
+        let boxed = |x1: f32, x2: f32| {
+            vec![Detection {
+                bbox: stillpoint_geometry::BBox::new(x1, 100.0, x2, 300.0),
+                class_id: PERSON_CLASS,
+                score: 0.9,
+            }]
+        };
+        assert!(at_side_edge(&boxed(0.0, 120.0), 640.0));
+        assert!(at_side_edge(&boxed(3.5, 120.0), 640.0));
+        assert!(at_side_edge(&boxed(500.0, 637.0), 640.0));
+        assert!(!at_side_edge(&boxed(5.0, 634.0), 640.0));
+        assert!(!at_side_edge(&[], 640.0));
+    }
+}

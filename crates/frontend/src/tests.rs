@@ -1,0 +1,350 @@
+//! The front-end on synthetic frames rendered in-process.
+
+use super::*;
+use stillpoint_datasets::annotations::FrameBoxes;
+use stillpoint_detect::{
+    DetectError, DetectInput, Detection, Detector, GtDetector, GtDetectorParams, NoDetector,
+};
+use stillpoint_image::Gray8;
+use stillpoint_synth::{Preset, SynthConfig, SynthFrame};
+
+/// Three frames of the synthetic walking_xyz scene, rendered in-process.
+fn walking_frames() -> Vec<SynthFrame> {
+    let cfg = SynthConfig {
+        preset: Preset::WalkingXyz,
+        frames: 3,
+        ..Default::default()
+    };
+    let g = stillpoint_synth::generate(&cfg).expect("generator");
+    (0..3).map(|i| g.frame(i)).collect()
+}
+
+fn grid(w: usize, h: usize, step: usize) -> Vec<[f32; 2]> {
+    (step..h - step)
+        .step_by(step)
+        .flat_map(|y| {
+            (step..w - step)
+                .step_by(step)
+                .map(move |x| [x as f32, y as f32])
+        })
+        .collect()
+}
+
+fn on(mask: &Gray8, [x, y]: [f32; 2]) -> bool {
+    mask.get_checked(x as isize, y as isize)
+        .is_some_and(|v| v > 127)
+}
+
+fn run(front: &mut DynamicFrontEnd, frames: &[SynthFrame], kps: &[[f32; 2]]) -> Vec<Judgement> {
+    frames
+        .iter()
+        .map(|f| {
+            let gray = stillpoint_image::rgb_to_gray(&f.rgb);
+            let input = FrameInput {
+                index: f.index,
+                timestamp: f.timestamp,
+                gray: &gray,
+                rgb: Some(&f.rgb),
+                depth: Some(&f.depth),
+                previous: None,
+            };
+            front.judge(&input, kps)
+        })
+        .collect()
+}
+
+/// The generator's boxes as a detector.
+fn gt_detector(frames: &[SynthFrame]) -> GtDetector {
+    let boxes: Vec<FrameBoxes> = frames
+        .iter()
+        .map(|f| FrameBoxes {
+            frame: f.index,
+            timestamp: f.timestamp,
+            boxes: f.boxes.clone(),
+        })
+        .collect();
+    GtDetector::from_frames(boxes, GtDetectorParams::default()).expect("gt boxes")
+}
+
+/// Share of the keypoints on the person that were neither culled nor barred from the map,
+/// over frames `range` of synth living_close (a textured person walks in and fills 40-60 %
+/// of a plain room's view), at 320x240, with ground-truth boxes and the true poses fed
+/// back as the map's.
+fn mover_keypoints_let_into_the_map(settings: FrontEndSettings) -> (usize, usize) {
+    let mut cam = stillpoint_synth::tum_fr3_camera();
+    cam.fx /= 2.0;
+    cam.fy /= 2.0;
+    cam.cx = (cam.cx + 0.5) / 2.0 - 0.5;
+    cam.cy = (cam.cy + 0.5) / 2.0 - 0.5;
+    cam.width = 320;
+    cam.height = 240;
+    let cfg = SynthConfig {
+        preset: Preset::LivingClose,
+        frames: 150,
+        camera: cam,
+        ..Default::default()
+    };
+    let g = stillpoint_synth::generate(&cfg).expect("generator");
+    let people: Vec<u16> = g
+        .objects()
+        .iter()
+        .filter(|o| o.class_id == Some(PERSON_CLASS))
+        .map(|o| o.object as u16 + 1)
+        .collect();
+    let frames: Vec<SynthFrame> = (100..150).map(|i| g.frame(i)).collect();
+    let mut settings = settings;
+    settings.dynamic.world.camera = Some(cam);
+    settings.seated_motion.camera = Some(cam);
+    let background = settings.detector_in_background;
+    let mut front = DynamicFrontEnd::new(Box::new(gt_detector(&frames)), settings);
+    if background {
+        front = front.detect_in_background().expect("detector thread");
+    }
+    let mut orb = stillpoint_features::OrbExtractor::new(stillpoint_features::OrbParams {
+        n_features: 500,
+        ..Default::default()
+    });
+    let (mut on_person, mut let_in) = (0, 0);
+    let mut previous = None;
+    for f in &frames {
+        let gray = stillpoint_image::rgb_to_gray(&f.rgb);
+        let kps: Vec<[f32; 2]> = orb
+            .extract(&gray)
+            .keypoints
+            .iter()
+            .map(|k| [k.x, k.y])
+            .collect();
+        let input = FrameInput {
+            index: f.index,
+            timestamp: f.timestamp,
+            gray: &gray,
+            rgb: Some(&f.rgb),
+            depth: Some(&f.depth),
+            previous,
+        };
+        front.measure(&input);
+        let out = front.judge(&input, &kps);
+        previous = Some(PreviousPose {
+            index: f.index,
+            pose_wc: Some(f.pose_wc),
+        });
+        for (i, &[x, y]) in kps.iter().enumerate() {
+            let id = f.object_ids.get(x as usize, y as usize);
+            if people.contains(&id) {
+                on_person += 1;
+                let barred = out.no_new_points.get(i).copied().unwrap_or(false);
+                let_in += (!out.dynamic[i] && !barred) as usize;
+            }
+        }
+    }
+    (let_in, on_person)
+}
+
+/// The detector on its own thread: each frame takes the newest boxes, detected on an
+/// earlier frame and carried by the corners' flow; the person still stays out of the map.
+#[test]
+fn boxes_from_a_background_detector_keep_the_mover_out() {
+    let settings = FrontEndSettings {
+        detector_in_background: true,
+        ..Default::default()
+    };
+    let (let_in, total) = mover_keypoints_let_into_the_map(settings);
+    assert!(total > 3000, "the person holds many keypoints ({total})");
+    let share = let_in as f64 / total as f64;
+    eprintln!("person keypoints let into the map with the detector in the background: {share:.3}");
+    assert!(share < 0.02, "{let_in} of {total}");
+}
+
+/// In the background the detector is handed a frame at most once per
+/// `background_detect_interval_s` of the frames' own clock, however fast it is.
+#[test]
+fn the_background_detector_takes_one_frame_per_interval() {
+    use std::sync::{Arc, Mutex};
+    struct Recording(Arc<Mutex<Vec<f64>>>);
+    impl Detector for Recording {
+        fn detect(&mut self, input: &DetectInput) -> Result<Vec<Detection>, DetectError> {
+            self.0.lock().unwrap().push(input.timestamp);
+            Ok(Vec::new())
+        }
+        fn name(&self) -> &str {
+            "recording"
+        }
+    }
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let settings = FrontEndSettings {
+        detector_in_background: true,
+        background_detect_interval_s: 0.1,
+        ..Default::default()
+    };
+    let mut front = DynamicFrontEnd::new(Box::new(Recording(Arc::clone(&seen))), settings)
+        .detect_in_background()
+        .unwrap();
+    let mut gray = Gray8::new(96, 64, 0);
+    for y in 0..64 {
+        for x in 0..96 {
+            gray.set(x, y, if (x / 8 + y / 8) % 2 == 0 { 40 } else { 200 });
+        }
+    }
+    for i in 0..40 {
+        let input = FrameInput {
+            index: i,
+            timestamp: i as f64 / 30.0,
+            gray: &gray,
+            rgb: None,
+            depth: None,
+            previous: None,
+        };
+        front.judge(&input, &[]);
+    }
+    drop(front);
+    let seen = seen.lock().unwrap().clone();
+    assert!(!seen.is_empty());
+    assert!(
+        seen.len() <= 14,
+        "{} frames detected of 40: {seen:?}",
+        seen.len()
+    );
+    for w in seen.windows(2) {
+        assert!(w[1] - w[0] >= 0.1 - 1e-9, "{seen:?}");
+    }
+}
+
+#[test]
+fn a_dominant_textured_mover_never_reaches_the_map() {
+    let (ours, total) = mover_keypoints_let_into_the_map(FrontEndSettings::default());
+    let mut paper = FrontEndSettings::default();
+    paper.dynamic.world.enabled = false;
+    paper.dynamic.objects.enabled = false;
+    let (before, total_before) = mover_keypoints_let_into_the_map(paper);
+    assert_eq!(total, total_before);
+    assert!(total > 3000, "the person holds many keypoints ({total})");
+    let share = |n: usize| n as f64 / total as f64;
+    eprintln!(
+        "person keypoints let into the map: {:.3} with the static world and objects, {:.3} without",
+        share(ours),
+        share(before)
+    );
+    assert!(share(ours) < 0.01, "{ours} of {total}");
+    assert!(
+        share(before) > 5.0 * share(ours).max(0.002),
+        "{before} of {total}"
+    );
+}
+
+#[test]
+fn gray_only_frames_still_reach_the_detector() {
+    // KITTI image_0/1 and EuRoC are gray: the detector gets the gray image in three channels.
+    let frames = walking_frames();
+    let kps = grid(frames[0].rgb.width, frames[0].rgb.height, 8);
+    let mut front =
+        DynamicFrontEnd::new(Box::new(gt_detector(&frames)), FrontEndSettings::default());
+    for f in &frames[..2] {
+        let gray = stillpoint_image::rgb_to_gray(&f.rgb);
+        let input = FrameInput {
+            index: f.index,
+            timestamp: f.timestamp,
+            gray: &gray,
+            rgb: None,
+            depth: None,
+            previous: None,
+        };
+        // The first frame too: people start moving.
+        let out = front.judge(&input, &kps);
+        assert!(
+            out.dynamic_boxes > 0 && out.dynamic.contains(&true),
+            "frame {}",
+            f.index
+        );
+    }
+}
+
+#[test]
+fn culls_walkers_with_gt_boxes_and_nothing_without_a_detector() {
+    let frames = walking_frames();
+    let (w, h) = (frames[0].rgb.width, frames[0].rgb.height);
+    let kps = grid(w, h, 8);
+    let mut front =
+        DynamicFrontEnd::new(Box::new(gt_detector(&frames)), FrontEndSettings::default());
+    let outcomes = run(&mut front, &frames, &kps);
+    for (f, out) in frames.iter().zip(&outcomes) {
+        assert_eq!(out.dynamic.len(), kps.len());
+        let moving: Vec<bool> = kps.iter().map(|&k| on(&f.dynamic_mask, k)).collect();
+        let n_moving = moving.iter().filter(|&&m| m).count();
+        let caught = moving
+            .iter()
+            .zip(&out.dynamic)
+            .filter(|(m, d)| **m && **d)
+            .count();
+        let false_pos = moving
+            .iter()
+            .zip(&out.dynamic)
+            .filter(|(m, d)| !**m && **d)
+            .count();
+        if f.index == 0 {
+            // The first frame has no motion evidence: the people rule culls the walkers.
+            assert!(out.geometry_ms == 0.0);
+        }
+        if n_moving > 20 {
+            assert!(
+                caught * 10 >= n_moving * 8,
+                "frame {}: {caught} of {n_moving}",
+                f.index
+            );
+        }
+        assert!(
+            false_pos * 5 < kps.len(),
+            "frame {}: {false_pos} static culled",
+            f.index
+        );
+    }
+    // Without boxes only the dynamic crate's unknown-objects rule culls; off, nothing goes.
+    let mut settings = FrontEndSettings::default();
+    settings.dynamic.cull.unknown_objects = false;
+    let mut none = DynamicFrontEnd::new(Box::new(NoDetector), settings);
+    for out in run(&mut none, &frames, &kps) {
+        assert!(out.dynamic.iter().all(|d| !d));
+        assert_eq!(out.dynamic_boxes, 0);
+    }
+}
+
+#[test]
+fn outlier_guard_blocks_new_points_near_missed_movers() {
+    let frames = walking_frames();
+    let (w, h) = (frames[0].rgb.width, frames[0].rgb.height);
+    let kps = grid(w, h, 8);
+    let mut settings = FrontEndSettings {
+        outlier_guard_radius_px: 30.0,
+        ..Default::default()
+    };
+    // Only the guard: the dynamic crate's unknown-objects rule would cull some of them.
+    settings.dynamic.cull.unknown_objects = false;
+    // No detector: only the geometry sees the walkers.
+    let mut front = DynamicFrontEnd::new(Box::new(NoDetector), settings);
+    let outcomes = run(&mut front, &frames, &kps);
+    assert!(
+        outcomes[0].no_new_points.iter().all(|n| !n),
+        "frame 0 has no motion evidence"
+    );
+    let (mut moving, mut still) = ([0usize; 2], [0usize; 2]);
+    for (f, out) in frames.iter().zip(&outcomes).skip(1) {
+        assert!(out.dynamic.iter().all(|d| !d), "no box, nothing culled");
+        assert_eq!(out.no_new_points.len(), kps.len());
+        for (k, &blocked) in kps.iter().zip(&out.no_new_points) {
+            let c = if on(&f.dynamic_mask, *k) {
+                &mut moving
+            } else {
+                &mut still
+            };
+            c[0] += 1;
+            c[1] += blocked as usize;
+        }
+    }
+    let rate = |c: [usize; 2]| c[1] as f64 / c[0].max(1) as f64;
+    // Measured on these frames: ~0.37 of the walkers' keypoints, ~0.11 of the rest.
+    assert!(
+        rate(moving) > 2.0 * rate(still),
+        "moving {:.2} vs static {:.2}",
+        rate(moving),
+        rate(still)
+    );
+}

@@ -1,0 +1,136 @@
+//! The front-end's plug-in point from outside the frontend crate: a front-end of this test's
+//! own, which culls the keypoints of the image's left half and asks ORB to skip a box, sees
+//! two calls a frame and nothing else, and the pipeline does what its judgement says.
+
+use std::sync::{Arc, Mutex};
+
+use stillpoint_frontend::{FrameInput, FrontEnd, Judgement, Regions};
+use stillpoint_geometry::PinholeCamera;
+use stillpoint_pipeline::{Pipeline, PipelineSettings};
+use stillpoint_synth::{Preset, SynthConfig, WriteOptions, write_sequence};
+
+/// Where ORB is asked to keep no corner, `[x1, y1, x2, y2]`.
+const SKIP: [f32; 4] = [400.0, 100.0, 560.0, 300.0];
+
+#[derive(Default)]
+struct Calls {
+    started: Vec<PinholeCamera>,
+    /// Per frame index: (measure calls, judge calls).
+    per_frame: Vec<(usize, usize)>,
+    /// Per frame: the index of the previous frame its input named.
+    previous: Vec<Option<usize>>,
+}
+
+struct LeftHalfFrontEnd {
+    calls: Arc<Mutex<Calls>>,
+}
+
+impl LeftHalfFrontEnd {
+    fn count(&self, index: usize, measure: bool) {
+        let mut calls = self.calls.lock().unwrap();
+        if calls.per_frame.len() <= index {
+            calls.per_frame.resize(index + 1, (0, 0));
+        }
+        let c = &mut calls.per_frame[index];
+        if measure { c.0 += 1 } else { c.1 += 1 }
+    }
+}
+
+impl FrontEnd for LeftHalfFrontEnd {
+    fn start(&mut self, camera: PinholeCamera) {
+        self.calls.lock().unwrap().started.push(camera);
+    }
+
+    fn measure(&mut self, frame: &FrameInput) {
+        self.count(frame.index, true);
+        let previous = frame.previous.map(|p| p.index);
+        self.calls.lock().unwrap().previous.push(previous);
+    }
+
+    fn judge(&mut self, frame: &FrameInput, keypoints: &[[f32; 2]]) -> Judgement {
+        self.count(frame.index, false);
+        let half = frame.gray.width as f32 / 2.0;
+        Judgement {
+            dynamic: keypoints.iter().map(|k| k[0] < half).collect(),
+            skip_next: Regions::new(vec![(SKIP, None)], &Default::default(), false),
+            ..Default::default()
+        }
+    }
+}
+
+#[test]
+fn a_front_end_is_called_twice_a_frame_and_its_judgement_is_kept() {
+    let tmp = tempfile::tempdir().unwrap();
+    let config = SynthConfig {
+        preset: Preset::Static,
+        frames: 6,
+        ..SynthConfig::default()
+    };
+    write_sequence(&config, WriteOptions::default(), tmp.path()).unwrap();
+    let seq = stillpoint_datasets::open(tmp.path(), None, None).unwrap();
+    let mut settings = PipelineSettings::from_dataset(seq.settings());
+    settings.slam.local_mapping_thread = false;
+    let calls = Arc::new(Mutex::new(Calls::default()));
+    let front_end = LeftHalfFrontEnd {
+        calls: calls.clone(),
+    };
+    let width = seq.frame(0).unwrap().gray.width;
+    let mut slam = Pipeline::new(settings, Some(Box::new(front_end)), None);
+    for i in 0..seq.len() {
+        let frame = seq.frame(i).unwrap();
+        let r = slam.track(&frame).unwrap();
+        let half = frame.gray.width as f32 / 2.0;
+        let left: Vec<bool> = r.keypoints.iter().map(|k| k[0] < half).collect();
+        assert_eq!(
+            r.dynamic, left,
+            "frame {i}: the judgement is the pipeline's"
+        );
+        assert!(
+            r.culled() > 0 && r.culled() < r.keypoints.len(),
+            "frame {i}"
+        );
+        // From the second frame on, ORB skips the box the last judgement named (the pixels in
+        // it at the depth of its centre: the region has no depth band of its own).
+        match (i, &r.excluded) {
+            (0, None) => {}
+            (0, Some(_)) => panic!("the first frame has no judgement before it"),
+            (_, None) => panic!("frame {i}: no mask from the last judgement"),
+            (_, Some(mask)) => {
+                let (mut inside, mut outside) = (0, 0);
+                for y in 0..mask.height {
+                    for x in 0..mask.width {
+                        if mask.get(x, y) > 0 {
+                            let (x, y) = (x as f32, y as f32);
+                            let in_box = x >= SKIP[0] && x < SKIP[2] && y >= SKIP[1] && y < SKIP[3];
+                            if in_box { inside += 1 } else { outside += 1 }
+                        }
+                    }
+                }
+                assert!(
+                    inside > 0 && outside == 0,
+                    "frame {i}: {inside} in, {outside} out"
+                );
+                let on_mask = r
+                    .keypoints
+                    .iter()
+                    .filter(|k| mask.get(k[0] as usize, k[1] as usize) > 0)
+                    .count();
+                assert_eq!(
+                    on_mask, 0,
+                    "frame {i}: ORB kept corners where it was told not to"
+                );
+            }
+        }
+        assert!(r.pose_wc.is_some(), "frame {i} tracked on the right half");
+    }
+    let calls = calls.lock().unwrap();
+    assert_eq!(calls.started.len(), 1, "started once");
+    assert_eq!(calls.started[0].width as usize, width);
+    assert_eq!(
+        calls.per_frame,
+        vec![(1, 1); seq.len()],
+        "one measure and one judge a frame"
+    );
+    let expected: Vec<Option<usize>> = (0..seq.len()).map(|i| i.checked_sub(1)).collect();
+    assert_eq!(calls.previous, expected, "each frame names the one before");
+}
