@@ -128,7 +128,7 @@ pub fn measure(o: &DetectorOptions) -> Result<DetectorReport, BenchError> {
                         let t = Instant::now();
                         det.detect(&input).map(|d| {
                             boxes = d.len();
-                            t.elapsed().as_secs_f64() * 1e3
+                            stillpoint_core::ms_since(t)
                         })
                     })
                     .collect::<Result<_, _>>()

@@ -238,9 +238,9 @@ fn load_average() -> Option<f64> {
         .ok()
 }
 
-/// [`stillpoint_eval::stats::median`]; `None` when empty.
+/// [`stillpoint_core::stats::median`]; `None` when empty.
 fn median(xs: &[f64]) -> Option<f64> {
-    (!xs.is_empty()).then(|| stillpoint_eval::stats::median(xs))
+    (!xs.is_empty()).then(|| stillpoint_core::stats::median(xs))
 }
 
 /// Time our stages and OpenCV's, alternating rounds.
@@ -305,7 +305,7 @@ pub fn measure(o: &FeatureOptions) -> Result<FeatureReport, BenchError> {
             };
             let t0 = Instant::now();
             let f = orb.extract(img);
-            let orb_ms = t0.elapsed().as_secs_f64() * 1e3;
+            let orb_ms = stillpoint_core::ms_since(t0);
             let t1 = Instant::now();
             let corners = good_features_to_track(img, &cp);
             let t2 = Instant::now();

@@ -309,7 +309,7 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
         }
         let clock = std::time::Instant::now();
         let features = orb.extract(&gray);
-        orb_ms.push(clock.elapsed().as_secs_f64() * 1e3);
+        orb_ms.push(stillpoint_core::ms_since(clock));
         let kps: Vec<[f32; 2]> = features.keypoints.iter().map(|k| [k.x, k.y]).collect();
         let truth = strict_truth(&mask, &kps, o.gt_radius);
         // The FAST test of each keypoint: how many of its 17 pixels are moving.
@@ -412,7 +412,7 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
             Some((&prev_pyr, cur_pyr)),
             &settings,
         );
-        ours_ms.push(ours_clock.elapsed().as_secs_f64() * 1e3);
+        ours_ms.push(stillpoint_core::ms_since(ours_clock));
         let predictions = [
             cull_with(&kps, &states, &check.points, &paper_cull),
             cull_with(&kps, &states, &check.points, &unknown),

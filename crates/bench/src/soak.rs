@@ -133,7 +133,7 @@ pub fn run_soak(
         };
         let started = Instant::now();
         let r = pipeline.track(&frame)?;
-        busy_ms += started.elapsed().as_secs_f64() * 1e3;
+        busy_ms += stillpoint_core::ms_since(started);
         tracked += usize::from(r.pose_wc.is_some());
         if (i + 1) % o.every == 0 || i + 1 == o.frames {
             let since = (i + 1 - samples.last().map_or(0, |s: &SoakSample| s.frame)) as f64;

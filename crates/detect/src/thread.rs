@@ -10,26 +10,6 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 use stillpoint_image::Rgb8;
 
-/// Lower the calling thread's priority by `nice` steps (Linux, where nice is per thread and
-/// raising it needs no privileges; elsewhere nothing): a detector in the background must not
-/// take the cores from tracking, whose frames cannot wait.
-pub fn lower_this_thread_priority(nice: i32) {
-    #[cfg(target_os = "linux")]
-    if nice > 0 {
-        // SAFETY: syscalls on the calling thread's own id; on failure the priority stays.
-        unsafe {
-            let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
-            libc::setpriority(
-                libc::PRIO_PROCESS,
-                tid,
-                libc::getpriority(libc::PRIO_PROCESS, tid) + nice,
-            );
-        }
-    }
-    #[cfg(not(target_os = "linux"))]
-    let _ = nice;
-}
-
 /// Boxes of one frame, or the error detecting it, with the frame's index.
 pub type DetectOutput = (usize, Result<Vec<Detection>, DetectError>);
 

@@ -29,7 +29,9 @@ pub mod accuracy;
 pub mod keypoints;
 pub mod movers;
 pub mod periods;
-pub mod stats;
+/// Summary statistics of per-frame numbers (one definition for the workspace, in
+/// `stillpoint-core`).
+pub use stillpoint_core::stats;
 pub mod surface;
 
 pub use accuracy::{EvalError, accuracy, alignment, read_ground_truth};

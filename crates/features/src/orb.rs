@@ -5,6 +5,8 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use stillpoint_core::ms_since;
+
 use crate::fast::{self, Corner};
 use crate::imgops::{gaussian_blur7_with, resize_linear_into};
 use crate::pattern::BIT_PATTERN_31;
@@ -291,7 +293,7 @@ impl OrbExtractor {
         }
         let t0 = Instant::now();
         self.build_pyramid(img);
-        self.timings.pyramid_ms = ms(t0);
+        self.timings.pyramid_ms = ms_since(t0);
         let low_th = self.low_texture_threshold(img);
         let mut levels: Vec<(usize, &Gray8)> = Vec::with_capacity(self.params.n_levels);
         for level in 0..self.params.n_levels {
@@ -525,7 +527,7 @@ fn extract_level(
             size,
         });
     }
-    out.describe_ms = ms(t3);
+    out.describe_ms = ms_since(t3);
     out
 }
 
@@ -554,10 +556,6 @@ impl LevelToImage {
             (y + 0.5) * self.ratio_y - 0.5,
         )
     }
-}
-
-fn ms(t: Instant) -> f64 {
-    t.elapsed().as_secs_f64() * 1e3
 }
 
 /// The standard deviation of an image's noise in grey levels (Immerkaer 1996, "Fast noise

@@ -55,7 +55,7 @@ impl BackgroundDetector {
     ) -> Result<Self, DetectError> {
         let nice = settings.background_detect_nice;
         let thread = DetectorThread::spawn(move || {
-            stillpoint_detect::lower_this_thread_priority(nice);
+            stillpoint_core::lower_this_thread_priority(nice);
             Ok(detector)
         })?;
         Ok(Self {

@@ -32,6 +32,8 @@ pub use settings::{Layered, SettingsError, SettingsTree, Source};
 use std::sync::Arc;
 use std::time::Instant;
 
+use stillpoint_core::ms_since;
+
 use stillpoint_datasets::{Frame, Sensor};
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::{EraseRecent, FrameInput, FrontEnd, PreviousPose, Regions, SceneObjects};
@@ -349,7 +351,7 @@ impl Pipeline {
             let threads = if frame.right.is_some() { 1 } else { 2 };
             let left = sc.spawn(move || {
                 let left = left_orb.extract_on(&frame.gray, threads);
-                (left, ms(t0))
+                (left, ms_since(t0))
             });
             let measured = front_end.as_mut().is_some_and(|f| {
                 std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| f.measure(&input)))
@@ -420,7 +422,7 @@ impl Pipeline {
                     self.orb.scale_factors(),
                     &self.stereo,
                 );
-                timings.orb_ms += ms(t1);
+                timings.orb_ms += ms_since(t1);
                 Some(d)
             }
             _ => None,
@@ -586,10 +588,6 @@ fn remove_dynamic(
         !dynamic[k - 1]
     });
     before - features.len()
-}
-
-fn ms(t: Instant) -> f64 {
-    t.elapsed().as_secs_f64() * 1e3
 }
 
 #[cfg(test)]

@@ -4,6 +4,8 @@ use std::path::Path;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
+use stillpoint_core::ms_since;
+
 use stillpoint_datasets::{Sensor, Sequence};
 use stillpoint_detect::GtDetectorParams;
 use stillpoint_frontend::{DynamicFrontEnd, FrontEnd, FrontEndSettings};
@@ -675,8 +677,4 @@ pub fn run_sequence(
             }
         }),
     })
-}
-
-fn ms_since(t: Instant) -> f64 {
-    t.elapsed().as_secs_f64() * 1e3
 }

@@ -399,7 +399,7 @@ impl System {
                 .map
                 .lock()
                 .map_err(|_| SlamError::LocalMapping("map lock poisoned".into()))?;
-            map_wait_ms = waiting.elapsed().as_secs_f64() * 1e3;
+            map_wait_ms = stillpoint_core::ms_since(waiting);
             // Corrections the loop-closing thread made since the last frame.
             if let Looping::Thread(t) = &self.looping {
                 let pending =
@@ -474,7 +474,7 @@ impl System {
             }
             outcome
         };
-        let tracking_ms = t0.elapsed().as_secs_f64() * 1e3;
+        let tracking_ms = stillpoint_core::ms_since(t0);
         let new_keyframes = [outcome.first_keyframe, outcome.new_keyframe];
         let mapping_inline = matches!(self.mapping, Mapping::Inline(_));
         if mapping_inline {
@@ -539,7 +539,7 @@ impl System {
                 let t0 = Instant::now();
                 m.process(&self.map, kf);
                 if let Ok(mut t) = self.mapping_ms.lock() {
-                    t.push(t0.elapsed().as_secs_f64() * 1e3);
+                    t.push(stillpoint_core::ms_since(t0));
                 }
                 if let Looping::Inline(l) = &mut self.looping
                     && let Some(c) = l.process(&self.map, kf, None, None)

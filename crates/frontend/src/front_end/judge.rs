@@ -179,7 +179,7 @@ impl DynamicFrontEnd {
         }
         self.prev_pyramid = Some(pyramid);
         // The whole judgement counts, the new-point check's tracks included.
-        out.geometry_ms += t0.elapsed().as_secs_f64() * 1e3;
+        out.geometry_ms += stillpoint_core::ms_since(t0);
         out
     }
 
@@ -197,7 +197,7 @@ impl DynamicFrontEnd {
             Some(bg) => bg.boxes_of_first(frame),
             None => detect(self.detector.as_mut(), frame),
         };
-        out.semantic_ms = t0.elapsed().as_secs_f64() * 1e3;
+        out.semantic_ms = stillpoint_core::ms_since(t0);
         let mut states = stillpoint_dynamic::judge_boxes(&dets, &[], &self.settings.dynamic.judge);
         if self.settings.people_move_on_first_frame {
             let first_kept = self.settings.seated_kept_on_first_frame;

@@ -62,7 +62,7 @@ impl DynamicFrontEnd {
                 s.spawn(|| {
                     let t0 = Instant::now();
                     let dets = detect(detector.as_mut(), frame);
-                    (dets, t0.elapsed().as_secs_f64() * 1e3)
+                    (dets, stillpoint_core::ms_since(t0))
                 })
             });
             let t0 = Instant::now();
@@ -74,7 +74,7 @@ impl DynamicFrontEnd {
                 &pyramid,
                 geometry,
             );
-            let geo_ms = t0.elapsed().as_secs_f64() * 1e3;
+            let geo_ms = stillpoint_core::ms_since(t0);
             let dets = det.map_or((Vec::new(), 0.0), |d| {
                 d.join().unwrap_or_else(|_| {
                     tracing::warn!("frame {}: the detector thread panicked", frame.index);
@@ -87,7 +87,7 @@ impl DynamicFrontEnd {
             Some(bg) => {
                 let t0 = Instant::now();
                 let dets = bg.boxes_for(frame, &check.points);
-                (dets, t0.elapsed().as_secs_f64() * 1e3)
+                (dets, stillpoint_core::ms_since(t0))
             }
             None => (dets, semantic_ms),
         };
@@ -108,7 +108,7 @@ impl DynamicFrontEnd {
             dets,
             world,
             semantic_ms,
-            geometry_ms: geometry_ms + t0.elapsed().as_secs_f64() * 1e3,
+            geometry_ms: geometry_ms + stillpoint_core::ms_since(t0),
         })))
     }
 

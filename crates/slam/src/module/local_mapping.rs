@@ -78,7 +78,7 @@ impl LocalMapper {
         debug!(
             associate_ms = (t1 - t0).as_secs_f64() * 1e3,
             triangulate_ms = (t2 - t1).as_secs_f64() * 1e3,
-            fuse_ms = t2.elapsed().as_secs_f64() * 1e3,
+            fuse_ms = stillpoint_core::ms_since(t2),
             "local mapping: before BA"
         );
         self.local_ba(map, kf);
@@ -605,7 +605,7 @@ impl LocalMapper {
         debug!(
             keyframes = kf_ids.len(),
             points = pt_ids.len(),
-            ms = t0.elapsed().as_secs_f64() * 1e3,
+            ms = stillpoint_core::ms_since(t0),
             "local BA"
         );
         let Ok(mut m) = map.lock() else { return };
@@ -791,7 +791,7 @@ impl MapperThread {
         let handle = std::thread::Builder::new()
             .name("local-mapping".into())
             .spawn(move || {
-                super::lower_this_thread_priority(mapper.s.background_nice);
+                stillpoint_core::lower_this_thread_priority(mapper.s.background_nice);
                 let mut mapper = mapper;
                 while let Ok(Msg::KeyFrame(kf)) = rx.recv() {
                     idle2.store(false, Ordering::SeqCst);
@@ -799,7 +799,7 @@ impl MapperThread {
                     let t0 = Instant::now();
                     mapper.process(&map, kf);
                     if let Ok(mut t) = times2.lock() {
-                        t.push(t0.elapsed().as_secs_f64() * 1e3);
+                        t.push(stillpoint_core::ms_since(t0));
                     }
                     drop(busy);
                     if let Some(next) = &hooks.processed {

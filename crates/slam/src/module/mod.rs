@@ -7,22 +7,6 @@ pub mod local_mapping;
 pub mod loop_closing;
 pub mod tracking;
 
-/// Raise the calling thread's nice value by `nice` steps (a lower priority, which needs no
-/// privileges). Only on Linux, where nice is per thread; elsewhere nothing.
-pub(crate) fn lower_this_thread_priority(nice: i32) {
-    #[cfg(target_os = "linux")]
-    if nice > 0 {
-        // SAFETY: plain syscalls on the calling thread's own id; a failure leaves the priority.
-        unsafe {
-            let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
-            let current = libc::getpriority(libc::PRIO_PROCESS, tid);
-            let _ = libc::setpriority(libc::PRIO_PROCESS, tid, current + nice);
-        }
-    }
-    #[cfg(not(target_os = "linux"))]
-    let _ = nice;
-}
-
 /// Give the heap that large, short-lived work (a loop correction and its global bundle
 /// adjustment, a vocabulary training) freed back to the system. glibc keeps freed memory for
 /// reuse, and after such a peak a long run's resident memory stayed ~3 MB higher for good

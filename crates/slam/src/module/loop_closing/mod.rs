@@ -286,7 +286,7 @@ impl LoopCloser {
             let refs: Vec<(KfId, &[crate::Descriptor])> =
                 docs.iter().map(|(k, d)| (*k, d.as_slice())).collect();
             self.db.train(&refs, &p);
-            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            let ms = stillpoint_core::ms_since(t0);
             self.stats.training_ms.push(ms);
             self.stats.vocabulary_words = self.db.vocabulary().map_or(0, |v| v.words());
             info!(
@@ -309,16 +309,14 @@ impl LoopCloser {
             self.detect(&m, kf)
                 .and_then(|candidates| self.verify(&m, kf, &candidates))
         };
-        self.stats
-            .detection_ms
-            .push(t0.elapsed().as_secs_f64() * 1e3);
+        self.stats.detection_ms.push(stillpoint_core::ms_since(t0));
         let v = verified?;
         // Stop local mapping (it finishes its keyframe first), then take the map.
         let busy = mapping_busy.map(|b| b.lock().unwrap_or_else(|e| e.into_inner()));
         let mut m = map.lock().ok()?;
         let t1 = Instant::now();
         let outcome = self.correct(&mut m, kf, &v);
-        let ms = t1.elapsed().as_secs_f64() * 1e3;
+        let ms = stillpoint_core::ms_since(t1);
         let (mut correction, mut event) = outcome?;
         if let Some(p) = publish
             && let Ok(mut q) = p.lock()
@@ -333,9 +331,7 @@ impl LoopCloser {
                 for (k, (before, after)) in c.poses {
                     correction.poses.entry(k).or_insert((before, after)).1 = after;
                 }
-                self.stats
-                    .global_ba_ms
-                    .push(t2.elapsed().as_secs_f64() * 1e3);
+                self.stats.global_ba_ms.push(stillpoint_core::ms_since(t2));
             }
         }
         drop(busy);
@@ -380,7 +376,7 @@ impl LoopThread {
         let handle = std::thread::Builder::new()
             .name("loop-closing".into())
             .spawn(move || {
-                crate::module::lower_this_thread_priority(closer.s.background_nice);
+                stillpoint_core::lower_this_thread_priority(closer.s.background_nice);
                 let mut closer = closer;
                 while let Ok(kf) = keyframes.recv() {
                     closer.process(&map, kf, Some(&mapping_busy), Some(&pending));
