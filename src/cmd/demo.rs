@@ -87,7 +87,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "{:<24} {:>12} {:>14} {:>10} {:>11}",
         "dynamic front-end", "ATE RMSE", "tracked", "keyframes", "map points"
     );
-    for (name, s, a) in [("off (baseline)", off, a_off), ("on", on, a_on)] {
+    for (name, s, a) in [("off (baseline)", &off.run, a_off), ("on", &on.run, a_on)] {
         println!(
             "{:<24} {:>12} {:>14} {:>10} {:>11}",
             name,
@@ -106,8 +106,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "{:<30} {:>9} {:>9} {:>9} {:>12}",
         "stage (ms)", "mean", "median", "p90", "off: mean"
     );
-    for (k, v) in &on.timings {
-        let off_times = off.timings.iter().find(|(name, _)| name == k);
+    for (k, v) in &on.run.timings {
+        let off_times = off.run.timings.iter().find(|(name, _)| name == k);
         // Stages that ran in neither run (no loop closed: no correction) have no row.
         if v.is_empty() && off_times.is_none_or(|(_, b)| b.is_empty()) {
             continue;
@@ -118,7 +118,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .map_or("-".to_string(), |(_, b)| format!("{:.2}", stats(b).0));
         println!("{k:<30} {m:>9.2} {med:>9.2} {p90:>9.2} {base:>12}");
     }
-    print_culled_row(on);
+    print_culled_row(&on.run);
     println!();
     println!("plots in {}:", plots_dir.display());
     for p in &plots {

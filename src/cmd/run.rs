@@ -8,10 +8,8 @@ use std::path::PathBuf;
 use anyhow::bail;
 use stillpoint_datasets::DatasetKind;
 use stillpoint_datasets::mcap::McapTopics;
-use stillpoint_eval::stats;
-use stillpoint_run::{
-    Event, Media, Overrides, RealtimeReport, RunOptions, RunSummary, run_sequence,
-};
+use stillpoint_eval::{ScoredRun, stats};
+use stillpoint_run::{Event, Media, Overrides, RealtimeReport, RunOptions, RunSummary};
 use stillpoint_trajectory::Alignment;
 
 #[derive(clap::Args)]
@@ -196,7 +194,8 @@ impl ProgressBar {
 
 /// Loop closing in the JSON summary: counts, and per loop the frames and how far apart the two
 /// keyframes truly are (ground truth), which tells a true revisit from a false loop.
-fn loops_json(s: &RunSummary) -> serde_json::Value {
+fn loops_json(scored: &ScoredRun) -> serde_json::Value {
+    let s = &scored.run;
     let Some(l) = &s.loops else {
         return serde_json::Value::Null;
     };
@@ -204,7 +203,7 @@ fn loops_json(s: &RunSummary) -> serde_json::Value {
         .loops
         .iter()
         .map(|e| {
-            let truth = s.ground_truth.as_ref().and_then(|gt| {
+            let truth = scored.ground_truth.as_ref().and_then(|gt| {
                 stillpoint_eval::accuracy::true_separation(gt, e.timestamp, e.loop_timestamp)
             });
             serde_json::json!({
@@ -229,9 +228,10 @@ fn loops_json(s: &RunSummary) -> serde_json::Value {
     })
 }
 
-pub fn summary_json(s: &RunSummary) -> serde_json::Value {
-    let acc = s.accuracy();
-    let ate_keyframes = s.keyframe_ate();
+pub fn summary_json(scored: &ScoredRun) -> serde_json::Value {
+    let s = &scored.run;
+    let acc = scored.accuracy();
+    let ate_keyframes = scored.keyframe_ate();
     let timing: serde_json::Map<String, serde_json::Value> = s
         .timings
         .iter()
@@ -257,28 +257,28 @@ pub fn summary_json(s: &RunSummary) -> serde_json::Value {
         "new_maps": s.new_maps,
         "culled_per_frame": {"mean": cm, "median": cmed, "p90": cp90},
         "ate": acc.as_ref().map(|(a, _)| serde_json::json!({
-            "align": s.alignment(), "scale": a.alignment.scale,
+            "align": scored.alignment(), "scale": a.alignment.scale,
             "rmse": a.stats.rmse, "mean": a.stats.mean, "median": a.stats.median,
             "std": a.stats.std, "max": a.stats.max, "pairs": a.stats.count})),
         "rpe_1s": acc.as_ref().and_then(|(_, r)| r.as_ref()).map(|r| serde_json::json!({
             "trans_rmse": r.translation.rmse, "trans_std": r.translation.std,
             "rot_rmse_deg": r.rotation_deg.rmse})),
         "timing": timing,
-        "moving_keypoints_kept_per_frame": s.moving_kept_stats().map(|(m, med, p90)| {
+        "moving_keypoints_kept_per_frame": scored.moving_kept_stats().map(|(m, med, p90)| {
             serde_json::json!({"mean": m, "median": med, "p90": p90})
         }),
-        "static_keypoints_culled_share": s.static_culled_stats().map(|(m, med, p90)| {
+        "static_keypoints_culled_share": scored.static_culled_stats().map(|(m, med, p90)| {
             serde_json::json!({"mean": m, "median": med, "p90": p90})
         }),
-        "moving_map_points": s.moving_map_points.map(|m| m.lying),
-        "moving_map_points_seen": s.moving_map_points.map(|m| m.seen),
+        "moving_map_points": scored.moving_map_points.map(|m| m.lying),
+        "moving_map_points_seen": scored.moving_map_points.map(|m| m.seen),
         "first_relocalisation": s.first_relocalisation,
         "map_file": map_files_json(s),
         "dense_points": s.dense.map(|d| d.points),
         "dense_points_on_movers": s.dense.and_then(|d| d.on_movers),
         "record": s.record.as_ref().map(|r| serde_json::json!({"bytes": r.bytes, "messages": r.messages})),
         "ate_keyframes": ate_keyframes.map(|a| serde_json::json!({"rmse": a.stats.rmse, "pairs": a.stats.count})),
-        "loop_closing": loops_json(s),
+        "loop_closing": loops_json(scored),
         "realtime": s.realtime.as_ref().map(|r| realtime_json(r, acc.as_ref().map(|(a, _)| a.stats.rmse))),
     })
 }
@@ -308,7 +308,8 @@ fn realtime_json(r: &RealtimeReport, ate_m: Option<f64>) -> serde_json::Value {
     })
 }
 
-pub fn print_summary(s: &RunSummary) {
+pub fn print_summary(scored: &ScoredRun) {
+    let s = &scored.run;
     println!(
         "{}: {} of {} frames tracked, {} keyframes, {} map points, {} relocalisations, {} new maps (detector: {})",
         s.name,
@@ -337,13 +338,13 @@ pub fn print_summary(s: &RunSummary) {
             m.keyframes, m.map_points, m.bytes, m.ms
         );
     }
-    if let Some((a, r)) = s.accuracy() {
+    if let Some((a, r)) = scored.accuracy() {
         print!(
             "ATE RMSE {:.4} m (S.D. {:.4}, {} pairs{})",
             a.stats.rmse,
             a.stats.std,
             a.stats.count,
-            if s.alignment() == Alignment::Sim3 {
+            if scored.alignment() == Alignment::Sim3 {
                 format!(", Sim(3)-aligned, scale {:.3}", a.alignment.scale)
             } else {
                 String::new()
@@ -456,17 +457,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         save_map: args.save_map.clone(),
     };
     let mut bar = ProgressBar::default();
-    let s = run_sequence(&o, &mut |e| bar.show(e))?;
+    let scored = stillpoint_eval::run_scored(&o, &mut |e| bar.show(e))?;
     tracing::info!(
         "trajectory written to {} (keyframes: {})",
         args.out.display(),
         stillpoint_run::keyframe_path(&args.out).display()
     );
     if args.json {
-        println!("{}", summary_json(&s));
+        println!("{}", summary_json(&scored));
     } else {
-        print_summary(&s);
+        print_summary(&scored);
     }
+    let s = &scored.run;
     if let Some(why) = &s.ended {
         bail!(
             "{why} ({} of the {} frames before it tracked; the trajectory and keyframe files are complete)",

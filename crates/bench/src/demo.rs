@@ -5,7 +5,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
-use stillpoint_run::{Event, RunOptions, RunSummary, run_sequence};
+use stillpoint_eval::{ScoredRun, run_scored};
+use stillpoint_run::{Event, RunOptions};
 use stillpoint_synth::{Preset, SynthConfig, WriteOptions};
 
 use crate::BenchError;
@@ -30,9 +31,9 @@ pub struct DemoOptions {
 /// The two runs and how they compare.
 pub struct DemoReport {
     /// The front-end off (the ORB-SLAM3-like baseline).
-    pub off: RunSummary,
+    pub off: ScoredRun,
     /// The front-end on.
-    pub on: RunSummary,
+    pub on: ScoredRun,
     /// ATE RMSE of the "off" run, metres.
     pub ate_off: Option<f64>,
     /// ATE RMSE of the "on" run, metres.
@@ -74,9 +75,9 @@ pub fn demo(o: &DemoOptions, progress: &mut dyn FnMut(Event)) -> Result<DemoRepo
         ..RunOptions::new(dir.clone())
     };
     tracing::info!("run 1/2: dynamic front-end off");
-    let off = run_sequence(&base, progress)?;
+    let off = run_scored(&base, progress)?;
     tracing::info!("run 2/2: dynamic front-end on ({})", o.detector);
-    let on = run_sequence(
+    let on = run_scored(
         &RunOptions {
             detector: Some(o.detector.clone()),
             ..base
@@ -86,7 +87,7 @@ pub fn demo(o: &DemoOptions, progress: &mut dyn FnMut(Event)) -> Result<DemoRepo
     if o.keep.is_none() {
         let _ = std::fs::remove_dir_all(&dir);
     }
-    let ate = |s: &RunSummary| s.accuracy().map(|(a, _)| a.stats.rmse);
+    let ate = |s: &ScoredRun| s.accuracy().map(|(a, _)| a.stats.rmse);
     let (ate_off, ate_on) = (ate(&off), ate(&on));
     let improvement_percent = match (ate_off, ate_on) {
         (Some(a), Some(b)) if a > 0.0 => Some(100.0 * (a - b) / a),
@@ -132,7 +133,7 @@ pub fn write_plots(
         written.push(path);
         curves.push((
             format!("front-end {name} (RMSE {:.2} cm)", 100.0 * ate.stats.rmse),
-            ate.errors_over_time(&s.trajectory),
+            ate.errors_over_time(&s.run.trajectory),
         ));
     }
     if !curves.is_empty() {

@@ -28,7 +28,7 @@ use stillpoint_eval::keypoints::{
 use stillpoint_eval::{mean, median};
 use stillpoint_features::{KeyPoint, LkPyramid, OrbExtractor, OrbParams};
 use stillpoint_image::{Gray8, read_gray};
-use stillpoint_run::{Event, Overrides, RunOptions, run_sequence, settings_layers};
+use stillpoint_run::{Event, Overrides, RunOptions, settings_layers};
 
 use crate::BenchError;
 
@@ -595,7 +595,7 @@ fn run_decisions(o: &KeypointOptions, n: usize) -> Result<RunDecisions, BenchErr
         ..RunOptions::new(mono.clone().unwrap_or_else(|| o.dataset.clone()))
     };
     let mut frames = std::collections::BTreeMap::new();
-    let summary = run_sequence(&options, &mut |e| {
+    let summary = stillpoint_eval::run_scored(&options, &mut |e| {
         if let Event::Tracked { result, .. } = e {
             frames.insert(
                 result.index,
@@ -615,8 +615,8 @@ fn run_decisions(o: &KeypointOptions, n: usize) -> Result<RunDecisions, BenchErr
     let summary = summary?;
     Ok(RunDecisions {
         frames,
-        culled: summary.culled_per_frame.iter().sum(),
-        tracked: summary.tracked,
+        culled: summary.run.culled_per_frame.iter().sum(),
+        tracked: summary.run.tracked,
         static_culled_median: summary.static_culled_stats().map(|(_, median, _)| median),
     })
 }
@@ -671,7 +671,7 @@ mod tests {
                 assert!(!dir.with_file_name("walking_xyz_mono").exists());
                 crate::matrix::without_depth(&dir).unwrap()
             };
-            let run = run_sequence(
+            let run = stillpoint_eval::run_scored(
                 &RunOptions {
                     detector: Some("gt".into()),
                     overrides,
@@ -680,10 +680,10 @@ mod tests {
                 &mut |_| {},
             )
             .unwrap();
-            let culled: usize = run.culled_per_frame.iter().sum();
+            let culled: usize = run.run.culled_per_frame.iter().sum();
             assert!(culled > 0, "depth {use_depth}: nothing culled");
             assert_eq!(report.ours_culled, culled, "depth {use_depth}");
-            assert_eq!(report.ours_tracked, run.tracked, "depth {use_depth}");
+            assert_eq!(report.ours_tracked, run.run.tracked, "depth {use_depth}");
             assert_eq!(
                 report.ours_static_culled_median,
                 run.static_culled_stats().map(|(_, median, _)| median),

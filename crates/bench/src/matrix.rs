@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use serde::Serialize;
 use stillpoint_eval::surface::CloudDistance;
-use stillpoint_run::{RunOptions, run_sequence};
+use stillpoint_run::RunOptions;
 use stillpoint_synth::{Noise, Preset, SynthConfig, WriteOptions};
 
 use crate::BenchError;
@@ -176,7 +176,7 @@ fn run_one(
     out: PathBuf,
 ) -> Result<Row, BenchError> {
     let cloud = o.dense.then(|| out.with_extension("ply"));
-    let s = run_sequence(
+    let s = stillpoint_eval::run_scored(
         &RunOptions {
             out: Some(out),
             dense_cloud: cloud.clone(),
@@ -207,14 +207,20 @@ fn run_one(
     let first_tracked = s
         .ground_truth
         .as_ref()
-        .and_then(|gt| stillpoint_eval::accuracy::frames_before_first_pose(gt, &s.trajectory));
-    let dense = match (&cloud, &s.dense) {
+        .and_then(|gt| stillpoint_eval::accuracy::frames_before_first_pose(gt, &s.run.trajectory));
+    let dense = match (&cloud, &s.run.dense) {
         (Some(path), Some(report)) => {
             let alignment = ate_result.as_ref().map(|a| a.alignment);
             let (distance, distance_true_poses) = match alignment {
                 Some(a) => {
-                    let (run, truth) =
-                        dense_distance(o, preset, *seed, path, &a, &s.keyframe_trajectory.stamps)?;
+                    let (run, truth) = dense_distance(
+                        o,
+                        preset,
+                        *seed,
+                        path,
+                        &a,
+                        &s.run.keyframe_trajectory.stamps,
+                    )?;
                     (Some(run), Some(truth))
                 }
                 None => (None, None),
@@ -233,10 +239,10 @@ fn run_one(
         seed: *seed,
         mode: mode.to_string(),
         ate_cm: ate,
-        tracked: s.tracked,
-        frames: s.frames,
+        tracked: s.run.tracked,
+        frames: s.run.frames,
         first_tracked,
-        map_points: s.map_points,
+        map_points: s.run.map_points,
         map_points_on_movers: s.moving_map_points.map(|m| m.lying),
         map_points_seen_on_movers: s.moving_map_points.map(|m| m.seen),
         static_culled_share: s.static_culled_stats().map(|(_, median, _)| median),

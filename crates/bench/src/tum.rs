@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 
 use serde::Serialize;
-use stillpoint_run::{Event, RunOptions, run_sequence};
+use stillpoint_run::{Event, RunOptions};
 
 use crate::BenchError;
 
@@ -68,7 +68,7 @@ pub fn paper_table(
     let mut rows = Vec::new();
     for d in &o.datasets {
         for on in [false, true] {
-            let s = run_sequence(
+            let s = stillpoint_eval::run_scored(
                 &RunOptions {
                     detector: on.then(|| o.detector.clone()),
                     frames: o.frames,
@@ -81,11 +81,11 @@ pub fn paper_table(
             let acc = s.accuracy();
             let rpe = acc.as_ref().and_then(|a| a.1.as_ref());
             rows.push(TumRow {
-                sequence: s.name,
+                sequence: s.run.name.clone(),
                 dynamic: on,
-                detector: s.detector,
-                tracked: s.tracked,
-                frames: s.frames,
+                detector: s.run.detector.clone(),
+                tracked: s.run.tracked,
+                frames: s.run.frames,
                 ate_rmse: acc.as_ref().map(|a| a.0.stats.rmse),
                 ate_std: acc.as_ref().map(|a| a.0.stats.std),
                 rpe_trans_rmse: rpe.map(|r| r.translation.rmse),

@@ -11,10 +11,11 @@
 //!   for shading plots of the error over time;
 //! - [`surface`]: a point cloud's distance to a known surface (a synthetic scene's triangles);
 //! - [`keypoints`]: confusion counts, precision and recall of a per-keypoint dynamic decision
-//!   against those masks (strict, occlusion-aware and straddle-free ground truths).
+//!   against those masks (strict, occlusion-aware and straddle-free ground truths);
+//! - [`scoring`]: a run of `stillpoint-run` with a sink that scores it against all of the
+//!   above ([`run_scored`]), so that the run itself scores nothing.
 //!
-//! Everything here measures and runs nothing: the runs come from `stillpoint-run`, the
-//! experiments that put them in tables from `stillpoint-bench`.
+//! The experiments that put runs in tables are `stillpoint-bench`'s.
 //!
 //! ```
 //! use stillpoint_eval::stats::{quantile, stats};
@@ -29,6 +30,7 @@ pub mod accuracy;
 pub mod keypoints;
 pub mod movers;
 pub mod periods;
+pub mod scoring;
 /// Summary statistics of per-frame numbers (one definition for the workspace, in
 /// `stillpoint-core`).
 pub use stillpoint_core::stats;
@@ -36,4 +38,5 @@ pub mod surface;
 
 pub use accuracy::{EvalError, accuracy, alignment, read_ground_truth};
 pub use keypoints::Counts;
+pub use scoring::{ScoredRun, run_scored};
 pub use stats::{mean, median, quantile, stats};

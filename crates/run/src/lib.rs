@@ -7,10 +7,11 @@
 //! feeds the frames (in order, or replayed at their timestamps as a live camera delivers them,
 //! dropping what arrives while busy), writes the trajectory line by line as it goes under an
 //! exclusive lock on the file, rewrites it through the refined keyframes at the end with the
-//! keyframe trajectory beside it, and returns a [`RunSummary`] (counts, timings, ground truth,
-//! map points and keypoints on movers when the sequence has masks, loop closing, real-time
-//! latency). A stop flag set from another thread or a signal handler ends the run early with
-//! its files complete.
+//! keyframe trajectory beside it, and returns a [`RunSummary`] (counts, timings, loop closing,
+//! real-time latency). Each output is a [`Sink`] that hears every frame and the end;
+//! [`run_with`] adds the caller's own (scoring a run against a sequence's truth is one, in
+//! `stillpoint-eval`: this crate scores nothing). A stop flag set from another thread or a
+//! signal handler ends the run early with its files complete.
 //!
 //! ```no_run
 //! use stillpoint_run::{RunOptions, run_sequence};
@@ -21,9 +22,6 @@
 //! };
 //! let summary = run_sequence(&options, &mut |_| {})?;
 //! println!("{} of {} frames tracked", summary.tracked, summary.frames);
-//! if let Some((ate, _)) = summary.accuracy() {
-//!     println!("ATE {:.3} m", ate.stats.rmse);
-//! }
 //! # Ok::<(), stillpoint_run::RunError>(())
 //! ```
 
@@ -34,10 +32,12 @@ pub mod overlay;
 pub mod record;
 mod replay;
 mod session;
+mod sink;
 
 pub use output::keyframe_path;
 pub use replay::RealtimeReport;
-pub use session::{Event, run_sequence, settings_layers};
+pub use session::{Event, run_sequence, run_with, settings_layers};
+pub use sink::{Ended, MovingPixels, Sink, Tracked};
 
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
@@ -47,9 +47,7 @@ use stillpoint_datasets::{DatasetError, DatasetKind, Sensor};
 use stillpoint_detect::DetectError;
 use stillpoint_pipeline::{PipelineError, SettingsError};
 use stillpoint_slam::module::loop_closing::LoopStats;
-use stillpoint_trajectory::{
-    Alignment, AteOptions, AteResult, RpeResult, Trajectory, TrajectoryError,
-};
+use stillpoint_trajectory::{Trajectory, TrajectoryError};
 
 /// How one run is set up.
 #[derive(Clone, Debug)]
@@ -174,20 +172,10 @@ pub struct RunSummary {
     pub trajectory: Trajectory,
     /// The keyframes' poses.
     pub keyframe_trajectory: Trajectory,
-    /// The sequence's ground truth, when it has one that could be read.
-    pub ground_truth: Option<Trajectory>,
     /// stage name -> per-frame (or per-keyframe) times in ms.
     pub timings: Vec<(&'static str, Vec<f64>)>,
     /// What detected: name, backend and input size (`yolox-tract 640x480`), or `off`.
     pub detector: String,
-    /// With the generator's per-pixel masks (`mask/` of a `stillpoint synth --masks` sequence):
-    /// keypoints handed to tracking that lie on moving objects, per frame.
-    pub moving_kept_per_frame: Option<Vec<usize>>,
-    /// ... and the share of the keypoints off the moving objects that were culled, per frame
-    /// (static world the front-end took for movers).
-    pub static_culled_share_per_frame: Option<Vec<f64>>,
-    /// ... and map points at the end with at least one keyframe observation on a moving object.
-    pub moving_map_points: Option<stillpoint_eval::movers::MoversInMap>,
     /// Loop closing's statistics (`None` when it is off).
     pub loops: Option<LoopStats>,
     /// With `realtime`: what the replay at camera rate processed, dropped and how late.
@@ -235,8 +223,8 @@ pub struct MapFileReport {
 pub struct DenseReport {
     /// Points (voxels) in the cloud.
     pub points: usize,
-    /// Of those, made mostly of pixels the generator's masks mark as moving (synthetic
-    /// sequences with masks only).
+    /// Of those, made mostly of pixels the sequence's truth marks as moving (when the run was
+    /// given one: [`run_with`]).
     pub on_movers: Option<usize>,
 }
 
@@ -244,50 +232,7 @@ impl RunSummary {
     /// mean / median / p90 of the keypoints the front-end culled per frame.
     pub fn culled_stats(&self) -> (f64, f64, f64) {
         let culled: Vec<f64> = self.culled_per_frame.iter().map(|&c| c as f64).collect();
-        stillpoint_eval::stats(&culled)
-    }
-
-    /// How the trajectory is aligned to the ground truth (Sim(3) for monocular, else SE(3)).
-    pub fn alignment(&self) -> Alignment {
-        stillpoint_eval::alignment(self.sensor)
-    }
-
-    /// ATE and translational RPE over 1 s against the ground truth, when there is one
-    /// ([`stillpoint_eval::accuracy`]).
-    pub fn accuracy(&self) -> Option<(AteResult, Option<RpeResult>)> {
-        let gt = self.ground_truth.as_ref()?;
-        stillpoint_eval::accuracy(gt, &self.trajectory, self.sensor)
-    }
-
-    /// ATE of the keyframe trajectory against the ground truth (SE(3)-aligned), when there is
-    /// one and a keyframe associates.
-    pub fn keyframe_ate(&self) -> Option<AteResult> {
-        let gt = self.ground_truth.as_ref()?;
-        let options = AteOptions {
-            align: Alignment::Se3,
-            ..Default::default()
-        };
-        stillpoint_trajectory::ate(gt, &self.keyframe_trajectory, &options).ok()
-    }
-
-    /// mean / median / p90 of the keypoints kept on moving objects per frame, when the sequence
-    /// has masks.
-    pub fn moving_kept_stats(&self) -> Option<(f64, f64, f64)> {
-        let v: Vec<f64> = self
-            .moving_kept_per_frame
-            .as_ref()?
-            .iter()
-            .map(|&c| c as f64)
-            .collect();
-        Some(stillpoint_eval::stats(&v))
-    }
-
-    /// mean / median / p90 of the share of static keypoints culled per frame, when the
-    /// sequence has masks.
-    pub fn static_culled_stats(&self) -> Option<(f64, f64, f64)> {
-        Some(stillpoint_eval::stats(
-            self.static_culled_share_per_frame.as_ref()?,
-        ))
+        stillpoint_core::stats::stats(&culled)
     }
 }
 

@@ -24,7 +24,7 @@ impl RealtimeReport {
     pub fn latency_quantiles(&self) -> [f64; 3] {
         let mut s = self.latency_ms.clone();
         s.sort_by(f64::total_cmp);
-        [0.5, 0.95, 1.0].map(|q| stillpoint_eval::quantile(&s, q))
+        [0.5, 0.95, 1.0].map(|q| stillpoint_core::stats::quantile(&s, q))
     }
 }
 
