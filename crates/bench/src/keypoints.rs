@@ -701,7 +701,7 @@ mod tests {
             assert_eq!(ours.method, "ours");
             assert_eq!(
                 ours.counts.tp + ours.counts.fp,
-                culled - run.culled_per_frame[0] + report.ours_excluded,
+                culled - run.run.culled_per_frame[0] + report.ours_excluded,
                 "depth {use_depth}"
             );
         }
