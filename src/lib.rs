@@ -26,9 +26,7 @@ pub use stillpoint_detect::{
     COCO_CLASSES, DetectSettings, Detection, Detector, GtDetectorParams, open_detector,
 };
 pub use stillpoint_frontend::{DynamicFrontEnd, FrontEnd, FrontEndSettings, Judgement};
-pub use stillpoint_pipeline::{
-    Finished, FrameResult, Pipeline, PipelineError, PipelineSettings, SettingsTree,
-};
+pub use stillpoint_pipeline::{Finished, FrameResult, Pipeline, PipelineError, PipelineSettings};
 pub use stillpoint_slam::TrackingState;
 pub use stillpoint_trajectory::{Trajectory, write_tum};
 

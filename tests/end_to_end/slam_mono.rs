@@ -54,7 +54,12 @@ fn monocular_static_sequence_initialises_tracks_and_matches_the_truth_up_to_scal
         let f = extractor.extract(&gray);
         let features: Vec<Feature> = f.keypoints.iter().map(Feature::from).collect();
         let r = sys
-            .track_monocular(frame.index, frame.timestamp, &features, &f.descriptors, &[])
+            .track(stillpoint_slam::TrackInput::new(
+                frame.index,
+                frame.timestamp,
+                &features,
+                &f.descriptors,
+            ))
             .expect("tracking");
         assert!(!r.new_map, "frame {}: a second map", frame.index);
         // The frames between the map's two views get their poses when it stands.

@@ -10,20 +10,20 @@
 
 #![deny(missing_docs)]
 
-pub mod annotations;
+/// `boxes.jsonl`: the per-frame object boxes that come with a sequence
+/// (`stillpoint_detection::annotations`).
+pub use stillpoint_detection::annotations;
 pub mod camera;
 pub mod depth_check;
 pub mod error;
 pub mod euroc;
 pub mod folder;
-pub mod frame;
 pub mod kitti;
 pub mod lists;
 pub mod live;
 pub mod mcap;
 pub mod rosbag;
 pub mod sequence;
-pub mod settings;
 pub mod settings_file;
 pub mod tum;
 pub mod video;
@@ -32,15 +32,13 @@ pub use annotations::{FrameBoxes, GtBox};
 pub use camera::open as open_camera;
 pub use depth_check::depth_scale_warning;
 pub use error::DatasetError;
-pub use frame::Frame;
 pub use lists::{associate_nearest, read_associations, read_stamped_list, read_times};
 pub use mcap::open as open_recording;
 pub use sequence::{DatasetKind, GroundTruthFormat, Sequence, detect_kind, open};
-pub use settings::{Sensor, Settings};
 pub use settings_file::{
     parse_orbslam_yaml, parse_settings_toml, read_orbslam_yaml, read_settings,
     read_settings_for_images, read_settings_toml, write_settings_toml,
 };
+pub use stillpoint_core::{Frame, OrbParams, Sensor, Settings};
 /// The ORB extractor's settings as a dataset's settings carry them (`Settings::orb`).
-pub use stillpoint_features::OrbParams;
 pub use video::open as open_video;

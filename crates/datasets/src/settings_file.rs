@@ -7,9 +7,9 @@
 //! before `yaml-rust2` parses it.
 
 use crate::error::{DatasetError, io_err};
-use crate::settings::{Sensor, Settings};
+use crate::{Sensor, Settings};
 use std::path::Path;
-use stillpoint_features::OrbParams;
+use stillpoint_core::OrbParams;
 use stillpoint_geometry::{PinholeCamera, RadTan, RectifyingView, StereoRectification};
 use yaml_rust2::parser::{Event, Parser};
 use yaml_rust2::{Yaml, YamlLoader};

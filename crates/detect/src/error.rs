@@ -103,7 +103,7 @@ pub enum DetectError {
     BadInput(String),
     /// Ground-truth boxes could not be read.
     #[error(transparent)]
-    Annotations(#[from] stillpoint_datasets::DatasetError),
+    Annotations(#[from] stillpoint_detection::annotations::AnnotationsError),
     /// The detector thread is gone (it panicked or was shut down).
     #[error("detector thread stopped: {0}")]
     ThreadStopped(String),

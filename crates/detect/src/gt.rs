@@ -3,7 +3,7 @@
 
 use crate::{DetectError, DetectInput, Detection, Detector};
 use std::path::Path;
-use stillpoint_datasets::annotations::{FrameBoxes, read_boxes};
+use stillpoint_detection::annotations::{FrameBoxes, read_boxes};
 
 /// Returns no boxes: the dynamic front-end then relies on geometry alone.
 #[derive(Clone, Copy, Debug, Default)]
@@ -44,7 +44,7 @@ impl Default for GtDetectorParams {
 ///
 /// ```
 /// use stillpoint_detect::{DetectInput, Detector, GtDetector, GtDetectorParams};
-/// use stillpoint_datasets::annotations::{FrameBoxes, GtBox};
+/// use stillpoint_detection::annotations::{FrameBoxes, GtBox};
 /// use stillpoint_geometry::BBox;
 /// let frames = vec![FrameBoxes { frame: 0, timestamp: 1.0, boxes: vec![GtBox {
 ///     object: 1, class_id: 0, bbox: BBox::new(1.0, 2.0, 3.0, 4.0), moving: true, visible_fraction: 1.0 }] }];
@@ -61,7 +61,7 @@ pub struct GtDetector {
 }
 
 impl GtDetector {
-    /// Read `boxes.jsonl` (see `stillpoint_datasets::annotations`).
+    /// Read `boxes.jsonl` (see `stillpoint_detection::annotations`).
     pub fn open(path: &Path, params: GtDetectorParams) -> Result<Self, DetectError> {
         let frames = read_boxes(path)?;
         Self::from_frames(frames, params).map_err(|e| match e {
@@ -160,7 +160,7 @@ impl Detector for GtDetector {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use stillpoint_datasets::annotations::{GtBox, write_frame_boxes};
+    use stillpoint_detection::annotations::{GtBox, write_frame_boxes};
     use stillpoint_geometry::BBox;
     use stillpoint_image::Rgb8;
 

@@ -13,6 +13,7 @@
 
 #![deny(missing_docs)]
 
+pub mod annotations;
 pub mod classes;
 
 pub use classes::COCO_CLASSES;

@@ -38,7 +38,7 @@ pub enum PeriodsError {
     NoBoxes(PathBuf),
     /// The boxes file is malformed.
     #[error(transparent)]
-    Boxes(#[from] stillpoint_datasets::DatasetError),
+    Boxes(#[from] stillpoint_datasets::annotations::AnnotationsError),
 }
 
 /// The intervals in which `frames` (stamp, a moving object in view; in time order) show a

@@ -123,17 +123,14 @@ pub fn fundamental_ransac(
     }
     let threshold2 = params.threshold_px * params.threshold_px;
     let fit = |s1: &[Vec2], s2: &[Vec2]| fundamental_8point(s1, s2);
-    ransac(
-        p1,
-        p2,
-        8,
+    let run = RansacRun {
+        sample_size: 8,
         threshold2,
-        params.confidence,
-        params.max_iterations,
-        params.seed,
-        fit,
-        symmetric_epipolar_errors2,
-    )
+        confidence: params.confidence,
+        max_iterations: params.max_iterations,
+        seed: params.seed,
+    };
+    ransac(p1, p2, &run, fit, symmetric_epipolar_errors2)
 }
 
 /// [`symmetric_epipolar_error2`] of every pair into `out` (same length), bit for bit; compiled
@@ -196,18 +193,24 @@ fn epipolar_error2(f: &[f64; 9], a: &Vec2, b: &Vec2) -> f64 {
     }
 }
 
+/// One RANSAC search: minimal samples of `sample_size` pairs, inliers within `threshold2`
+/// (squared error), iterations adapted to `confidence` up to `max_iterations`, samples drawn
+/// from `seed`.
+pub(crate) struct RansacRun {
+    pub(crate) sample_size: usize,
+    pub(crate) threshold2: f64,
+    pub(crate) confidence: f64,
+    pub(crate) max_iterations: usize,
+    pub(crate) seed: u64,
+}
+
 /// The generic RANSAC loop shared by the fundamental matrix and the homography: minimal samples of
 /// `sample_size` finite pairs, score = inlier count (ties broken by the smaller summed error),
 /// adaptive iteration count, refit on inliers.
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn ransac<F, E>(
     p1: &[Vec2],
     p2: &[Vec2],
-    sample_size: usize,
-    threshold2: f64,
-    confidence: f64,
-    max_iterations: usize,
-    seed: u64,
+    run: &RansacRun,
     fit: F,
     error: E,
 ) -> Option<(Mat3, Vec<bool>)>
@@ -215,6 +218,13 @@ where
     F: Fn(&[Vec2], &[Vec2]) -> Option<Mat3>,
     E: Fn(&Mat3, &[Vec2], &[Vec2], &mut [f64]),
 {
+    let &RansacRun {
+        sample_size,
+        threshold2,
+        confidence,
+        max_iterations,
+        seed,
+    } = run;
     if p1.len() != p2.len() || !(threshold2.is_finite() && threshold2 >= 0.0) {
         return None;
     }

@@ -16,7 +16,7 @@
 //! ```
 
 use crate::fundamental::{
-    apply, normalising_transform, ransac, smallest_null_vector, usable_pairs,
+    RansacRun, apply, normalising_transform, ransac, smallest_null_vector, usable_pairs,
 };
 use crate::{Mat3, Vec2, Vec3};
 use nalgebra::SMatrix;
@@ -115,14 +115,17 @@ pub fn homography_ransac(
     p2: &[Vec2],
     params: &HomographyRansac,
 ) -> Option<(Mat3, Vec<bool>)> {
+    let run = RansacRun {
+        sample_size: 4,
+        threshold2: params.threshold_px * params.threshold_px,
+        confidence: params.confidence,
+        max_iterations: params.max_iterations,
+        seed: params.seed,
+    };
     ransac(
         p1,
         p2,
-        4,
-        params.threshold_px * params.threshold_px,
-        params.confidence,
-        params.max_iterations,
-        params.seed,
+        &run,
         homography_dlt,
         |h: &Mat3, p1: &[Vec2], p2: &[Vec2], out: &mut [f64]| {
             for ((a, b), e) in p1.iter().zip(p2).zip(out.iter_mut()) {

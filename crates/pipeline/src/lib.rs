@@ -1,6 +1,6 @@
 //! stillpoint-pipeline: the whole system on images.
 //!
-//! [`Pipeline`] takes a dataset's frames ([`stillpoint_datasets::Frame`]: gray, colour, depth or
+//! [`Pipeline`] takes a dataset's frames ([`stillpoint_core::Frame`]: gray, colour, depth or
 //! a right image) and does everything between pixels and poses: ORB extraction (a bigger
 //! extractor while a monocular map initialises, the right image in parallel for stereo), the
 //! dynamic front-end when one is given (boxes, motion against the static world, culling, which
@@ -27,14 +27,14 @@
 pub mod dense;
 pub mod settings;
 
-pub use settings::{Layered, SettingsError, SettingsTree, Source};
+pub use settings::{Layered, SettingsError, Source};
 
 use std::sync::Arc;
 use std::time::Instant;
 
 use stillpoint_core::ms_since;
 
-use stillpoint_datasets::{Frame, Sensor};
+use stillpoint_core::{Frame, Sensor};
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::{EraseRecent, FrameInput, FrontEnd, PreviousPose, Regions, SceneObjects};
 use stillpoint_geometry::Se3;
@@ -45,8 +45,8 @@ use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths}
 use stillpoint_slam::module::loop_closing::LoopStats;
 use stillpoint_slam::place::Vocabulary;
 use stillpoint_slam::{
-    Backfilled, Descriptor, Feature, KeypointDepth, LoadedMapMode, SlamError, SlamSettings, System,
-    TrackingState,
+    Backfilled, Descriptor, Feature, KeypointDepth, LoadedMapMode, MapHygiene, SlamError,
+    SlamSettings, System, TrackInput, TrackingState,
 };
 use stillpoint_trajectory::{Trajectory, TrajectoryError};
 
@@ -83,7 +83,7 @@ pub struct PipelineSettings {
 impl PipelineSettings {
     /// Settings from a dataset's settings: monocular for a monocular sequence, else RGB-D (also
     /// for stereo, whose depth comes per keypoint; `bf` defaults to ORB-SLAM's TUM 40).
-    pub fn from_dataset(s: &stillpoint_datasets::Settings) -> Self {
+    pub fn from_dataset(s: &stillpoint_core::Settings) -> Self {
         let mut slam = if s.sensor == Sensor::Mono {
             SlamSettings::monocular(s.camera, s.fps)
         } else {
@@ -434,15 +434,12 @@ impl Pipeline {
         let hygiene = self.recent_points_on_movers_eraser(frame, erase_recent);
         let report = self
             .system
-            .track_rgbd_masked_then(
-                frame.index,
-                frame.timestamp,
-                &features,
-                &descriptors,
+            .track(TrackInput {
                 depth,
-                &kept_no_new_points,
+                no_new_points: &kept_no_new_points,
                 hygiene,
-            )
+                ..TrackInput::new(frame.index, frame.timestamp, &features, &descriptors)
+            })
             .map_err(|source| PipelineError::Slam {
                 index: frame.index,
                 source,
@@ -501,7 +498,7 @@ impl Pipeline {
         &self,
         frame: &'a Frame,
         erase: Option<EraseRecent>,
-    ) -> Option<impl FnOnce(&mut Map, &Se3) + 'a> {
+    ) -> Option<MapHygiene<'a>> {
         let (Some(erase), Some(depth), false) =
             (erase, frame.depth.as_ref(), self.system.localizing())
         else {
@@ -511,13 +508,13 @@ impl Pipeline {
         let since = erase.since;
         let cam = self.system.settings.camera;
         let index = frame.index;
-        Some(move |m: &mut Map, pose_wc: &Se3| {
+        Some(Box::new(move |m: &mut Map, pose_wc: &Se3| {
             let erased =
                 m.erase_recent_points_on_movers(&pose_wc.inverse(), &cam, &mask, depth, since);
             if erased > 0 {
                 tracing::debug!(frame = index, erased, "map points on movers erased");
             }
-        })
+        }))
     }
 
     /// Stop local mapping and loop closing (waiting for their queues) and return the

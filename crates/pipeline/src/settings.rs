@@ -1,113 +1,32 @@
-//! One settings tree for a whole run: every parameter of the pipeline, by section, read from a
-//! stillpoint TOML file over the defaults and overridden with `section.key=value` on the command
-//! line. Each value remembers where it came from, so `stillpoint settings` can show it.
-//!
-//! The camera, frame rate, depth factor and ORB sizes start from the dataset's own settings
-//! (an ORB-SLAM YAML or a synthetic sequence's `settings.toml`); everything else from the
-//! crates' defaults.
+//! Settings trees layered from files and overrides: any serde tree ([`layered`]) read from
+//! stillpoint TOML files over its defaults and overridden with `section.key=value` on the
+//! command line, each value remembering where it came from (so `stillpoint settings` can show
+//! it); unknown, removed and moved keys refused by name with the file and line. The run's tree
+//! (`stillpoint_run::SettingsTree`) is built with it.
 //!
 //! ```
-//! use stillpoint_pipeline::settings::SettingsTree;
-//! use stillpoint_pipeline::PipelineSettings;
-//! use stillpoint_datasets::{Sensor, Settings};
-//! let camera = stillpoint_geometry::PinholeCamera::new(535.4, 539.2, 320.1, 247.6, 640, 480);
-//! let ds = Settings::with_camera(Sensor::Rgbd, camera);
-//! let tree = SettingsTree::from_dataset(&ds)
-//!     .layered(&[], &["front_end.dynamic.judge.ata_ratio=0.5".into()])
-//!     .unwrap();
-//! assert_eq!(tree.tree.front_end.dynamic.judge.ata_ratio, 0.5);
-//! assert!(tree.describe().contains("front_end.dynamic.judge.ata_ratio = 0.5  # --set"));
+//! use stillpoint_pipeline::settings::layered;
+//! #[derive(Default, serde::Serialize, serde::Deserialize)]
+//! #[serde(default)]
+//! struct Tree {
+//!     orb: Orb,
+//! }
+//! #[derive(Default, serde::Serialize, serde::Deserialize)]
+//! struct Orb {
+//!     n_features: usize,
+//! }
+//! let l = layered(&Tree::default(), [], &["orb.n_features=1500".into()], &[]).unwrap();
+//! assert_eq!(l.tree.orb.n_features, 1500);
+//! assert!(l.describe().contains("orb.n_features = 1500  # --set"));
+//! assert!(layered(&Tree::default(), [], &["orb.n_feature=1".into()], &[]).is_err());
 //! ```
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use serde::{Deserialize, Serialize};
-use stillpoint_detect::DetectSettings;
-use stillpoint_features::OrbParams;
-use stillpoint_frontend::FrontEndSettings;
-use stillpoint_slam::SlamSettings;
-use stillpoint_slam::matching::stereo::StereoParams;
-
-use crate::PipelineSettings;
-
-/// Every parameter of a run.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct SettingsTree {
-    /// Tracking, local mapping and loop closing (`slam.loop_closing`); the camera comes from
-    /// the dataset.
-    pub slam: SlamSettings,
-    /// ORB extraction.
-    pub orb: OrbParams,
-    /// Stereo matching along the rows (stereo pairs only).
-    pub stereo: StereoParams,
-    /// The dynamic front-end; the paper's rules and ours are under `front_end.dynamic`.
-    pub front_end: FrontEndSettings,
-    /// The YOLOX detector.
-    pub detect: DetectSettings,
-    /// The dense static cloud (`run --dense-cloud`).
-    #[serde(default)]
-    pub dense: crate::dense::DenseSettings,
-    /// The MCAP recording (`run --record`).
-    #[serde(default)]
-    pub record: RecordSettings,
-    /// The replay at camera rate (`run --realtime`).
-    #[serde(default)]
-    pub realtime: RealtimeSettings,
-}
-
-/// How `run --realtime` replays a sequence (`[realtime]` in the settings tree).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct RealtimeSettings {
-    /// Decode the whole sequence before the clock starts when it fits in this many MiB (0:
-    /// never). A camera hands over decoded frames; decoding a dataset's PNGs at 30 Hz took
-    /// ~4 ms of the two cores' time a frame, which a robot's camera does not cost.
-    pub preload_mib: usize,
-}
-
-impl Default for RealtimeSettings {
-    fn default() -> Self {
-        Self { preload_mib: 2048 }
-    }
-}
-
-/// What `run --record` puts in its MCAP file (`[record]` in the settings tree).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct RecordSettings {
-    /// How each frame's colour image is stored: `jpeg` (small, fast), `png` (lossless, about
-    /// ten times the bytes) or `none`.
-    pub image: RecordImage,
-    /// JPEG quality, 1..=100.
-    pub jpeg_quality: u8,
-    /// The map's points and keyframes are recorded after every this-many new keyframes (0:
-    /// only at the end).
-    pub map_every_keyframes: usize,
-}
-
-/// How `run --record` stores the frames' images.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum RecordImage {
-    /// foxglove.CompressedImage, JPEG.
-    Jpeg,
-    /// foxglove.CompressedImage, PNG.
-    Png,
-    /// No images (annotations, poses and points only).
-    None,
-}
-
-impl Default for RecordSettings {
-    fn default() -> Self {
-        Self {
-            image: RecordImage::Jpeg,
-            jpeg_quality: 90,
-            map_every_keyframes: 1,
-        }
-    }
-}
+use serde::Serialize;
+use serde::de::DeserializeOwned;
 
 /// Where a value of the tree came from.
 #[derive(Clone, Debug, PartialEq)]
@@ -242,194 +161,149 @@ const REMOVED_KEYS: [(&str, &str); 7] = [
 
 /// A tree and where each of its values came from.
 #[derive(Clone, Debug)]
-pub struct Layered {
+pub struct Layered<T> {
     /// The effective settings.
-    pub tree: SettingsTree,
+    pub tree: T,
     /// Dotted key -> source, for the keys a file or an override set (the rest are defaults).
     pub sources: BTreeMap<String, Source>,
 }
 
-impl SettingsTree {
-    /// The defaults for a dataset: its camera, frame rate, depth and ORB settings, the crates'
-    /// defaults for the rest.
-    pub fn from_dataset(ds: &stillpoint_datasets::Settings) -> Self {
-        let p = PipelineSettings::from_dataset(ds);
-        let mut front_end = FrontEndSettings::default();
-        if ds.sensor == stillpoint_datasets::Sensor::Stereo {
-            // A stereo frame's depth comes after the front-end (matched along the rows), so the
-            // front-end judges it without depth; there the two-frame check's box-less outliers
-            // are still worth heeding (stereo living_close s0, YOLOX: 4.7 cm with them, 16.4
-            // without), where on a monocular camera they eat the static world.
-            front_end.outlier_guard_without_depth = true;
-            front_end.dynamic.cull.unknown_objects_without_depth = true;
+/// `defaults` with the tables of `files` (in order), then the `key=value` overrides, laid over
+/// them, and where each value came from. A file flagged as also the dataset's settings file (a
+/// synthetic sequence's `settings.toml` with `[camera]`, `[orb]`, `[detect]`) gives only its
+/// `dataset_tables` (the rest of it reached the tree through the dataset already); any other
+/// key the tree lacks is an error naming the file and line (or the override), as is a key
+/// removed or moved ([`SettingsError::RemovedKey`], [`SettingsError::MovedKey`]).
+pub fn layered<'a, T: Serialize + DeserializeOwned>(
+    defaults: &T,
+    files: impl IntoIterator<Item = (&'a Path, bool)>,
+    overrides: &[String],
+    dataset_tables: &[&str],
+) -> Result<Layered<T>, SettingsError> {
+    let mut base = match toml::Value::try_from(defaults) {
+        Ok(toml::Value::Table(t)) => t,
+        _ => unreachable!("a struct serialises to a table"),
+    };
+    let mut sources = BTreeMap::new();
+    let mut origins: BTreeMap<String, String> = BTreeMap::new();
+    for (path, dataset_file) in files {
+        let text = std::fs::read_to_string(path).map_err(|error| SettingsError::Io {
+            path: path.to_path_buf(),
+            error,
+        })?;
+        let text = text.strip_prefix('\u{feff}').unwrap_or(&text).to_string();
+        let mut user: toml::Table =
+            text.parse()
+                .map_err(|e: toml::de::Error| SettingsError::Syntax {
+                    path: path.to_path_buf(),
+                    msg: e.message().to_string(),
+                })?;
+        if dataset_file {
+            user.retain(|k, _| dataset_tables.contains(&k));
         }
-        Self {
-            slam: p.slam,
-            orb: p.orb,
-            stereo: p.stereo,
-            front_end,
-            detect: DetectSettings::default(),
-            dense: Default::default(),
-            record: Default::default(),
-            realtime: Default::default(),
+        let mut set = Vec::new();
+        merge(&mut base, &user, "", &mut set);
+        for key in set {
+            let line = line_of(&text, &key);
+            origins.insert(key.clone(), format!("{}:{line}", path.display()));
+            sources.insert(
+                key,
+                Source::File {
+                    path: path.to_path_buf(),
+                    line,
+                },
+            );
         }
     }
-
-    /// The settings the pipeline itself takes. The SLAM side's pyramid is the extractor's
-    /// (`orb.scale_factor`, `orb.n_levels`), whatever layer set it.
-    pub fn pipeline(&self) -> PipelineSettings {
-        let mut slam = self.slam.clone();
-        slam.scale_factor = f64::from(self.orb.scale_factor);
-        slam.n_levels = self.orb.n_levels.max(1);
-        PipelineSettings {
-            slam,
-            orb: self.orb.clone(),
-            stereo: self.stereo.clone(),
-        }
+    for arg in overrides {
+        let (key, value) = arg
+            .split_once('=')
+            .map(|(k, v)| (k.trim(), v.trim()))
+            .filter(|(k, v)| !k.is_empty() && !v.is_empty())
+            .ok_or_else(|| SettingsError::BadOverride { arg: arg.clone() })?;
+        let value = parse_value(value);
+        let mut table = toml::Table::new();
+        insert_dotted(&mut table, key, value);
+        let mut set = Vec::new();
+        merge(&mut base, &table, "", &mut set);
+        origins.insert(key.to_string(), format!("--set {arg}"));
+        sources.insert(key.to_string(), Source::CommandLine);
     }
-
-    /// These settings with the tables of `files` (in order), then the `key=value` overrides,
-    /// laid over them. Tables of a file that belong to the dataset's settings (`camera`,
-    /// `camera.distortion`, top-level dataset keys) are not part of the tree and are skipped only
-    /// when `dataset_file` is set for that file; any other unknown key is an error.
-    pub fn layered(self, files: &[&Path], overrides: &[String]) -> Result<Layered, SettingsError> {
-        self.layered_with(files.iter().map(|f| (*f, false)), overrides)
-    }
-
-    /// [`SettingsTree::layered`] where each file says whether it is also the dataset's settings
-    /// file (a synthetic sequence's `settings.toml` with `[camera]`, `[orb]`, `[detect]`): then
-    /// only its `detect` table is read into the tree (its `orb` and camera reached the tree
-    /// through the dataset already).
-    pub fn layered_with<'a>(
-        self,
-        files: impl IntoIterator<Item = (&'a Path, bool)>,
-        overrides: &[String],
-    ) -> Result<Layered, SettingsError> {
-        let mut base = match toml::Value::try_from(&self) {
-            Ok(toml::Value::Table(t)) => t,
-            _ => unreachable!("a struct serialises to a table"),
-        };
-        let mut sources = BTreeMap::new();
-        let mut origins: BTreeMap<String, String> = BTreeMap::new();
-        for (path, dataset_file) in files {
-            let text = std::fs::read_to_string(path).map_err(|error| SettingsError::Io {
-                path: path.to_path_buf(),
-                error,
-            })?;
-            let text = text.strip_prefix('\u{feff}').unwrap_or(&text).to_string();
-            let mut user: toml::Table =
-                text.parse()
-                    .map_err(|e: toml::de::Error| SettingsError::Syntax {
-                        path: path.to_path_buf(),
-                        msg: e.message().to_string(),
-                    })?;
-            if dataset_file {
-                user.retain(|k, _| k == "detect");
-            }
-            let mut set = Vec::new();
-            merge(&mut base, &user, "", &mut set);
-            for key in set {
-                let line = line_of(&text, &key);
-                origins.insert(key.clone(), format!("{}:{line}", path.display()));
-                sources.insert(
-                    key,
-                    Source::File {
-                        path: path.to_path_buf(),
-                        line,
-                    },
-                );
-            }
-        }
-        for arg in overrides {
-            let (key, value) = arg
-                .split_once('=')
-                .map(|(k, v)| (k.trim(), v.trim()))
-                .filter(|(k, v)| !k.is_empty() && !v.is_empty())
-                .ok_or_else(|| SettingsError::BadOverride { arg: arg.clone() })?;
-            let value = parse_value(value);
-            let mut table = toml::Table::new();
-            insert_dotted(&mut table, key, value);
-            let mut set = Vec::new();
-            merge(&mut base, &table, "", &mut set);
-            origins.insert(key.to_string(), format!("--set {arg}"));
-            sources.insert(key.to_string(), Source::CommandLine);
-        }
-        let origin_of = |key: &str| {
-            origins
-                .iter()
-                .filter(|(k, _)| key == k.as_str() || key.starts_with(&format!("{k}.")))
-                .map(|(_, o)| o.clone())
-                .next_back()
-                .unwrap_or_else(|| "settings".into())
-        };
-        // Unknown keys: those serde ignores while building the tree.
-        let mut unknown = Vec::new();
-        let value = toml::Value::Table(base);
-        let tree: Result<SettingsTree, _> =
-            serde_ignored::deserialize(value, |path| unknown.push(path.to_string()));
-        if let Some(key) = unknown.into_iter().next() {
-            if let Some(&(_, why)) = REMOVED_KEYS.iter().find(|(old, _)| *old == key) {
-                return Err(SettingsError::RemovedKey {
-                    origin: origin_of(&key),
-                    key,
-                    why,
-                });
-            }
-            if let Some(&(_, now)) = MOVED_KEYS.iter().find(|(old, _)| *old == key) {
-                return Err(SettingsError::MovedKey {
-                    origin: origin_of(&key),
-                    key,
-                    now,
-                });
-            }
-            return Err(SettingsError::UnknownKey {
+    let origin_of = |key: &str| {
+        origins
+            .iter()
+            .filter(|(k, _)| key == k.as_str() || key.starts_with(&format!("{k}.")))
+            .map(|(_, o)| o.clone())
+            .next_back()
+            .unwrap_or_else(|| "settings".into())
+    };
+    // Unknown keys: those serde ignores while building the tree.
+    let mut unknown = Vec::new();
+    let value = toml::Value::Table(base);
+    let tree: Result<T, _> =
+        serde_ignored::deserialize(value, |path| unknown.push(path.to_string()));
+    if let Some(key) = unknown.into_iter().next() {
+        if let Some(&(_, why)) = REMOVED_KEYS.iter().find(|(old, _)| *old == key) {
+            return Err(SettingsError::RemovedKey {
                 origin: origin_of(&key),
                 key,
+                why,
             });
         }
-        let tree = tree.map_err(|e| {
-            // toml names the key on a line of its own ("in `orb.n_features`").
-            let full = e.to_string();
-            let msg = full.lines().next().unwrap_or_default().to_string();
-            let key = full
-                .rsplit_once("in `")
-                .and_then(|(_, k)| k.split_once('`'))
-                .map(|(k, _)| k.to_string())
-                .or_else(|| {
-                    sources
-                        .keys()
-                        .find(|k| full.contains(k.rsplit('.').next().unwrap_or(k)))
-                        .cloned()
-                })
-                .unwrap_or_default();
-            // A table that denies unknown fields names the field in the message.
-            let field = msg
-                .split_once("unknown field `")
-                .and_then(|(_, f)| f.split_once('`'))
-                .map(|(f, _)| f.to_string());
-            if let Some(field) = field {
-                let key = if key.is_empty() {
-                    field
-                } else {
-                    format!("{key}.{field}")
-                };
-                SettingsError::UnknownKey {
-                    origin: origin_of(&key),
-                    key,
-                }
-            } else {
-                SettingsError::BadValue {
-                    origin: origin_of(&key),
-                    key,
-                    msg,
-                }
-            }
-        })?;
-        Ok(Layered { tree, sources })
+        if let Some(&(_, now)) = MOVED_KEYS.iter().find(|(old, _)| *old == key) {
+            return Err(SettingsError::MovedKey {
+                origin: origin_of(&key),
+                key,
+                now,
+            });
+        }
+        return Err(SettingsError::UnknownKey {
+            origin: origin_of(&key),
+            key,
+        });
     }
+    let tree = tree.map_err(|e| {
+        // toml names the key on a line of its own ("in `orb.n_features`").
+        let full = e.to_string();
+        let msg = full.lines().next().unwrap_or_default().to_string();
+        let key = full
+            .rsplit_once("in `")
+            .and_then(|(_, k)| k.split_once('`'))
+            .map(|(k, _)| k.to_string())
+            .or_else(|| {
+                sources
+                    .keys()
+                    .find(|k| full.contains(k.rsplit('.').next().unwrap_or(k)))
+                    .cloned()
+            })
+            .unwrap_or_default();
+        // A table that denies unknown fields names the field in the message.
+        let field = msg
+            .split_once("unknown field `")
+            .and_then(|(_, f)| f.split_once('`'))
+            .map(|(f, _)| f.to_string());
+        if let Some(field) = field {
+            let key = if key.is_empty() {
+                field
+            } else {
+                format!("{key}.{field}")
+            };
+            SettingsError::UnknownKey {
+                origin: origin_of(&key),
+                key,
+            }
+        } else {
+            SettingsError::BadValue {
+                origin: origin_of(&key),
+                key,
+                msg,
+            }
+        }
+    })?;
+    Ok(Layered { tree, sources })
 }
 
-impl Layered {
+impl<T: Serialize> Layered<T> {
     /// Every setting as (dotted key, value as TOML, where it came from), sections in order.
     pub fn entries(&self) -> Vec<(String, String, String)> {
         let mut lines = Vec::new();
@@ -576,140 +450,4 @@ fn line_of(text: &str, key: &str) -> usize {
         }
     }
     1
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn tree() -> SettingsTree {
-        let camera = stillpoint_geometry::PinholeCamera::new(535.4, 539.2, 320.1, 247.6, 640, 480);
-        let ds =
-            stillpoint_datasets::Settings::with_camera(stillpoint_datasets::Sensor::Rgbd, camera);
-        SettingsTree::from_dataset(&ds)
-    }
-
-    #[test]
-    fn a_file_then_overrides_set_values_and_remember_where() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("stillpoint.toml");
-        std::fs::write(
-            &path,
-            "# mine\n[front_end.dynamic.world]\nenabled = false\n\n[detect]\nconf_threshold = 0.5\n",
-        )
-        .unwrap();
-        let l = tree()
-            .layered(
-                &[&path],
-                &[
-                    "detect.conf_threshold=0.3".into(),
-                    "orb.n_features=1500".into(),
-                ],
-            )
-            .unwrap();
-        assert!(!l.tree.front_end.dynamic.world.enabled);
-        assert_eq!(l.tree.detect.conf_threshold, 0.3);
-        assert_eq!(l.tree.orb.n_features, 1500);
-        let d = l.describe();
-        let world = format!(
-            "front_end.dynamic.world.enabled = false  # {}:3",
-            path.display()
-        );
-        assert!(d.contains(&world), "{d}");
-        assert!(d.contains("detect.conf_threshold = 0.3  # --set"), "{d}");
-        assert!(
-            d.contains("front_end.dynamic.judge.ata_ratio = 0.4  # default"),
-            "{d}"
-        );
-    }
-
-    /// The pyramid has one home, `orb`: an override there reaches tracking and mapping (their
-    /// octave scales and weights), and the SLAM side has no copy to set apart.
-    #[test]
-    fn the_orb_pyramid_reaches_the_slam_side() {
-        let l = tree()
-            .layered(
-                &[],
-                &["orb.scale_factor=1.3".into(), "orb.n_levels=6".into()],
-            )
-            .unwrap();
-        let p = l.tree.pipeline();
-        assert_eq!(p.slam.scale_factor, f64::from(1.3f32));
-        assert_eq!(p.slam.n_levels, 6);
-        let e = tree()
-            .layered(&[], &["slam.scale_factor=1.3".into()])
-            .unwrap_err()
-            .to_string();
-        assert_eq!(
-            e,
-            "--set slam.scale_factor=1.3: `slam.scale_factor` is no longer a setting of its own: set `orb.scale_factor`"
-        );
-        assert!(!l.describe().contains("slam.scale_factor"));
-    }
-
-    #[test]
-    fn an_unknown_key_names_the_file_and_line() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("s.toml");
-        std::fs::write(
-            &path,
-            "[front_end]\nmovable_hygiene = true\nmovable_hygeine = false\n",
-        )
-        .unwrap();
-        let e = tree().layered(&[&path], &[]).unwrap_err().to_string();
-        assert_eq!(
-            e,
-            format!(
-                "{}:3: unknown key `front_end.movable_hygeine`",
-                path.display()
-            )
-        );
-        let e = tree()
-            .layered(&[], &["slam.no_such=1".into()])
-            .unwrap_err()
-            .to_string();
-        assert_eq!(e, "--set slam.no_such=1: unknown key `slam.no_such`");
-        // A removed setting is named with what does its work now.
-        let e = tree()
-            .layered(&[], &["slam.kf_count_blocked_close=true".into()])
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.starts_with("--set slam.kf_count_blocked_close=true: `slam.kf_count_blocked_close` was removed: "),
-            "{e}"
-        );
-        // The detector's table denies unknown fields itself: the same error.
-        std::fs::write(&path, "[detect]\nthreads = 2\nconf_treshold = 0.2\n").unwrap();
-        let e = tree().layered(&[&path], &[]).unwrap_err().to_string();
-        assert_eq!(
-            e,
-            format!("{}:3: unknown key `detect.conf_treshold`", path.display())
-        );
-    }
-
-    #[test]
-    fn a_value_of_the_wrong_kind_is_an_error_naming_the_key() {
-        let e = tree()
-            .layered(&[], &["orb.n_features=many".into()])
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.starts_with("--set orb.n_features=many: `orb.n_features`"),
-            "{e}"
-        );
-        assert!(matches!(
-            tree().layered(&[], &["orb.n_features".into()]),
-            Err(SettingsError::BadOverride { .. })
-        ));
-    }
-
-    #[test]
-    fn the_defaults_round_trip() {
-        let l = tree().layered(&[], &[]).unwrap();
-        assert_eq!(
-            format!("{:?}", l.tree.front_end),
-            format!("{:?}", FrontEndSettings::default())
-        );
-        assert!(l.sources.is_empty());
-    }
 }

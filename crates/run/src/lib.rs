@@ -32,11 +32,13 @@ pub mod overlay;
 pub mod record;
 mod replay;
 mod session;
+pub mod settings;
 mod sink;
 
 pub use output::keyframe_path;
 pub use replay::RealtimeReport;
 pub use session::{Event, run_sequence, run_with, settings_layers};
+pub use settings::{Layered, RealtimeSettings, RecordImage, RecordSettings, SettingsTree};
 pub use sink::{Ended, MovingPixels, Sink, Tracked};
 
 use std::path::PathBuf;
@@ -45,7 +47,8 @@ use std::sync::atomic::AtomicBool;
 use stillpoint_datasets::mcap::McapTopics;
 use stillpoint_datasets::{DatasetError, DatasetKind, Sensor};
 use stillpoint_detect::DetectError;
-use stillpoint_pipeline::{PipelineError, SettingsError};
+use stillpoint_pipeline::PipelineError;
+use stillpoint_pipeline::settings::SettingsError;
 use stillpoint_slam::module::loop_closing::LoopStats;
 use stillpoint_trajectory::{Trajectory, TrajectoryError};
 

@@ -23,12 +23,12 @@ use std::collections::BTreeMap;
 use std::io::{BufWriter, Seek, Write};
 use std::path::{Path, PathBuf};
 
+use crate::settings::{RecordImage, RecordSettings};
 use serde_json::{Value, json};
 use stillpoint_datasets::Frame;
 use stillpoint_dynamic::TrackedObject;
 use stillpoint_geometry::{BBox, PinholeCamera, Se3, Vec3};
 use stillpoint_pipeline::FrameResult;
-use stillpoint_pipeline::settings::{RecordImage, RecordSettings};
 
 use crate::RunError;
 use crate::overlay::{CULLED, KEPT, MATCHED, STATIC};

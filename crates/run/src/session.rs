@@ -9,7 +9,7 @@ use stillpoint_core::ms_since;
 use stillpoint_datasets::{Frame, Sensor, Sequence};
 use stillpoint_detect::GtDetectorParams;
 use stillpoint_frontend::{DynamicFrontEnd, FrontEnd, FrontEndSettings};
-use stillpoint_pipeline::{FrameResult, FrameTimings, Layered, Pipeline, SettingsTree};
+use stillpoint_pipeline::{FrameResult, FrameTimings, Pipeline};
 use stillpoint_slam::SlamSettings;
 use stillpoint_slam::map_file::MapFile;
 use stillpoint_slam::place::Vocabulary;
@@ -20,7 +20,10 @@ use crate::sink::{
     DenseCloud, Ended, MapCloud, MovingPixels, Overlays, Recording, SavedMap, Sink, Tracked,
     TrajectoryFile,
 };
-use crate::{MapFileReport, MapFilesReport, Media, Overrides, RunError, RunOptions, RunSummary};
+use crate::{
+    Layered, MapFileReport, MapFilesReport, Media, Overrides, RunError, RunOptions, RunSummary,
+    SettingsTree,
+};
 
 /// What a run reports as it goes, for a progress display.
 pub enum Event<'a> {

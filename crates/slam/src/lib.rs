@@ -42,7 +42,7 @@ mod system;
 pub use data::frame::{Descriptor, Feature, Frame, KeypointDepth};
 pub use module::tracking::{Backfilled, TrackingState};
 pub use settings::SlamSettings;
-pub use system::{FrameReport, LoadedMapMode, System};
+pub use system::{FrameReport, LoadedMapMode, MapHygiene, System, TrackInput};
 
 /// Errors from the SLAM core. Input problems (wrong sizes, NaN) are reported, not panicked on.
 #[derive(Debug, thiserror::Error)]

@@ -19,6 +19,57 @@ use crate::optimize::{PoseObservation, optimize_pose};
 use crate::place::{KeyFrameDatabase, Vocabulary};
 use crate::{Descriptor, Feature, Frame, KeypointDepth, SlamError, SlamSettings, TrackingState};
 
+/// The caller's map hygiene after a frame's tracking, `hygiene(map, pose_wc)`.
+pub type MapHygiene<'a> = Box<dyn FnOnce(&mut Map, &Se3) + 'a>;
+
+/// One frame as tracking takes it ([`System::track`]).
+pub struct TrackInput<'a> {
+    /// Position of the frame in its sequence.
+    pub index: usize,
+    /// The frame's time, seconds.
+    pub timestamp: f64,
+    /// The keypoints the front-end kept.
+    pub features: &'a [Feature],
+    /// Their descriptors, in the same order.
+    pub descriptors: &'a [Descriptor],
+    /// Their depth: a depth image (RGB-D), one per keypoint (stereo, from
+    /// [`crate::matching::stereo::stereo_depths`]) or none (monocular).
+    pub depth: KeypointDepth<'a>,
+    /// Keypoints that may be tracked but must not create map points (same length as
+    /// `features`, or empty): the front-end's keypoints on objects not proven still.
+    pub no_new_points: &'a [bool],
+    /// The caller's own map hygiene once the frame has a pose, `hygiene(map, pose_wc)`.
+    pub hygiene: Option<MapHygiene<'a>>,
+}
+
+impl<'a> TrackInput<'a> {
+    /// A frame of `features` with no depth, no flags and no hygiene.
+    pub fn new(
+        index: usize,
+        timestamp: f64,
+        features: &'a [Feature],
+        descriptors: &'a [Descriptor],
+    ) -> Self {
+        Self {
+            index,
+            timestamp,
+            features,
+            descriptors,
+            depth: KeypointDepth::None,
+            no_new_points: &[],
+            hygiene: None,
+        }
+    }
+
+    /// The same with its depth.
+    pub fn with_depth(self, depth: impl Into<KeypointDepth<'a>>) -> Self {
+        Self {
+            depth: depth.into(),
+            ..self
+        }
+    }
+}
+
 /// What the system did with one frame.
 #[derive(Clone, Debug)]
 pub struct FrameReport {
@@ -274,38 +325,6 @@ impl System {
         }
     }
 
-    /// Track one RGB-D frame given its (already filtered) features.
-    pub fn track_rgbd(
-        &mut self,
-        index: usize,
-        timestamp: f64,
-        features: &[Feature],
-        descriptors: &[Descriptor],
-        depth: Option<&DepthMetres>,
-    ) -> Result<FrameReport, SlamError> {
-        self.track_rgbd_masked(index, timestamp, features, descriptors, depth, &[])
-    }
-
-    /// Track one monocular frame (settings from [`SlamSettings::monocular`]); `no_new_points` as
-    /// for [`System::track_rgbd_masked`].
-    pub fn track_monocular(
-        &mut self,
-        index: usize,
-        timestamp: f64,
-        features: &[Feature],
-        descriptors: &[Descriptor],
-        no_new_points: &[bool],
-    ) -> Result<FrameReport, SlamError> {
-        self.track_rgbd_masked(
-            index,
-            timestamp,
-            features,
-            descriptors,
-            KeypointDepth::None,
-            no_new_points,
-        )
-    }
-
     /// Whether frame `index` should be extracted with `settings.mono_init.feature_factor` times
     /// the usual features: monocular, and not initialised yet or within
     /// `settings.mono_init.young_map_seconds` of the map's start. Initialisation matches level-0
@@ -325,48 +344,22 @@ impl System {
             .is_some_and(|start| index < start + young.max(0.0) as usize)
     }
 
-    /// [`System::track_rgbd`] with keypoints that may be tracked but must not create map points
-    /// (`no_new_points`, same length as `features`, or empty): the front-end's keypoints inside a
-    /// moving object's box that a static box protects (paper algorithm 3 keeps them). `depth` is
-    /// a depth image (RGB-D) or one depth per keypoint ([`KeypointDepth::PerKeypoint`], from
-    /// [`crate::matching::stereo::stereo_depths`] for a stereo pair).
-    pub fn track_rgbd_masked<'d>(
-        &mut self,
-        index: usize,
-        timestamp: f64,
-        features: &[Feature],
-        descriptors: &[Descriptor],
-        depth: impl Into<KeypointDepth<'d>>,
-        no_new_points: &[bool],
-    ) -> Result<FrameReport, SlamError> {
-        self.track_rgbd_masked_then(
+    /// Track one frame: its (already filtered) features, their depth, and then the caller's
+    /// map hygiene ([`TrackInput::hygiene`]). With local mapping in its own thread the hygiene
+    /// runs before this frame's keyframe is handed over, as do the system's own hygiene and
+    /// settling: the mapper's first steps on a keyframe hold the map for several milliseconds at
+    /// a lower priority, and a lock taken after them made the frame wait for them (12-17 ms on
+    /// a keyframe). Inline, the keyframe is mapped first.
+    pub fn track(&mut self, input: TrackInput) -> Result<FrameReport, SlamError> {
+        let TrackInput {
             index,
             timestamp,
             features,
             descriptors,
             depth,
             no_new_points,
-            None::<fn(&mut Map, &Se3)>,
-        )
-    }
-
-    /// [`System::track_rgbd_masked`] and then the caller's own map hygiene, `hygiene(map,
-    /// pose_wc)`, when there is one and the frame has a pose. With local mapping in its own
-    /// thread it runs before this frame's keyframe is handed over, as do the system's own
-    /// hygiene and settling: the mapper's first steps on a keyframe hold the map for several
-    /// milliseconds at a lower priority, and a lock taken after them made the frame wait for
-    /// them (12-17 ms on a keyframe). Inline, the keyframe is mapped first, as before.
-    #[allow(clippy::too_many_arguments)]
-    pub fn track_rgbd_masked_then<'d>(
-        &mut self,
-        index: usize,
-        timestamp: f64,
-        features: &[Feature],
-        descriptors: &[Descriptor],
-        depth: impl Into<KeypointDepth<'d>>,
-        no_new_points: &[bool],
-        hygiene: Option<impl FnOnce(&mut Map, &Se3)>,
-    ) -> Result<FrameReport, SlamError> {
+            hygiene,
+        } = input;
         let t0 = Instant::now();
         if !timestamp.is_finite() {
             return Err(SlamError::BadInput {
@@ -374,7 +367,6 @@ impl System {
                 msg: "timestamp is not finite".into(),
             });
         }
-        let depth: KeypointDepth<'d> = depth.into();
         let frame = Frame::new_with_mask(
             index,
             timestamp,

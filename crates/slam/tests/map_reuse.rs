@@ -4,6 +4,7 @@
 
 use rand::SeedableRng;
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
+use stillpoint_slam::TrackInput;
 use stillpoint_slam::map_file::{decode, encode};
 use stillpoint_slam::{LoadedMapMode, SlamSettings, System};
 
@@ -43,7 +44,7 @@ fn track(sys: &mut System, sc: &Scene, poses: &[Se3], seed: u64) -> Vec<(bool, O
         .map(|(i, p)| {
             let (f, d, depth) = observe(sc, p, &cam, &mut rng);
             let r = sys
-                .track_rgbd(i, i as f64 / 30.0, &f, &d, Some(&depth))
+                .track(TrackInput::new(i, i as f64 / 30.0, &f, &d).with_depth(Some(&depth)))
                 .unwrap();
             (r.relocalised, r.pose_wc)
         })

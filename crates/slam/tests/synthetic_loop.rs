@@ -5,6 +5,7 @@
 
 use rand::SeedableRng;
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3, umeyama};
+use stillpoint_slam::TrackInput;
 use stillpoint_slam::{SlamSettings, System};
 
 /// Frames per lap.
@@ -46,7 +47,7 @@ fn run(frames: usize, loop_closing: bool) -> Outcome {
     for i in 0..frames {
         let (f, d, depth) = observe(&sc, &truth(i), &cam, &mut rng);
         let r = sys
-            .track_rgbd(i, i as f64 / 30.0, &f, &d, Some(&depth))
+            .track(TrackInput::new(i, i as f64 / 30.0, &f, &d).with_depth(Some(&depth)))
             .expect("tracking");
         if let Some(p) = r.pose_wc {
             online.push((i as f64 / 30.0, p));

@@ -4,6 +4,7 @@
 use rand::{Rng, SeedableRng};
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
 use stillpoint_image::DepthMetres;
+use stillpoint_slam::TrackInput;
 use stillpoint_slam::{SlamSettings, System, TrackingState};
 
 mod common;
@@ -58,7 +59,7 @@ fn run(frames: usize, blank: impl Fn(usize) -> bool) -> (f64, usize, bool) {
             observe(&sc, &gt, &cam, &mut rng)
         };
         let r = sys
-            .track_rgbd(i, i as f64 / 30.0, &f, &d, Some(&depth))
+            .track(TrackInput::new(i, i as f64 / 30.0, &f, &d).with_depth(Some(&depth)))
             .unwrap();
         any_new_map |= r.new_map;
         if let Some(p) = r.pose_wc {
@@ -171,7 +172,7 @@ fn far_room_gets_keyframes_while_tracking_is_strong() {
         );
         let (f, d, depth) = observe(&sc, &gt, &cam, &mut rng);
         let r = sys
-            .track_rgbd(i, i as f64 / 30.0, &f, &d, Some(&depth))
+            .track(TrackInput::new(i, i as f64 / 30.0, &f, &d).with_depth(Some(&depth)))
             .unwrap();
         assert_eq!(r.state, TrackingState::Ok, "frame {i}");
         keyframes += r.new_keyframe as usize;
@@ -211,7 +212,7 @@ fn rebuilt_error_after_keyframes_moved(settle_keyframes: usize) -> f64 {
         if i == 40 {
             shift_keyframes(&sys, &offset);
         }
-        sys.track_rgbd(i, i as f64 / 30.0, &f, &d, Some(&depth))
+        sys.track(TrackInput::new(i, i as f64 / 30.0, &f, &d).with_depth(Some(&depth)))
             .unwrap();
         if i == 40 {
             shift_keyframes(&sys, &offset.inverse());
@@ -249,7 +250,7 @@ fn a_camera_that_makes_no_keyframes_keeps_few_frames_waiting_to_settle() {
     for i in 0..50 {
         let (f, d, depth) = observe(&sc, &truth(0), &cam, &mut rng);
         let r = sys
-            .track_rgbd(i, i as f64 / 30.0, &f, &d, Some(&depth))
+            .track(TrackInput::new(i, i as f64 / 30.0, &f, &d).with_depth(Some(&depth)))
             .unwrap();
         assert_eq!(r.state, TrackingState::Ok, "frame {i}");
         most_waiting = most_waiting.max(sys.frames_waiting_to_settle());

@@ -108,16 +108,13 @@ impl KeypointGrid {
 
     /// Indices of points within `radius` (square window, as ORB-SLAM) of (x, y) whose octave is in
     /// `[min_octave, max_octave]`.
-    #[allow(clippy::too_many_arguments)]
     pub fn candidates(
         &self,
-        points: &[Vec2],
-        octaves: &[u8],
+        (points, octaves): (&[Vec2], &[u8]),
         x: f64,
         y: f64,
         radius: f64,
-        min_octave: i32,
-        max_octave: i32,
+        (min_octave, max_octave): (i32, i32),
     ) -> Vec<usize> {
         let mut out = Vec::new();
         if !(x.is_finite() && y.is_finite() && radius.is_finite()) {
@@ -331,13 +328,11 @@ impl Frame {
         max_octave: i32,
     ) -> Vec<usize> {
         self.grid.candidates(
-            &self.points,
-            &self.octaves,
+            (&self.points, &self.octaves),
             x,
             y,
             radius,
-            min_octave,
-            max_octave,
+            (min_octave, max_octave),
         )
     }
 }

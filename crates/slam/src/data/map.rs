@@ -126,7 +126,7 @@ impl KeyFrame {
     /// Keypoints inside a window, as [`Frame::features_in_area`].
     pub fn features_in_area(&self, x: f64, y: f64, r: f64, min_o: i32, max_o: i32) -> Vec<usize> {
         self.grid
-            .candidates(&self.points, &self.octaves, x, y, r, min_o, max_o)
+            .candidates((&self.points, &self.octaves), x, y, r, (min_o, max_o))
     }
 }
 

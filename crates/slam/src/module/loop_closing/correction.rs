@@ -130,10 +130,8 @@ impl LoopCloser {
         let (graph_keyframes, graph_edges, after) = self.essential_graph(
             m,
             epoch,
-            kf,
-            v.loop_kf,
-            &before,
-            &corrected,
+            (kf, v.loop_kf),
+            (&before, &corrected),
             &loop_links,
             &ls,
         );
@@ -215,8 +213,12 @@ impl LoopCloser {
         let center = k.camera_center();
         let mut used = BTreeSet::new();
         let skip = |_: MpId, p: &crate::data::MapPoint| p.observations.contains_key(&g);
-        let actions =
-            self.match_by_projection(m, k, &pose, &center, points, skip, &mut used, radius);
+        let view = super::similarity::Projection {
+            keyframe: k,
+            pose: &pose,
+            center,
+        };
+        let actions = self.match_by_projection(m, &view, points, skip, &mut used, radius);
         for (i, mp) in actions {
             if !m.points.contains_key(&mp) {
                 continue;
@@ -237,15 +239,12 @@ impl LoopCloser {
     /// loop links (from the corrected poses), the spanning tree, earlier loops and strong
     /// covisibility (from the poses before the correction). Returns the keyframe and edge
     /// counts and the optimised pose of every good keyframe.
-    #[allow(clippy::too_many_arguments)]
     pub(super) fn essential_graph(
         &self,
         m: &Map,
         epoch: u32,
-        kf: KfId,
-        loop_kf: KfId,
-        before: &BTreeMap<KfId, Se3>,
-        corrected: &BTreeMap<KfId, Se3>,
+        (kf, loop_kf): (KfId, KfId),
+        (before, corrected): (&BTreeMap<KfId, Se3>, &BTreeMap<KfId, Se3>),
         loop_links: &BTreeMap<KfId, BTreeSet<KfId>>,
         ls: &LoopSettings,
     ) -> (usize, usize, BTreeMap<KfId, Se3>) {

@@ -111,11 +111,9 @@ impl LoopCloser {
         let already: BTreeSet<MpId> = out.values().copied().collect();
         for (i, mp) in self.project_points(
             m,
-            cur,
-            &pose,
+            (cur, &pose),
             &loop_points,
-            &already,
-            &out,
+            (&already, &out),
             ls.projection_radius,
         ) {
             out.insert(i, mp);
@@ -190,15 +188,15 @@ impl LoopCloser {
                     continue;
                 };
                 let pc = apply(t_to_from, &apply(&from.pose_cw, &p.position));
-                if let Some(j) = self.best_in_window(
-                    to,
-                    &pc,
-                    &p.descriptor,
-                    p.max_distance,
-                    self.s.loop_closing.guided_radius,
-                    self.s.th_high,
-                    |j| !used_to.contains(&j),
-                ) {
+                let window = Window {
+                    radius: self.s.loop_closing.guided_radius,
+                    max_hamming: self.s.th_high,
+                };
+                if let Some(j) =
+                    self.best_in_window(to, &pc, (&p.descriptor, p.max_distance), window, |j| {
+                        !used_to.contains(&j)
+                    })
+                {
                     out.insert(i, j);
                 }
             }
@@ -217,19 +215,20 @@ impl LoopCloser {
     }
 
     /// The keypoint of `k` nearest in descriptor to a point at `pc` (camera frame), searched in
-    /// a window of `radius` x scale around its projection at the predicted octave (and the ones
-    /// beside it), within `max_hamming`.
-    #[allow(clippy::too_many_arguments)]
+    /// a window of `window.radius` x scale around its projection at the predicted octave (and
+    /// the ones beside it), within `window.max_hamming`.
     pub(super) fn best_in_window(
         &self,
         k: &KeyFrame,
         pc: &Vec3,
-        descriptor: &crate::Descriptor,
-        max_distance: f64,
-        radius: f64,
-        max_hamming: u32,
+        (descriptor, max_distance): (&crate::Descriptor, f64),
+        window: Window,
         allowed: impl Fn(usize) -> bool,
     ) -> Option<usize> {
+        let Window {
+            radius,
+            max_hamming,
+        } = window;
         let cam = &self.s.camera;
         let uv = cam.project_undistorted(pc)?;
         if !cam.in_image(&uv, 0.0) {
@@ -258,34 +257,32 @@ impl LoopCloser {
     /// ORB-SLAM `SearchByProjection(pKF, Scw, vpPoints, vpMatched, th)`: loop-group points not
     /// matched yet, projected with `pose` (world-to-camera of `k`), matched to free keypoints
     /// (TH_LOW) in the scale-invariance range and viewing cone.
-    #[allow(clippy::too_many_arguments)]
     pub(super) fn project_points(
         &self,
         m: &Map,
-        k: &KeyFrame,
-        pose: &Se3,
+        (k, pose): (&KeyFrame, &Se3),
         points: &[MpId],
-        already: &BTreeSet<MpId>,
-        taken: &BTreeMap<usize, MpId>,
+        (already, taken): (&BTreeSet<MpId>, &BTreeMap<usize, MpId>),
         radius: f64,
     ) -> Vec<(usize, MpId)> {
-        let center = pose.inverse().translation.vector;
+        let view = Projection {
+            keyframe: k,
+            pose,
+            center: pose.inverse().translation.vector,
+        };
         let mut used: BTreeSet<usize> = taken.keys().copied().collect();
         let skip = |mp: MpId, _: &MapPoint| already.contains(&mp);
-        self.match_by_projection(m, k, pose, &center, points, skip, &mut used, radius)
+        self.match_by_projection(m, &view, points, skip, &mut used, radius)
     }
 
     /// Good map points (but those `skip` names) seen from `pose` (world-to-camera of `k`,
     /// camera centre `center`) within their scale range and viewing cone, matched one-to-one
     /// to keypoints of `k` not in `used` (TH_LOW, `radius` x the predicted scale): the
     /// projection search of loop closing's verification and fusion.
-    #[allow(clippy::too_many_arguments)]
     pub(super) fn match_by_projection(
         &self,
         m: &Map,
-        k: &KeyFrame,
-        pose: &Se3,
-        center: &Vec3,
+        view: &Projection,
         points: &[MpId],
         skip: impl Fn(MpId, &MapPoint) -> bool,
         used: &mut BTreeSet<usize>,
@@ -296,17 +293,19 @@ impl LoopCloser {
             let Some(p) = m.points.get(&mp).filter(|p| !p.bad) else {
                 continue;
             };
-            if skip(mp, p) || !p.in_viewing_range(center) {
+            if skip(mp, p) || !p.in_viewing_range(&view.center) {
                 continue;
             }
-            let pc = apply(pose, &p.position);
-            if let Some(i) = self.best_in_window(
-                k,
-                &pc,
-                &p.descriptor,
-                p.max_distance,
+            let pc = apply(view.pose, &p.position);
+            let window = Window {
                 radius,
-                self.s.th_low,
+                max_hamming: self.s.th_low,
+            };
+            if let Some(i) = self.best_in_window(
+                view.keyframe,
+                &pc,
+                (&p.descriptor, p.max_distance),
+                window,
                 |i| !used.contains(&i),
             ) {
                 used.insert(i);
@@ -366,4 +365,20 @@ fn match_by_descriptor(
         .filter(|(n, _)| !drop.contains(n))
         .map(|(_, m)| m)
         .collect()
+}
+
+/// A keyframe seen from a pose (world-to-camera) with that pose's camera centre: where a
+/// projection search looks.
+pub(super) struct Projection<'a> {
+    pub(super) keyframe: &'a KeyFrame,
+    pub(super) pose: &'a Se3,
+    pub(super) center: Vec3,
+}
+
+/// A search window: `radius` x the predicted scale around a projection, descriptors within
+/// `max_hamming`.
+#[derive(Clone, Copy)]
+pub(super) struct Window {
+    pub(super) radius: f64,
+    pub(super) max_hamming: u32,
 }

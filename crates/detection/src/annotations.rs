@@ -11,7 +11,43 @@ use std::io::{BufRead, Write};
 use std::path::Path;
 use stillpoint_geometry::BBox;
 
-use crate::error::{DatasetError, io_err, parse_err};
+/// A `boxes.jsonl` that cannot be read: the file, and the line where it is wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum AnnotationsError {
+    /// The file cannot be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A line is not a frame's boxes.
+    #[error("{path}:{line}: {msg}")]
+    Parse {
+        /// The file.
+        path: String,
+        /// 1-based line.
+        line: usize,
+        /// What is wrong with it.
+        msg: String,
+    },
+}
+
+fn io_err(path: &Path) -> impl Fn(std::io::Error) -> AnnotationsError + '_ {
+    move |source| AnnotationsError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+fn parse_err(path: &Path, line: usize, msg: impl Into<String>) -> AnnotationsError {
+    AnnotationsError::Parse {
+        path: path.display().to_string(),
+        line,
+        msg: msg.into(),
+    }
+}
 
 /// One visible object in one frame.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -46,7 +82,7 @@ pub struct FrameBoxes {
 
 /// Read `boxes.jsonl`. Blank lines are skipped; anything else that does not parse is an error
 /// naming the line.
-pub fn read_boxes(path: &Path) -> Result<Vec<FrameBoxes>, DatasetError> {
+pub fn read_boxes(path: &Path) -> Result<Vec<FrameBoxes>, AnnotationsError> {
     let file = std::fs::File::open(path).map_err(io_err(path))?;
     let mut out = Vec::new();
     for (i, line) in std::io::BufReader::new(file).lines().enumerate() {

@@ -1,8 +1,10 @@
-//! Camera and front-end settings, as ORB-SLAM's settings files carry them.
+//! What a sequence's images are: the sensor, the camera and the ORB extractor's sizes, as
+//! ORB-SLAM's settings files carry them.
 
 use serde::{Deserialize, Serialize};
-use stillpoint_features::OrbParams;
 use stillpoint_geometry::{PinholeCamera, StereoRectification};
+
+use crate::OrbParams;
 
 /// What the sequence provides.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
