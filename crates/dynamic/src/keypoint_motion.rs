@@ -17,20 +17,15 @@
 //!   at the walker's depth (a wall right behind him, the floor at his feet);
 //! - keypoints that cannot be tracked keep the box decision.
 //!
-//! What we measured and left off (`stillpoint bench dynamic`, synth, gt boxes; see
-//! [`KeypointMotionParams`]): the epipolar distance is blind to motion along the epipolar
-//! line, so only a homography's transfer error (a still or rotating camera, which sees every
-//! motion) may keep a keypoint; a seated person's moving hand often moves less than half a
-//! pixel, so a seated person's parts keep the box decision; culling kept keypoints that break
-//! the model (a 1 px rule) culls the background next to the silhouette, whose LK window holds
-//! part of the mover. A reprojection test (the backward track lifted with the previous depth,
-//! moved by the camera's relative pose from a 3-point Umeyama RANSAC on the static tracks with
-//! depth) would let F frames keep keypoints too: it gained at most 0.004 clear precision
-//! (walking_xyz 0.949 → 0.953) and, used for homography frames too, cost walking_static
-//! 0.945 → 0.904, so it was not kept here; for the culled keypoints of seated people's parts
-//! it is [`crate::seated_motion`], judged by ATE. Most remaining false positives on walkers are keypoints whose FAST circle
-//! straddles the silhouette: occlusion corners that do move with the person, which no motion
-//! evidence can (or should) keep.
+//! What is left off, and why (see [`KeypointMotionParams`]): the epipolar distance is blind to
+//! motion along the epipolar line, so only a homography's transfer error (a still or rotating
+//! camera, which sees every motion) may keep a keypoint; a seated person's moving hand often
+//! moves less than half a pixel, so a seated person's parts keep the box decision (with depth,
+//! [`crate::seated_motion`] tests them); culling kept keypoints that break the model (a 1 px
+//! rule) culls the background next to the silhouette, whose LK window holds part of the mover.
+//! Most remaining false positives on walkers are keypoints whose FAST circle straddles the
+//! silhouette: occlusion corners that do move with the person, which no motion evidence can
+//! (or should) keep. Measurements: docs/measurements.md.
 
 use crate::depth::cull_frame;
 use crate::judge::{BoxPart, BoxState};

@@ -3,19 +3,12 @@
 //!
 //! The paper judges each frame's detections on their own, so a frame in which the detector misses
 //! a walker (motion blur, occlusion, an unusual pose) lets all of the walker's keypoints into
-//! tracking and the map. Measured on a synthetic walking_xyz sequence where YOLOX-nano misses the
-//! people in ~30 % of the frames: ATE 34.8 cm with YOLOX boxes against 0.95 cm with ground-truth
-//! boxes. Here a box judged dynamic in the previous frame that no current detection of the same
-//! class overlaps (IoU < [`BoxMemoryParams::min_iou`]) is carried into the current frame, shifted
-//! by the median optical flow of the tracked points that started inside it (unshifted when there
-//! are none), for at most [`BoxMemoryParams::max_frames`] frames, and culled as a dynamic box.
-//!
-//! Measured (`stillpoint run --sequential`, 300-frame synthetic sequences, ATE RMSE, memory off
-//! -> on): walking_xyz with YOLOX-nano 34.8 -> 28.1 cm (at most 3 / 8 / 15 frames instead of 5:
-//! 29.5 / 27.6 / 30.2 cm, flat); same
-//! with ground-truth boxes 0.63 -> 0.63 cm; walking_xyz with photo cut-out people and YOLOX
-//! 0.63 -> 0.61 cm. Most of the remaining YOLOX error comes from a walker that is never detected
-//! in the first 12 frames (nothing to remember) and one detected as a chair.
+//! tracking and the map. Here a box judged dynamic in the previous frame that no current detection
+//! of the same class overlaps (IoU < [`BoxMemoryParams::min_iou`]) is carried into the current
+//! frame, shifted by the median optical flow of the tracked points that started inside it
+//! (unshifted when there are none), for at most [`BoxMemoryParams::max_frames`] frames, and
+//! culled as a dynamic box. A mover that was never detected has nothing to carry.
+//! Measurements: docs/measurements.md.
 //!
 //! ```
 //! use stillpoint_detection::Detection;

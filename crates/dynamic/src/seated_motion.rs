@@ -3,28 +3,24 @@
 //! NHBC splits a seated person into a top and a bottom part, and a part holding one outlier
 //! (a hand) is dynamic as a whole: its still torso and legs are culled with it. On synth
 //! sitting_xyz that cull made the trajectory worse than no front-end at all. The two-view
-//! models of [`crate::keypoint_motion`](mod@crate::keypoint_motion) cannot tell which keypoints moved: the epipolar distance
-//! is blind along the epipolar line. With depth it is not: the camera's motion between the two
-//! frames comes from the static tracks (inliers of the geometry check outside every dynamic
-//! box, lifted with the depth of both frames; 3-point rigid fits, [`umeyama`], in an MSAC
-//! RANSAC, polished on the reprojection error), and each culled keypoint of a seated part, lifted with its
-//! depth and moved back into the previous frame, must land where backward LK found it.
+//! models of [`crate::keypoint_motion`](mod@crate::keypoint_motion) cannot tell which
+//! keypoints moved: the epipolar distance is blind along the epipolar line. With depth it is
+//! not: the camera's motion between the two frames comes from the static tracks (inliers of the
+//! geometry check outside every dynamic box, lifted with the depth of both frames; 3-point
+//! rigid fits, [`umeyama`], in an MSAC RANSAC, polished on the reprojection error), and each
+//! culled keypoint of a seated part, lifted with its depth and moved back into the previous
+//! frame, must land where backward LK found it.
 //! A keypoint whose reprojection residual exceeds [`SeatedMotionParams::dynamic_above_px`]
 //! moved in the world; one below it is kept. Keypoints without a reliable track or depth,
 //! frames without depth or without a camera estimate keep the box decision. Standing people
-//! and other classes (whole boxes) keep today's rule.
+//! and other classes (whole boxes) keep the box rule.
 //!
-//! What bounds its precision (measured on synth sitting_xyz, 19 frames, gt boxes, with a
-//! photometric variant that warps every pixel of a 7x7 patch with its own depth and fits one
-//! shift): still keypoints whose patch has smooth depth measure above 0.5 px 1 % of the time,
-//! those whose patch straddles a depth edge (62 % of them: the torso's silhouette against the
-//! wall, the chair, the desk) 20 %, with the true camera motion as well (so not the motion
-//! estimate). At an edge a pixel's colour mixes two surfaces that move apart by the parallax
-//! and get covered or uncovered between frames; a real sensor's depth, misregistered by a
-//! pixel or two at edges, makes this worse. The variant raised precision (sitting_xyz .107 ->
-//! .14, .23 on antialiased renders) but cost recall under Kinect noise (sitting_static .946 ->
-//! .871) and left ATE unchanged, so it was not kept; dropping edge pixels from the fit left
-//! those keypoints without evidence (precision .23 -> .13).
+//! What bounds its precision: still keypoints whose patch straddles a depth edge (the torso's
+//! silhouette against the wall, the chair, the desk) often measure above the threshold, even
+//! with the true camera motion. At an edge a pixel's colour mixes two surfaces that move apart
+//! by the parallax and get covered or uncovered between frames; a real sensor's depth,
+//! misregistered by a pixel or two at edges, makes this worse. Measurements:
+//! docs/measurements.md.
 
 use crate::judge::{BoxPart, BoxState, only_in_dynamic_boxes_where};
 use crate::keypoint_motion::KeypointMotion;
@@ -36,17 +32,14 @@ use stillpoint_image::DepthMetres;
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct SeatedMotionParams {
-    /// Run the test (needs depth on both frames and [`Self::camera`]). On: synth sitting_xyz
-    /// with gt boxes ATE 0.64 / 0.45 / 0.53 -> 0.35 / 0.26 / 0.20 cm (seeds 0 / 1 / 2; no
-    /// front-end 0.38 / 0.24 / 0.22), walkers unchanged (numbers in `stillpoint_frontend`).
+    /// Run the test (needs depth on both frames and [`Self::camera`]): it keeps the still
+    /// torso and legs of a seated person whose hand moved. Measurements: docs/measurements.md.
     pub enabled: bool,
     /// The camera that took the frames (intrinsics for lifting and projecting).
     #[serde(skip)]
     pub camera: Option<PinholeCamera>,
-    /// A keypoint whose reprojection residual exceeds this moved (pixels). 0.5 px: on synth
-    /// sitting_xyz still torsos measure a median 0.1-0.3 px; 1.0 px kept ~10 more moving
-    /// keypoints a frame for the same ATE; 0.3 / 0.7 px were measured worse on walkers
-    /// before the cut-box rule (see `stillpoint_frontend`).
+    /// A keypoint whose reprojection residual exceeds this moved (pixels). Default 0.5 px,
+    /// above what still torsos measure. Measurements: docs/measurements.md.
     pub dynamic_above_px: f32,
     /// A static track is an inlier of the camera motion within this reprojection error (px).
     pub inlier_px: f32,
@@ -122,10 +115,9 @@ pub(crate) fn reprojection(cam: &PinholeCamera, t: &Se3, p: &Vec3, px: [f32; 2])
 /// check in no dynamic box with valid depth in both frames. A deterministic 3-point RANSAC on
 /// [`umeyama`] scored MSAC-style by reprojection into the current frame (standing still is a
 /// hypothesis too), then Gauss-Newton on the reprojection error ([`refine_pose_reprojection`]),
-/// robust over all tracks, plain over its inliers. Before (inlier count, 3D-3D refit): on synth
-/// sitting_xyz 6 of 19 frames got a camera motion 1 cm off (still torsos then measured 1.7 px
-/// instead of 0.3). `None` with
-/// too few inliers.
+/// robust over all tracks, plain over its inliers: at 30 fps the camera moves a few
+/// millimetres, less than the depth errors a 3D-3D fit follows. `None` with too few inliers.
+/// Measurements: docs/measurements.md.
 pub fn camera_motion(
     tracked: &[TrackedPoint],
     states: &[BoxState],

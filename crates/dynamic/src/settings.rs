@@ -137,9 +137,8 @@ pub struct JudgeParams {
     /// Sub-pixel motion of persons (ours; `None` = the paper): a person box or part is also
     /// dynamic when at least [`Self::person_subpixel_min_points`] of its tracked points have a
     /// residual above this many pixels (below the 1 px outlier threshold): a seated person's hand
-    /// at 2-3 m often moves less than a pixel between frames. Default 0.5 px: on synth sitting_xyz
-    /// the depth-aware recall goes 0.80 → 0.96 (sitting_static 0.93 → 0.98) at the same
-    /// precision, walking sequences unchanged; a false alarm only costs keypoints on a person.
+    /// at 2-3 m often moves less than a pixel between frames. Default 0.5 px; a false alarm only
+    /// costs keypoints on a person. Measurements: docs/measurements.md.
     pub person_subpixel_px: Option<f32>,
     /// See [`Self::person_subpixel_px`] (ours: 3, so that a single noisy track does not count).
     pub person_subpixel_min_points: usize,
@@ -157,8 +156,8 @@ pub struct JudgeParams {
     /// ... and on frames without depth (ours: on), where a box judged dynamic is culled whole:
     /// counted, children jumping on a bed made the bed's box "dynamic" by their outliers, and
     /// the whole bed went, with most of the image (a monocular map that never started). With
-    /// depth the culling keeps to the object's depth band, and counting them measured better
-    /// (living_turn seed 2, gt boxes: 1.06 cm counted, 1.18 ignored).
+    /// depth the culling keeps to the object's depth band, and counting them measured better.
+    /// Measurements: docs/measurements.md.
     pub ata_ignores_person_points_without_depth: bool,
 }
 
@@ -204,16 +203,9 @@ pub struct CullParams {
     /// Also cull keypoints near geometric outliers that lie in no box: the paper's "unknown
     /// dynamic objects" (ours: on; the paper describes it without an algorithm). On RGB-D frames
     /// only outliers at the keypoint's depth (their band, [`DepthParams::band_min_m`]) count.
-    /// `stillpoint run --detector yolox --sequential` on synth 300-frame sequences, ATE RMSE off →
-    /// on: walking_xyz 28.1 → 11.4 cm (YOLOX misses walkers; moving map points 1049 → 409),
-    /// walking_halfsphere 2.96 → 2.16 cm, sitting_xyz and static unchanged (0.46, 0.42 cm); gt
-    /// boxes walking_xyz 0.63 → 0.69 cm, walking_halfsphere 0.82 → 0.83 cm. `bench dynamic` on
-    /// synth walking (20 frames): with YOLOX recall 0.42-0.67 → 0.56-0.89 for 0.01-0.04
-    /// precision; with gt boxes precision -0.00-0.01, recall unchanged.
+    /// It catches movers the detector misses. Measurements: docs/measurements.md.
     pub unknown_objects: bool,
-    /// Radius around such outliers in pixels (ours: 40; with depth gating 40 px / 3 outliers
-    /// beat 20 px / 2 on every walking sequence, e.g. walking_xyz with YOLOX 0.700 / 0.530 →
-    /// 0.721 / 0.566).
+    /// Radius around such outliers in pixels (ours: 40). Measurements: docs/measurements.md.
     pub unknown_radius_px: f32,
     /// Fewest box-less outliers within the radius of a keypoint to cull it (ours: 3; ignores
     /// isolated bad tracks).
@@ -221,8 +213,8 @@ pub struct CullParams {
     /// The unknown-object rule on frames without depth too (ours: off for monocular, on for
     /// stereo, whose depth comes after the front-end). Without a depth band to gate them, the
     /// two-frame check's outliers of a forward-moving or hand-held monocular camera lie all over
-    /// the static world (the epipole in the image, rolling shutter): the rule culled a fifth of
-    /// a static highway's keypoints.
+    /// the static world (the epipole in the image, rolling shutter), and the rule would cull
+    /// static keypoints. Measurements: docs/measurements.md.
     pub unknown_objects_without_depth: bool,
 }
 
@@ -240,7 +232,7 @@ impl Default for CullParams {
 }
 
 /// Depth-aware culling for RGB-D frames (ours, not in the paper; see [`crate::depth`] for the
-/// rules and the measurements behind the defaults).
+/// rules). Measurements: docs/measurements.md.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct DepthParams {
@@ -249,12 +241,10 @@ pub struct DepthParams {
     pub enabled: bool,
     /// Half width of the depth band around a moving object's depth, at least this many metres
     /// (ours: 0.4 m, about a person's half depth extent with swinging arms and a stride, and
-    /// several times the Kinect's depth noise at 4 m; on synth walking_xyz 0.3 m gives recall
-    /// 0.965 and 0.4 m 0.981 at the same precision).
+    /// several times the Kinect's depth noise at 4 m). Measurements: docs/measurements.md.
     pub band_min_m: f32,
     /// ... and at least this share of the object's depth (ours: 10 %, for far objects, where the
-    /// Kinect's noise grows with the square of the depth; 15 % cost 0.03-0.04 precision on synth
-    /// walking_xyz for no recall).
+    /// Kinect's noise grows with the square of the depth). Measurements: docs/measurements.md.
     pub band_relative: f32,
     /// Share of a box's width, centred, sampled for the object's depth (ours: 0.5: a person is
     /// mostly in the middle of the box, the background at its sides).
@@ -276,12 +266,9 @@ pub struct DepthParams {
     /// Number of outliers at which their evidence counts half its weight (ours: 3).
     pub outlier_half_count: f32,
     /// Penalty on a candidate depth per share of the central samples nearer than its band
-    /// (ours: 1.0, one share in front cancels one share in the band): the mover is in front of
-    /// what it hides, so a depth with much of the box's centre in front of it is likely
-    /// background seen past the object. With Kinect noise, 3 outliers on the background beside
-    /// a seated person outvoted the person in every other frame: synth sitting_static Kinect
-    /// 0.248 / 0.815 → 0.303 / 0.940; walking 0.000-0.015 more precision at the same recall
-    /// (0 = the rule off; 2.0 measured the same within 0.007).
+    /// (ours: 1.0, one share in front cancels one share in the band; 0 = the rule off): the
+    /// mover is in front of what it hides, so a depth with much of the box's centre in front of
+    /// it is likely background seen past the object. Measurements: docs/measurements.md.
     pub occluder_weight: f32,
     /// The tallest a person is, metres (ours: 2.0; 0 = no bound): a person's box `h` pixels
     /// tall lies within `fy x this / h`, so the wall behind a walker in a stride, most of his
@@ -335,7 +322,7 @@ impl Default for DepthParams {
 }
 
 /// Box memory: carry a box judged dynamic into the next frames when the detector misses it
-/// (ours, not in the paper; see [`crate::memory`]).
+/// (ours, not in the paper; see [`crate::memory`]). Measurements: docs/measurements.md.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct BoxMemoryParams {
@@ -365,32 +352,30 @@ impl Default for BoxMemoryParams {
 }
 
 /// Per-keypoint motion evidence inside dynamic boxes (ours, not in the paper; see
-/// [`crate::keypoint_motion`](mod@crate::keypoint_motion) for the rules). Measured with `stillpoint bench dynamic` on synth
-/// 20-frame sequences, gt boxes (the `ours_kp` row against `ours_depth`).
+/// [`crate::keypoint_motion`](mod@crate::keypoint_motion) for the rules). Measurements:
+/// docs/measurements.md.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct KeypointMotionParams {
-    /// Apply the evidence after the box culling in [`crate::cull_frame_with_motion`] (ours, on:
-    /// synth walking_static, keypoints whose FAST circle is clear of the silhouette, precision
-    /// 0.894 → 0.945 at recall 1.000 → 0.977; Kinect noise 0.825 → 0.936; strict per-pixel
-    /// figures within ±0.01).
+    /// Apply the evidence after the box culling in [`crate::cull_frame_with_motion`] (ours, on):
+    /// it keeps background seen inside a mover's box. Measurements: docs/measurements.md.
     pub enabled: bool,
     /// LK for the backward and forward tracks: the geometry module's pyramids with a 7x7 window
     /// (ours; the paper's 22x22 window straddles the silhouette of a person for keypoints just
-    /// outside it: on walking_static, clear ground truth, 22 gives 0.935 / 0.968, 7 0.945 / 0.977).
+    /// outside it). Measurements: docs/measurements.md.
     pub lk: LkParams,
     /// Drop a track whose previous position is closer than this to the border, pixels (the
     /// geometry module's 5 px).
     pub border_px: f32,
     /// A track counts only when tracking it forward again lands within this many pixels of the
-    /// keypoint (ours: 0.5; 0.1-0.5 measured the same).
+    /// keypoint (ours: 0.5). Measurements: docs/measurements.md.
     pub max_fb_error_px: f32,
     /// A culled keypoint whose residual is at most this is kept (ours: 0.5 px, half the
-    /// outlier threshold; 0.3 / 0.5 / 1.0 on walking_static: recall 0.985 / 0.977 / 0.954).
+    /// outlier threshold). Measurements: docs/measurements.md.
     pub keep_below_px: f32,
     /// A kept keypoint inside a dynamic box whose residual exceeds this is culled (ours; off
     /// with infinity: at 1 px it culled background next to the silhouette, whose LK window
-    /// holds part of the mover: walking_xyz precision 0.748 → 0.640).
+    /// holds part of the mover). Measurements: docs/measurements.md.
     pub cull_above_px: f32,
     /// Let a small residual keep keypoints in whole boxes (standing people, other classes):
     /// a walker's parts move by pixels, so a keypoint that fits the background model is

@@ -4,8 +4,8 @@
 //! fundamental matrix fitted by RANSAC over the whole image. That consensus assumes the movers
 //! are a minority. A textured person filling a plain room's view holds most of the corners, so
 //! RANSAC fits the person, the static background becomes the "outliers", the person's box is
-//! judged static and the background is culled (measured on photo-realistic sequences: ATE 0.8 cm
-//! without the front-end, 19-64 cm with it and perfect boxes).
+//! judged static and the background is culled: even with perfect boxes the front-end then does
+//! far worse than no front-end at all. Measurements: docs/measurements.md.
 //!
 //! Here the camera's motion between the two frames comes from the static world instead:
 //! 1. a prior from the SLAM map (the constant-velocity motion of the last two tracked poses,
@@ -56,9 +56,9 @@ pub struct WorldMotionParams {
     /// A track speaks only when its patch in the previous image is a corner: the smaller
     /// eigenvalue of its 7x7 structure tensor, per pixel, at least this (ours: 60, gradients
     /// of ~8 gray levels a pixel in both directions). In a plain room most corners the
-    /// geometry module finds are sensor noise or straight edges, along which LK slides: on a
-    /// synthetic plain living room with Kinect-like noise a quarter of the still tracks showed
-    /// 3-9 px residuals, as many "moving" points as a walker gives.
+    /// geometry module finds are sensor noise or straight edges, along which LK slides, so still
+    /// tracks there give as many "moving" points as a walker does. Measurements:
+    /// docs/measurements.md.
     pub min_corner_strength: f32,
     /// ... and the ratio of the smaller to the larger eigenvalue at least this (ours: 0.1;
     /// below it the patch is an edge).
@@ -71,20 +71,17 @@ pub struct WorldMotionParams {
     /// The corner strength a keypoint needs to be checked that way (ours: 20, a third of
     /// [`WorldMotionParams::min_corner_strength`]). The backward track must come back within
     /// `keypoint_motion.max_fb_error_px` too, and a barred keypoint costs the map only a point
-    /// of one keyframe, where a missed one lets a mover in: at 60 a tenth of the keypoints could
-    /// be checked, and a person entering between two detections in real time (living_close,
-    /// living_turn) put enough points into the map to drag the camera 20-60 cm; at 20 a static
-    /// room (living_empty) had 2 % of its checked keypoints barred, and its ATE did not move.
+    /// of one keyframe, where a missed one lets a mover in (a person entering between two
+    /// detections): the low bar checks more keypoints. Measurements: docs/measurements.md.
     pub new_point_min_corner_strength: f32,
     /// A keypoint checked that way moved when its residual exceeds this, pixels (ours: 3; ORB
-    /// keypoints of coarse pyramid levels sit on a grid of up to 2-4 px, and at 1.5 px 1 % of a
-    /// still plain room's keypoints a frame were called moving).
+    /// keypoints of coarse pyramid levels sit on a grid of up to 2-4 px, so a tighter threshold
+    /// calls still keypoints moving). Measurements: docs/measurements.md.
     pub new_point_moving_above_px: f32,
     /// A keypoint that could be checked that way but whose backward track is lost
     /// ([`NewPointCheck::Lost`]) counts as moved (ours, on: a walker entering at the side edge,
-    /// not yet boxed, was tracked back on few of its corners, and the rest made points that
-    /// dragged real-time runs of living_turn 1-3 cm; the sequential matrix did not move, though
-    /// 10-15 % of a turning room's checkable corners are lost so).
+    /// not yet boxed, is tracked back on few of its corners, and the rest would make points that
+    /// drag the camera). Measurements: docs/measurements.md.
     pub new_point_lost_track_moved: bool,
     /// Kept keypoints within this many pixels of at least two such moving keypoints, at their
     /// depth (within max(0.3 m, 15 %)), make no map points either (ours: 40; a mover's blurred

@@ -1,8 +1,8 @@
 //! stillpoint-eval: how good a run was, measured against the truth a dataset carries.
 //!
-//! - [`stats`]: mean, median and p90 of per-frame numbers (timings, keypoints culled), nearest
+//! - [`mod@stats`]: mean, median and p90 of per-frame numbers (timings, keypoints culled), nearest
 //!   rank quantiles;
-//! - [`accuracy`]: a run's ATE and RPE against the sequence's ground truth (SE(3)-aligned, or
+//! - [`mod@accuracy`]: a run's ATE and RPE against the sequence's ground truth (SE(3)-aligned, or
 //!   Sim(3) for monocular), the ground truth read in the sequence's own format, and how far apart
 //!   two instants truly were (for judging loop closures);
 //! - [`movers`]: the generator's per-pixel masks of moving objects (`stillpoint synth --masks`),

@@ -1,5 +1,5 @@
 //! A run scored against its sequence's truth, beside the run and not in it: [`run_scored`]
-//! runs [`stillpoint_run::run_with`] with [`TruthScoring`] as one more sink (the generator's
+//! runs [`stillpoint_run::run_with`] with `TruthScoring` as one more sink (the generator's
 //! masks per frame and the map at the end; the ground truth read and the accuracy) and the
 //! masks as the dense cloud's truth.
 
@@ -34,7 +34,7 @@ impl ScoredRun {
     }
 
     /// ATE and translational RPE over 1 s against the ground truth, when there is one
-    /// ([`crate::accuracy`]).
+    /// ([`crate::accuracy()`]).
     pub fn accuracy(&self) -> Option<(AteResult, Option<RpeResult>)> {
         let gt = self.ground_truth.as_ref()?;
         crate::accuracy(gt, &self.run.trajectory, self.run.sensor)

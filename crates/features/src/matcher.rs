@@ -47,10 +47,8 @@ pub struct MatchParams {
     /// Drop matches outside the three dominant bins of the keypoint-angle change
     /// ([`RotationHistogram`]; ORB-SLAM3's `mbCheckOrientation`, true in every ORB-SLAM3
     /// matcher). Needs the keypoints, so only [`match_keypoints`] applies it;
-    /// [`match_brute_force`] sees descriptors only. Measured on the real pairs in
-    /// `../shared/data` (crates/features/tests/real_data.rs): it removes 5-50 % of the matches,
-    /// most of them RANSAC outliers (wide-baseline TUM loop pair: 35 -> 18 matches, inlier
-    /// ratio 0.30 -> 0.58).
+    /// [`match_brute_force`] sees descriptors only. Most of the matches it drops are RANSAC
+    /// outliers. Measurements: docs/measurements.md.
     pub check_orientation: bool,
 }
 

@@ -18,7 +18,8 @@ pub struct SlamSettings {
     pub camera: PinholeCamera,
     /// Monocular: no keypoint has depth; the map starts from two views
     /// ([`crate::module::initializer`]) at an arbitrary scale, and tracking and mapping use
-    /// ORB-SLAM3's monocular rules. [`SlamSettings::monocular`] sets the thresholds that go with it.
+    /// ORB-SLAM3's monocular rules. [`SlamSettings::monocular`] sets the thresholds that go with
+    /// it.
     #[serde(default)]
     pub monocular: bool,
     /// Monocular initialisation.
@@ -83,24 +84,21 @@ pub struct SlamSettings {
     /// ... untracked close points above this force a keyframe (ORB-SLAM3: 100 / 70).
     pub kf_close_untracked_min: usize,
     /// Fewer tracked inliers than this also ask for a keyframe (ours, not in ORB-SLAM3: 50). In
-    /// dynamic scenes the front-end removes a third to half of the keypoints; measured on
-    /// synthetic walking_xyz (gt boxes), inliers sank from ~100 to 42 over 18 frames without a
-    /// keyframe (the reference keyframe had too few well-observed points for the 0.75 ratio to
-    /// fire) and tracking was lost for 5 frames. 50: 300/300 tracked, ATE 1.04 -> 0.95 cm, other
-    /// presets unchanged; 70 inserted keyframes on poorly tracked frames (walking_xyz 2.6 cm).
-    /// 0 gives ORB-SLAM3's rule.
+    /// dynamic scenes the front-end removes a third to half of the keypoints, and the reference
+    /// keyframe can have too few well-observed points for the 0.75 ratio to fire while the
+    /// inliers sink until tracking is lost. 0 gives ORB-SLAM3's rule. Measurements:
+    /// docs/measurements.md.
     pub kf_weak_tracking_inliers: usize,
     /// Ours: a map point rejected by the chi-square test of local-map tracking this many times,
     /// and at least as often as it was found, is erased at once (0 = off). ORB-SLAM3 only culls
     /// points by found/visible during their first 3 keyframes; a point on a mover that the
-    /// front-end missed keeps failing afterwards. Off: measured erratic on YOLOX walking_xyz
-    /// (300-frame synth, before the outlier guard) 28.1 cm -> 19.6 (2), 29.8 (3), 35.9 (5); with
-    /// the guard (3): gt walking_xyz 0.62 -> 0.78, YOLOX sitting_xyz 0.46 -> 0.60.
+    /// front-end missed keeps failing afterwards. Off by default: its effect on accuracy was
+    /// erratic. Measurements: docs/measurements.md.
     pub point_max_rejections: u32,
     /// RGB-D map hygiene (ours): a map point through which the depth image shows a surface
-    /// well behind it in this many frames is erased (`Map::erase_points_seen_through`; 0 = off).
-    /// Measured with `seen_through_gap_px` (20 living-room sequences, `run --sequential`):
-    /// YOLOX worst ATE 2.58 -> 1.96 cm, map points on movers 31 -> 0 on living_turn seed 0.
+    /// well behind it in this many frames is erased (`Map::erase_points_seen_through`; 0 = off):
+    /// the point is no longer there, most often one made on a mover that has gone.
+    /// Measurements: docs/measurements.md.
     pub erase_seen_through_after: u32,
     /// Ours: each tracked frame's pose is optimised again against the map once local mapping
     /// has refined the keyframes around it (this many keyframes later; 0 = off, ORB-SLAM's
@@ -108,7 +106,7 @@ pub struct SlamSettings {
     /// keeps a frame's pose relative to its reference keyframe as tracking left it, so a
     /// keyframe that bundle adjustment later moves a long way (one made while a mover the
     /// detector missed dragged tracking) drags its frames along although they were tracked
-    /// right: synth walking_static with YOLOX, frame 83 13.5 cm off.
+    /// right. Measurements: docs/measurements.md.
     #[serde(default = "default_settle_keyframes")]
     pub trajectory_settle_keyframes: usize,
     /// ... the settled pose is kept when it has at least this many inliers (else the frame
@@ -116,20 +114,18 @@ pub struct SlamSettings {
     #[serde(default = "default_settle_min_inliers")]
     pub trajectory_settle_min_inliers: usize,
     /// ... and at most this many frames wait to settle: older ones settle on the map as it is
-    /// (a camera lapping a mapped room makes no keyframes, and the waiting frames' observations
-    /// grew memory by 20 KiB a frame). 100 (3.3 s at 30 Hz): a mapped room then holds 2 MB of
-    /// waiting frames, not 6 (300 before).
+    /// (a camera lapping a mapped room makes no keyframes, and each waiting frame's observations
+    /// hold memory). Default 100, 3.3 s at 30 Hz. Measurements: docs/measurements.md.
     #[serde(default = "default_settle_max_pending")]
     pub trajectory_settle_max_pending: usize,
     /// ... and with local mapping in its own thread (real time) at most this many settle after
     /// one frame (0 = no limit), the rest after the next frames or at the end: a batch of frames
-    /// due at once held the tracking thread 10-35 ms. Inline mapping (`run --sequential`)
-    /// settles every due frame at once, as before.
+    /// due at once would hold up the tracking thread. Inline mapping (`run --sequential`)
+    /// settles every due frame at once. Measurements: docs/measurements.md.
     #[serde(default = "default_settle_max_per_frame")]
     pub trajectory_settle_max_per_frame: usize,
     /// ... "well behind": by more than this many pixels of virtual disparity (`bf / z`) and
-    /// 10 cm (measured 0.5 / 1 / 2 px: gt mean ATE 1.54 / 1.47 / 1.47 cm, YOLOX worst 1.93 /
-    /// 1.96 / 4.11 on the seeds tried).
+    /// 10 cm (ours: 1 px). Measurements: docs/measurements.md.
     pub seen_through_gap_px: f64,
     /// New RGB-D keyframes create map points from depth for at least this many closest keypoints
     /// (ORB-SLAM3 `CreateNewKeyFrame`: 100).
@@ -212,7 +208,7 @@ pub struct MonoInitSettings {
     pub min_points_after_ba: usize,
     /// Features the extractor should deliver while initialising, as a multiple of the usual
     /// count (ORB-SLAM3 `mpIniORBextractor`: 5): initialisation matches level-0 keypoints only.
-    /// Read by the caller that extracts features ([`crate::System::initialising`]).
+    /// Read by the caller that extracts features ([`crate::System::wants_initial_features`]).
     pub feature_factor: usize,
     /// Seconds after the map starts during which frames are still extracted with
     /// `feature_factor` times the features (ORB-SLAM3: `mMaxFrames`, one second of frames).
@@ -272,8 +268,8 @@ impl SlamSettings {
             scale_factor: 1.2,
             n_levels: 8,
             // Ours: a depth camera starts a map on the first frame with 100 keypoints, 80 with
-            // depth, spread over 6 of 16 cells (ORB-SLAM waits for 500 keypoints: a plain
-            // room's first 2.3 s were lost, 230 of 300 frames tracked).
+            // depth, spread over 6 of 16 cells (ORB-SLAM waits for 500 keypoints, which a plain
+            // room may not give for seconds). Measurements: docs/measurements.md.
             init_min_keypoints: 100,
             init_min_with_depth: 80,
             init_min_cells_with_depth: 6,

@@ -4,10 +4,10 @@
 //! A crafted or broken model could crash the whole process rather than fail: a convolution with
 //! a stride of 0 panicked inside tract (a divide by zero), and a model declaring a
 //! 100000x100000 input aborted on a ~120 GB allocation (an allocation failure cannot be caught).
-//! [`read_checked`] reads the file's protobuf and refuses, with one error naming the file, what
+//! `read_checked` reads the file's protobuf and refuses, with one error naming the file, what
 //! is known to do that: declared sizes past [`MAX_INPUT_SIDE`] / [`MAX_INPUT_ELEMENTS`] /
 //! [`MAX_TENSOR_ELEMENTS`], zero or negative windows of convolutions and poolings, and outputs
-//! that cannot be YOLOX's. [`guarded`] turns any remaining panic of the engine into an error.
+//! that cannot be YOLOX's. `guarded` turns any remaining panic of the engine into an error.
 
 use crate::DetectError;
 use crate::onnx_proto as pb;
@@ -64,7 +64,7 @@ pub(crate) fn read_checked(path: &Path) -> Result<Vec<u8>, DetectError> {
     Ok(bytes)
 }
 
-/// What [`read_checked`] checks, on a decoded model; the message says which node or tensor and
+/// What `read_checked` checks, on a decoded model; the message says which node or tensor and
 /// why.
 pub fn check_model(model: &pb::ModelProto) -> Result<(), String> {
     let graph = model

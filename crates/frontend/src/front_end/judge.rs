@@ -68,7 +68,8 @@ impl DynamicFrontEnd {
         // Objects over time (ours): each box's verdict is its object's state, with hysteresis.
         // On a depth frame where the static world's motion could not be had, a box judged
         // moving heard only the two-frame check: no evidence either way (in a plain room that
-        // made a painting "moving" on frame 1 and culled it for 76 frames).
+        // check alone can call a painting moving and have it culled for many frames).
+        // Measurements: docs/measurements.md.
         let world = if world {
             WorldCheck::Judged
         } else if settings.world.enabled && settings.world.camera.is_some() && frame.depth.is_some()
@@ -191,7 +192,7 @@ impl DynamicFrontEnd {
         mut out: Judgement,
     ) -> Judgement {
         // A gray camera's first frame goes to the detector as gray x3, as every later frame does
-        // (it used to be left unjudged, so a person in the first map was mapped).
+        // (left unjudged, a person in the first frame would go into the map).
         let t0 = Instant::now();
         let dets = match self.background.as_mut() {
             Some(bg) => bg.boxes_of_first(frame),
