@@ -101,7 +101,8 @@ fn a_front_end_is_called_twice_a_frame_and_its_judgement_is_kept() {
                     for x in 0..mask.width {
                         if mask.get(x, y) > 0 {
                             let (x, y) = (x as f32, y as f32);
-                            let in_box = x >= SKIP[0] && x < SKIP[2] && y >= SKIP[1] && y < SKIP[3];
+                            let in_box =
+                                (SKIP[0]..SKIP[2]).contains(&x) && (SKIP[1]..SKIP[3]).contains(&y);
                             if in_box { inside += 1 } else { outside += 1 }
                         }
                     }
