@@ -3,6 +3,7 @@
 //! masks per frame and the map at the end; the ground truth read and the accuracy) and the
 //! masks as the dense cloud's truth.
 
+use std::cell::RefCell;
 use std::path::PathBuf;
 
 use stillpoint_image::Gray8;
@@ -74,9 +75,10 @@ impl ScoredRun {
 pub fn run_scored(o: &RunOptions, progress: &mut dyn FnMut(Event)) -> Result<ScoredRun, RunError> {
     let masks = MaskFolder {
         dataset: o.dataset.clone(),
+        last: RefCell::new(None),
     };
     let has_masks = o.dataset.join("mask").is_dir();
-    let mut scoring = TruthScoring::new(has_masks.then(|| masks.clone()));
+    let mut scoring = TruthScoring::new(has_masks.then_some(&masks));
     let truth = has_masks.then_some(&masks as &dyn MovingPixels);
     let run = stillpoint_run::run_with(o, truth, &mut [&mut scoring], progress)?;
     Ok(ScoredRun {
@@ -88,30 +90,39 @@ pub fn run_scored(o: &RunOptions, progress: &mut dyn FnMut(Event)) -> Result<Sco
     })
 }
 
-/// The generator's masks of a synthetic sequence (`mask/`), by timestamp.
-#[derive(Clone)]
+/// The generator's masks of a synthetic sequence (`mask/`), by timestamp. The last one read is
+/// kept: on a keyframe the dense cloud and the scoring ask for the same frame's.
 struct MaskFolder {
     dataset: PathBuf,
+    last: RefCell<Option<(u64, Option<Gray8>)>>,
 }
 
 impl MovingPixels for MaskFolder {
     fn moving_mask(&self, timestamp: f64) -> Option<Gray8> {
-        movers::moving_mask(&self.dataset, timestamp)
+        let key = timestamp.to_bits();
+        if let Some((t, mask)) = self.last.borrow().as_ref()
+            && *t == key
+        {
+            return mask.clone();
+        }
+        let mask = movers::moving_mask(&self.dataset, timestamp);
+        *self.last.borrow_mut() = Some((key, mask.clone()));
+        mask
     }
 }
 
 /// The sink that scores: keypoints on movers per frame (with masks), map points on movers and
 /// the ground truth at the end.
-struct TruthScoring {
-    masks: Option<MaskFolder>,
+struct TruthScoring<'a> {
+    masks: Option<&'a MaskFolder>,
     moving_kept: Vec<usize>,
     static_culled: Vec<f64>,
     moving_map_points: Option<MoversInMap>,
     ground_truth: Option<Trajectory>,
 }
 
-impl TruthScoring {
-    fn new(masks: Option<MaskFolder>) -> Self {
+impl<'a> TruthScoring<'a> {
+    fn new(masks: Option<&'a MaskFolder>) -> Self {
         Self {
             masks,
             moving_kept: Vec::new(),
@@ -122,7 +133,7 @@ impl TruthScoring {
     }
 }
 
-impl Sink for TruthScoring {
+impl Sink for TruthScoring<'_> {
     fn frame(&mut self, t: &Tracked) -> Result<(), RunError> {
         let Some(masks) = &self.masks else {
             return Ok(());

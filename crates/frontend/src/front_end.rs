@@ -198,6 +198,14 @@ impl DynamicFrontEnd {
         }
     }
 
+    /// A frame's first half: the last frame's pose kept, then the measurement.
+    fn pose_and_measure(&mut self, frame: &FrameInput) -> Measurement {
+        if let Some(previous) = frame.previous {
+            self.observe_pose(previous);
+        }
+        self.measure_frame(frame)
+    }
+
     /// Keep the pose tracking gave a frame, for [`Self::predicted_motion`].
     fn observe_pose(&mut self, previous: PreviousPose) {
         match previous.pose_wc {
@@ -221,22 +229,15 @@ impl FrontEnd for DynamicFrontEnd {
     }
 
     fn measure(&mut self, frame: &FrameInput) {
-        if let Some(previous) = frame.previous {
-            self.observe_pose(previous);
-        }
-        let measured = self.measure_frame(frame);
+        let measured = self.pose_and_measure(frame);
         self.pending = Some((frame.index, measured));
     }
 
     fn judge(&mut self, frame: &FrameInput, keypoints: &[[f32; 2]]) -> Judgement {
         let measured = match self.pending.take() {
             Some((index, measured)) if index == frame.index => measured,
-            _ => {
-                if let Some(previous) = frame.previous {
-                    self.observe_pose(previous);
-                }
-                self.measure_frame(frame)
-            }
+            // Judged without `measure`: the first half now.
+            _ => self.pose_and_measure(frame),
         };
         let mut out = self.judge_measured(frame, measured, keypoints);
         self.outputs(frame.index, &mut out);

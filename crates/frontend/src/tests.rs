@@ -35,20 +35,28 @@ fn on(mask: &Gray8, [x, y]: [f32; 2]) -> bool {
         .is_some_and(|v| v > 127)
 }
 
+/// A synthetic frame (colour and depth) as the front-end takes it, `gray` its gray image.
+fn input_of<'a>(
+    f: &'a SynthFrame,
+    gray: &'a Gray8,
+    previous: Option<PreviousPose>,
+) -> FrameInput<'a> {
+    FrameInput {
+        index: f.index,
+        timestamp: f.timestamp,
+        gray,
+        rgb: Some(&f.rgb),
+        depth: Some(&f.depth),
+        previous,
+    }
+}
+
 fn run(front: &mut DynamicFrontEnd, frames: &[SynthFrame], kps: &[[f32; 2]]) -> Vec<Judgement> {
     frames
         .iter()
         .map(|f| {
             let gray = stillpoint_image::rgb_to_gray(&f.rgb);
-            let input = FrameInput {
-                index: f.index,
-                timestamp: f.timestamp,
-                gray: &gray,
-                rgb: Some(&f.rgb),
-                depth: Some(&f.depth),
-                previous: None,
-            };
-            front.judge(&input, kps)
+            front.judge(&input_of(f, &gray, None), kps)
         })
         .collect()
 }
@@ -114,14 +122,7 @@ fn mover_keypoints_let_into_the_map(settings: FrontEndSettings) -> (usize, usize
             .iter()
             .map(|k| [k.x, k.y])
             .collect();
-        let input = FrameInput {
-            index: f.index,
-            timestamp: f.timestamp,
-            gray: &gray,
-            rgb: Some(&f.rgb),
-            depth: Some(&f.depth),
-            previous,
-        };
+        let input = input_of(f, &gray, previous);
         front.measure(&input);
         let out = front.judge(&input, &kps);
         previous = Some(PreviousPose {
