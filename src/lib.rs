@@ -44,7 +44,14 @@ pub use stillpoint_geometry as geometry;
 pub use stillpoint_image as image;
 /// Frames in, poses out: features, front-end and SLAM in one pipeline.
 pub use stillpoint_pipeline as pipeline;
+/// A whole run: the settings tree (file, then `key=value` overrides), the detector and
+/// front-end opened from it, the outputs (feature `run`).
+#[cfg(feature = "run")]
+pub use stillpoint_run as run;
 /// Tracking, local mapping, loop closing, maps.
 pub use stillpoint_slam as slam;
+/// Synthetic sequences with exact ground truth (feature `synth`).
+#[cfg(feature = "synth")]
+pub use stillpoint_synth as synth;
 /// Trajectories: reading, writing, alignment, ATE, RPE.
 pub use stillpoint_trajectory as trajectory;

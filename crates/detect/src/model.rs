@@ -5,13 +5,19 @@ use std::path::{Path, PathBuf};
 
 /// Env variable naming the model when neither the command line nor the settings do.
 pub const MODEL_ENV: &str = "STILLPOINT_MODEL";
+/// Env variable naming a folder of models (a copy of `../shared/models`): its
+/// [`MODEL_FILE_NAMES`] are looked for when `STILLPOINT_MODEL` is unset.
+pub const MODELS_DIR_ENV: &str = "STILLPOINT_MODELS";
+/// The file names looked for in a models folder, in order.
+pub const MODEL_FILE_NAMES: [&str; 2] = ["yolox_nano_480x640.onnx", "yolox_nano.onnx"];
 /// Where a packaged stillpoint keeps its model, relative to the binary's folder.
 pub const BESIDE_BINARY: &str = "models/yolox_nano.onnx";
 /// The shared model of this project's machines, relative to the working directory.
 pub const SHARED_MODEL: &str = "../shared/models/yolox_nano_480x640.onnx";
 
 /// Resolve the model: `explicit` (the command line's `--model`, else the settings' `model`),
-/// then env `STILLPOINT_MODEL`, then `models/yolox_nano.onnx` beside the binary, then
+/// then env `STILLPOINT_MODEL`, then the [`MODEL_FILE_NAMES`] in the folder env
+/// `STILLPOINT_MODELS` names, then `models/yolox_nano.onnx` beside the binary, then
 /// `../shared/models/yolox_nano_480x640.onnx` under the working directory.
 ///
 /// A path named explicitly (argument or env) must exist: a typo is an error naming it, not a
@@ -43,6 +49,25 @@ pub fn resolve_model(explicit: Option<&Path>) -> Result<PathBuf, DetectError> {
         return must_exist(PathBuf::from(p), MODEL_ENV);
     }
     let mut searched = vec![format!("${MODEL_ENV} (unset)")];
+    if let Some(dir) = std::env::var_os(MODELS_DIR_ENV).filter(|p| !p.is_empty()) {
+        let dir = PathBuf::from(dir);
+        let found = MODEL_FILE_NAMES
+            .iter()
+            .map(|n| dir.join(n))
+            .find(|p| p.is_file());
+        if let Some(p) = found {
+            return Ok(p);
+        }
+        // A folder named on purpose that holds no model: say so rather than fall through.
+        return Err(DetectError::ModelNotFound {
+            searched: format!(
+                "${MODELS_DIR_ENV}={} (no {} in it)",
+                dir.display(),
+                MODEL_FILE_NAMES.join(" or ")
+            ),
+        });
+    }
+    searched.push(format!("${MODELS_DIR_ENV} (unset)"));
     let beside = std::env::current_exe()
         .ok()
         .and_then(|exe| exe.parent().map(|dir| dir.join(BESIDE_BINARY)));
