@@ -97,7 +97,9 @@ def test_ray_through_an_address(two_sequences, tmp_path):
     ray = shutil.which("ray", path=os.path.dirname(sys.executable)) or shutil.which("ray")
     assert ray, "the ray command comes with stillpoint-slam[batch]"
     gcs, client = free_port(), free_port()
-    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
+    # The head's client proxy gives a new client's server 30 s to start by default; a busy
+    # 2-core machine (CI beside other work) needs more.
+    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", RAY_CLIENT_SERVER_CHECK_CHANNEL_TIMEOUT_S="180")
     subprocess.run([ray, "start", "--head", f"--port={gcs}", "--num-cpus=2",
                     f"--ray-client-server-port={client}", "--include-dashboard=false",
                     "--disable-usage-stats"], check=True, env=env, capture_output=True)
