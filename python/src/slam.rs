@@ -172,6 +172,29 @@ pub fn sensor_name(s: Sensor) -> &'static str {
     }
 }
 
+/// The image only one sensor takes with every frame (`depth` for RGB-D, `right` for stereo):
+/// required there, refused elsewhere. `name`s: the argument, the image, the sensor with its
+/// article.
+fn sensor_image<T>(
+    (arg, image, wanting): (&str, &str, &str),
+    (wants, sensor): (Sensor, Sensor),
+    given: Option<&Bound<'_, PyAny>>,
+    convert: impl FnOnce(&Bound<'_, PyAny>) -> PyResult<T>,
+) -> PyResult<Option<T>> {
+    match (sensor == wants, given) {
+        (true, Some(g)) => convert(g).map(Some),
+        (true, None) => Err(PyValueError::new_err(format!(
+            "{arg}: {wanting} Slam needs {image} with every frame"
+        ))),
+        (false, Some(_)) => Err(PyValueError::new_err(format!(
+            "{arg}: a {} Slam takes no {arg} image (make it with sensor=\"{}\")",
+            sensor_name(sensor),
+            sensor_name(wants)
+        ))),
+        (false, None) => Ok(None),
+    }
+}
+
 /// Boxes handed to `track(boxes=...)`, by frame index, taken by the detector on that frame.
 type GivenBoxes = Arc<Mutex<HashMap<usize, Vec<Detection>>>>;
 
@@ -727,36 +750,19 @@ impl Slam {
             )));
         }
         let (gray, rgb) = arrays::image_u8("image", image, s.size)?;
-        let depth = match (s.sensor, depth) {
-            (Sensor::Rgbd, Some(d)) => Some(arrays::depth(d, s.size, s.depth_scale)?),
-            (Sensor::Rgbd, None) => {
-                return Err(PyValueError::new_err(
-                    "depth: an RGB-D Slam needs a depth image with every frame",
-                ));
-            }
-            (sensor, Some(_)) => {
-                return Err(PyValueError::new_err(format!(
-                    "depth: a {} Slam takes no depth image (make it with sensor=\"rgbd\")",
-                    sensor_name(sensor)
-                )));
-            }
-            (_, None) => None,
-        };
-        let right = match (s.sensor, right) {
-            (Sensor::Stereo, Some(r)) => Some(arrays::image_u8("right", r, s.size)?.0),
-            (Sensor::Stereo, None) => {
-                return Err(PyValueError::new_err(
-                    "right: a stereo Slam needs the right image with every frame",
-                ));
-            }
-            (sensor, Some(_)) => {
-                return Err(PyValueError::new_err(format!(
-                    "right: a {} Slam takes no right image (make it with sensor=\"stereo\")",
-                    sensor_name(sensor)
-                )));
-            }
-            (_, None) => None,
-        };
+        let (size, scale) = (s.size, s.depth_scale);
+        let depth = sensor_image(
+            ("depth", "a depth image", "an RGB-D"),
+            (Sensor::Rgbd, s.sensor),
+            depth,
+            |d| arrays::depth(d, size, scale),
+        )?;
+        let right = sensor_image(
+            ("right", "the right image", "a stereo"),
+            (Sensor::Stereo, s.sensor),
+            right,
+            |r| Ok(arrays::image_u8("right", r, size)?.0),
+        )?;
         let index = s.next_index;
         if let Some(b) = boxes {
             let detections = parse_boxes(b, s.size)?;

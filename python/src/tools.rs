@@ -152,23 +152,29 @@ fn nalgebra_quaternion(w: f64, x: f64, y: f64, z: f64) -> Option<nalgebra::UnitQ
 
 fn stats<'py>(py: Python<'py>, s: &ErrorStats) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    d.set_item("rmse", s.rmse)?;
-    d.set_item("mean", s.mean)?;
-    d.set_item("median", s.median)?;
-    d.set_item("std", s.std)?;
-    d.set_item("min", s.min)?;
-    d.set_item("max", s.max)?;
-    d.set_item("sse", s.sse)?;
+    let values = [
+        ("rmse", s.rmse),
+        ("mean", s.mean),
+        ("median", s.median),
+        ("std", s.std),
+        ("min", s.min),
+        ("max", s.max),
+        ("sse", s.sse),
+    ];
+    for (k, v) in values {
+        d.set_item(k, v)?;
+    }
     d.set_item("count", s.count)?;
     Ok(d)
 }
 
-fn options(
+/// The two trajectories, read in `format`, and how to align and pair them.
+fn pair(
+    (gt, est): (&Bound<'_, PyAny>, &Bound<'_, PyAny>),
     align: &str,
     format: &str,
-    max_diff: f64,
-    offset: f64,
-) -> PyResult<(Alignment, TrajectoryFormat, Matching)> {
+    (max_diff, offset): (f64, f64),
+) -> PyResult<(Trajectory, Trajectory, Alignment, Matching)> {
     let align: Alignment = align
         .parse()
         .map_err(|e: String| PyValueError::new_err(format!("align: {e}")))?;
@@ -181,7 +187,12 @@ fn options(
         ));
     }
     let matching = Matching::for_formats(format, format, max_diff, offset);
-    Ok((align, format, matching))
+    Ok((
+        trajectory("gt", gt, format)?,
+        trajectory("est", est, format)?,
+        align,
+        matching,
+    ))
 }
 
 /// Absolute trajectory error, translation part, metres: evo_ape's numbers.
@@ -196,9 +207,7 @@ pub fn ate<'py>(
     max_diff: f64,
     offset: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let (align, format, matching) = options(align, format, max_diff, offset)?;
-    let gt = trajectory("gt", gt, format)?;
-    let est = trajectory("est", est, format)?;
+    let (gt, est, align, matching) = pair((gt, est), align, format, (max_diff, offset))?;
     let r = stillpoint::trajectory::ate(&gt, &est, &AteOptions { align, matching })
         .map_err(|e| error(&e))?;
     stats(py, &r.stats)
@@ -221,7 +230,7 @@ pub fn rpe<'py>(
     max_diff: f64,
     offset: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let (align, format, matching) = options(align, format, max_diff, offset)?;
+    let (gt, est, align, matching) = pair((gt, est), align, format, (max_diff, offset))?;
     let delta_unit: DeltaUnit = delta_unit
         .parse()
         .map_err(|e: String| PyValueError::new_err(format!("delta_unit: {e}")))?;
@@ -230,8 +239,6 @@ pub fn rpe<'py>(
             "delta: must be positive, got {delta}"
         )));
     }
-    let gt = trajectory("gt", gt, format)?;
-    let est = trajectory("est", est, format)?;
     let opts = RpeOptions {
         align,
         matching,
