@@ -81,32 +81,20 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def wait_for_port(port: int, attempts: int = 120) -> None:
-    """`ray start` returns before its client server listens: connect until it does (each try
-    waits up to a second)."""
-    for _ in range(attempts):
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=1):
-                return
-        except OSError:
-            continue
-    raise AssertionError(f"nothing listens on port {port}")
-
-
 def test_ray_through_an_address(two_sequences, tmp_path):
+    """A `ray start --head` on the machine, reached through --address (the cluster's GCS
+    address; `ray://host:10001` goes through Ray's client server, which on this machine failed
+    to start its per-client process now and then: docs/python.md)."""
     ray = shutil.which("ray", path=os.path.dirname(sys.executable)) or shutil.which("ray")
     assert ray, "the ray command comes with stillpoint-slam[batch]"
-    gcs, client = free_port(), free_port()
-    # The head's client proxy gives a new client's server 30 s to start by default; a busy
-    # 2-core machine (CI beside other work) needs more.
-    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", RAY_CLIENT_SERVER_CHECK_CHANNEL_TIMEOUT_S="180")
+    gcs = free_port()
+    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
     subprocess.run([ray, "start", "--head", f"--port={gcs}", "--num-cpus=2",
-                    f"--ray-client-server-port={client}", "--include-dashboard=false",
-                    "--disable-usage-stats"], check=True, env=env, capture_output=True)
+                    "--include-dashboard=false", "--disable-usage-stats"],
+                   check=True, env=env, capture_output=True)
     try:
-        wait_for_port(client)
         rows = run_batch(two_sequences, tmp_path / "out", "--engine", "ray",
-                         "--address", f"ray://127.0.0.1:{client}")
+                         "--address", f"127.0.0.1:{gcs}")
     finally:
         subprocess.run([ray, "stop", "--force"], env=env, capture_output=True)
     check_rows(rows, two_sequences)
