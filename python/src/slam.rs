@@ -334,8 +334,7 @@ fn start(
     let given = o.dynamic.then(GivenBoxes::default);
     let front: Option<Box<dyn FrontEnd>> = match &given {
         Some(given) => {
-            let backend_set = layers.sources.contains_key("detect.backend")
-                || layers.sources.contains_key("detect");
+            let backend_set = layers.sources.contains_key("detect.backend");
             let detector = open_detector(py, &o.detector, &tree, backend_set)?;
             let detector = GivenOrDetected {
                 given: given.clone(),
@@ -507,7 +506,7 @@ impl Frame {
 }
 
 impl Frame {
-    fn of(py: Python<'_>, r: &FrameResult, timings: [(&str, f64); 2]) -> PyResult<Self> {
+    fn of(py: Python<'_>, r: &FrameResult) -> PyResult<Self> {
         let pose = match &r.pose_wc {
             Some(p) => pose_matrix(py, p).into_any().unbind(),
             None => py.None(),
@@ -546,9 +545,6 @@ impl Frame {
         t.set_item("orb", r.timings.orb_ms)?;
         t.set_item("tracking", r.timings.tracking_ms)?;
         t.set_item("map_wait", r.timings.map_wait_ms)?;
-        for (k, v) in timings {
-            t.set_item(k, v)?;
-        }
         let backfilled = PyList::empty(py);
         for b in &r.backfilled {
             backfilled.append((b.index, b.timestamp, pose_matrix(py, &b.pose_wc)))?;
@@ -797,7 +793,7 @@ impl Slam {
         s.next_index += 1;
         s.last_timestamp = Some(timestamp);
         s.tracked += result.poses_in_time_order().count();
-        let frame = Frame::of(py, &result, [("binding", 0.0), ("total", 0.0)])?;
+        let frame = Frame::of(py, &result)?;
         // The binding's own time: this call's conversions, checks and result, all but the
         // pipeline's.
         let total_ms = t0.elapsed().as_secs_f64() * 1e3;

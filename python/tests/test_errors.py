@@ -124,8 +124,8 @@ def test_ctrl_c_interrupts_a_long_call(tmp_path):
     child = subprocess.Popen(
         [sys.executable, "-c", (
             "import stillpoint, sys\n"
-            "print('started', flush=True)\n"
             "try:\n"
+            "    print('started', flush=True)\n"
             f"    stillpoint.synth('walking_xyz', {str(tmp_path / 'seq')!r}, frames=100000)\n"
             "except KeyboardInterrupt:\n"
             "    print('interrupted', flush=True)\n"
