@@ -56,6 +56,10 @@ pub struct Args {
     /// move in whole-pixel steps; 3 integrates over the pixel as a camera does, ~6.7x slower).
     #[arg(long, default_value_t = 1)]
     antialias: usize,
+    /// Blind the camera for a span of frames while it moves on: START+FRAMES (a covered lens:
+    /// black, no depth) or START+FRAMES:wall (a blank grey wall 0.4 m away), e.g. 200+60.
+    #[arg(long)]
+    blind: Option<String>,
     /// Write a contact sheet PNG (frames with their boxes: red moving, green still).
     #[arg(long)]
     contact_sheet: Option<PathBuf>,
@@ -103,8 +107,18 @@ fn config(args: &Args, preset: Preset) -> anyhow::Result<SynthConfig> {
     if args.stereo && (args.baseline.is_nan() || args.baseline <= 0.0) {
         bail!("--baseline {} must be positive", args.baseline);
     }
+    let blind = args
+        .blind
+        .as_deref()
+        .map(|b| {
+            stillpoint_synth::Blind::parse(b).with_context(|| {
+                format!("--blind {b:?}: expected START+FRAMES or START+FRAMES:wall, e.g. 200+60")
+            })
+        })
+        .transpose()?;
     Ok(SynthConfig {
         preset,
+        blind,
         frames: args.frames,
         seed: args.seed,
         camera: cam,

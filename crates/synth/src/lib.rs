@@ -121,6 +121,52 @@ pub struct SynthConfig {
     /// visible as it is on a real sensor (point-sampled edges move in whole-pixel steps) at
     /// ~6.7x the render time; measured effect in `stillpoint_dynamic`'s seated-test docs.
     pub antialias: usize,
+    /// Frames where the camera sees nothing it can track (a covered lens, a blank wall) while it
+    /// goes on moving: tracking is lost and must find its way back (`None`: never).
+    pub blind: Option<Blind>,
+}
+
+/// A span of frames the camera cannot track through; the ground truth goes on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Blind {
+    /// First frame of the span.
+    pub start: usize,
+    /// Frames in it.
+    pub frames: usize,
+    /// What the camera sees meanwhile.
+    pub view: BlindView,
+}
+
+/// What a blind camera sees.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BlindView {
+    /// A covered lens: black colour, no depth.
+    Covered,
+    /// A blank wall close before the lens: one grey, depth 0.4 m everywhere.
+    Wall,
+}
+
+impl Blind {
+    /// Parse `START+FRAMES` or `START+FRAMES:wall` (the `--blind` argument).
+    pub fn parse(s: &str) -> Option<Blind> {
+        let (span, view) = match s.split_once(':') {
+            Some((span, "wall")) => (span, BlindView::Wall),
+            Some((span, "covered")) => (span, BlindView::Covered),
+            Some(_) => return None,
+            None => (s, BlindView::Covered),
+        };
+        let (start, frames) = span.split_once('+')?;
+        Some(Blind {
+            start: start.trim().parse().ok()?,
+            frames: frames.trim().parse().ok()?,
+            view,
+        })
+    }
+
+    /// Whether frame `index` is in the span.
+    pub fn covers(&self, index: usize) -> bool {
+        index >= self.start && index - self.start < self.frames
+    }
 }
 
 impl Default for SynthConfig {
@@ -139,6 +185,7 @@ impl Default for SynthConfig {
             min_box_pixels: 16,
             mask_min_motion_px: 0.0,
             antialias: 1,
+            blind: None,
         }
     }
 }
@@ -587,7 +634,7 @@ impl Generator {
             });
         }
 
-        let dynamic_mask = ImageBuf {
+        let mut dynamic_mask = ImageBuf {
             width: w,
             height: h,
             data: target
@@ -609,7 +656,7 @@ impl Generator {
                 })
                 .collect(),
         };
-        let object_ids = ImageBuf {
+        let mut object_ids = ImageBuf {
             width: w,
             height: h,
             data: target
@@ -648,6 +695,21 @@ impl Generator {
             if let Some(r) = right.as_mut() {
                 noise::apply_image(r, p.image_sigma, &mut rng);
             }
+        }
+        if let Some(b) = cfg.blind.filter(|b| b.covers(index)) {
+            let (grey, z) = match b.view {
+                BlindView::Covered => (0, 0.0),
+                BlindView::Wall => (128, 0.4),
+            };
+            rgb.fill([grey; 3]);
+            depth.fill(z);
+            if let Some(r) = right.as_mut() {
+                r.fill([grey; 3]);
+            }
+            boxes.clear();
+            parts.clear();
+            dynamic_mask.data.fill(0);
+            object_ids.data.fill(0);
         }
         SynthFrame {
             index,
@@ -691,6 +753,50 @@ impl Iterator for Generator {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_blind_span_hides_the_scene_and_keeps_the_ground_truth() {
+        assert_eq!(
+            Blind::parse("5+3"),
+            Some(Blind {
+                start: 5,
+                frames: 3,
+                view: BlindView::Covered
+            })
+        );
+        assert_eq!(
+            Blind::parse("5+3:wall").map(|b| b.view),
+            Some(BlindView::Wall)
+        );
+        for bad in ["5", "5+", "+3", "5+3:sky", "-1+3"] {
+            assert_eq!(Blind::parse(bad), None, "{bad}");
+        }
+        let cam = tum_fr3_camera_sized(160, 120);
+        let config = |blind| SynthConfig {
+            preset: Preset::WalkingXyz,
+            frames: 4,
+            camera: cam,
+            blind,
+            ..SynthConfig::default()
+        };
+        let seen = Generator::new(&config(None)).unwrap();
+        for view in [BlindView::Covered, BlindView::Wall] {
+            let g =
+                Generator::new(&config(Blind::parse("1+2").map(|b| Blind { view, ..b }))).unwrap();
+            assert_eq!(g.frame(0).rgb.data, seen.frame(0).rgb.data);
+            assert_eq!(g.frame(3).rgb.data, seen.frame(3).rgb.data);
+            let f = g.frame(2);
+            assert_eq!(f.pose_wc, seen.frame(2).pose_wc);
+            assert!(f.boxes.is_empty() && f.dynamic_mask.data.iter().all(|&m| m == 0));
+            let (grey, z) = if view == BlindView::Wall {
+                (128, 0.4)
+            } else {
+                (0, 0.0)
+            };
+            assert!(f.rgb.data.iter().all(|p| *p == [grey; 3]));
+            assert!(f.depth.data.iter().all(|&d| d == z));
+        }
+    }
 
     #[test]
     fn a_resized_camera_keeps_the_field_of_view() {
