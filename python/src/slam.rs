@@ -1,6 +1,6 @@
 //! `stillpoint.Slam`: frames in, `stillpoint.Frame`s out, `stillpoint.Run` at the end.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex, TryLockError};
 use std::time::Instant;
@@ -912,6 +912,16 @@ pub struct Run {
     /// A loop closed during the run.
     #[pyo3(get)]
     loop_closed: bool,
+    /// Maps made: the first, and a new one each time tracking was lost for good.
+    #[pyo3(get)]
+    maps_made: usize,
+    /// Older maps merged into the current one (a place of theirs seen again).
+    #[pyo3(get)]
+    maps_merged: usize,
+    /// Maps that never merged with the trajectory's: map number -> (N, 8) frames, TUM order,
+    /// each in a frame of reference of its own.
+    #[pyo3(get)]
+    other_maps: BTreeMap<u32, Py<PyArray2<f64>>>,
     /// Frames given to `track`.
     #[pyo3(get)]
     frames: usize,
@@ -977,6 +987,13 @@ impl Run {
             keyframes: table(py, &rows(&fin.keyframe_trajectory)).unbind(),
             map_points: table(py, &points).unbind(),
             loop_closed: fin.loop_closed,
+            maps_made: fin.maps.made,
+            maps_merged: fin.maps.merged,
+            other_maps: fin
+                .other_maps
+                .iter()
+                .map(|(k, t)| (*k, table(py, &rows(t)).unbind()))
+                .collect(),
             frames,
             tracked,
             traj: fin.trajectory.clone(),

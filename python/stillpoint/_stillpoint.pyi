@@ -66,6 +66,12 @@ class Run:
     map_points: npt.NDArray[np.float64]
     """(M, 3) positions, movers kept out."""
     loop_closed: bool
+    maps_made: int
+    """The first map, and one more each time tracking was lost for good."""
+    maps_merged: int
+    """Older maps merged into the current one when one of their places was seen again."""
+    other_maps: dict[int, npt.NDArray[np.float64]]
+    """Maps that never merged with the trajectory's: (N, 8) frames each, own frame of reference."""
     frames: int
     tracked: int
     def save_map(self, path: StrPath) -> int: ...

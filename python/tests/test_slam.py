@@ -119,6 +119,7 @@ def test_a_frame_reports_what_was_judged(walking_halfsphere):
     run = slam.finish()
     assert run.tracked == len(src) and run.map_points.shape[1] == 3
     assert run.keyframes.shape[1] == 8 and len(run.keyframes) >= 2
+    assert (run.maps_made, run.maps_merged, run.other_maps) == (1, 0, {})
 
 
 def test_a_saved_map_is_localised_in(static_room, tmp_path):

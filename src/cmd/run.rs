@@ -255,6 +255,12 @@ pub fn summary_json(scored: &ScoredRun) -> serde_json::Value {
         "map_points": s.map_points,
         "relocalisations": s.relocalisations,
         "new_maps": s.new_maps,
+        "maps": {
+            "made": s.maps.made,
+            "merged": s.maps.merged,
+            "main": s.maps.main,
+            "frames": s.maps.frames.iter().map(|(map, frames)| serde_json::json!({"map": map, "frames": frames})).collect::<Vec<_>>(),
+        },
         "culled_per_frame": {"mean": cm, "median": cmed, "p90": cp90},
         "ate": acc.as_ref().map(|(a, _)| serde_json::json!({
             "align": scored.alignment(), "scale": a.alignment.scale,
@@ -321,6 +327,21 @@ pub fn print_summary(scored: &ScoredRun) {
         s.new_maps,
         s.detector
     );
+    if s.maps.made > 1 {
+        let frames: Vec<String> = s
+            .maps
+            .frames
+            .iter()
+            .map(|(map, n)| format!("map {map}: {n}"))
+            .collect();
+        println!(
+            "maps: {} made, {} merged; frames per map: {} (the trajectory holds map {}'s)",
+            s.maps.made,
+            s.maps.merged,
+            frames.join(", "),
+            s.maps.main
+        );
+    }
     if let Some(l) = &s.map_files.loaded {
         println!(
             "map loaded: {} keyframes, {} map points ({} bytes, {:.1} ms); first relocalised at frame {}",

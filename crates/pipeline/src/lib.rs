@@ -29,6 +29,7 @@ pub mod settings;
 
 pub use settings::{Layered, SettingsError, Source};
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -188,6 +189,11 @@ pub struct Finished {
     /// bundle adjustment and loop closing left it (ORB-SLAM saves its trajectory this way); it
     /// differs from the poses [`Pipeline::track`] returned as the map was refined.
     pub trajectory: Trajectory,
+    /// Frames of maps that never merged with the main one (the map holding the most frames),
+    /// each map's in a frame of reference of its own: (map number, its trajectory).
+    pub other_maps: Vec<(u32, Trajectory)>,
+    /// The maps made and merged.
+    pub maps: MapsReport,
     /// A loop closed during the run.
     pub loop_closed: bool,
     /// The keyframes' poses, in time order.
@@ -202,6 +208,20 @@ pub struct Finished {
     pub loops: Option<LoopStats>,
     /// The stopped system: its map, for saving ([`System::map_file`]) or inspection.
     pub system: System,
+}
+
+/// The maps of a run: tracking lost for good starts a new one, a place of an older map seen
+/// again merges the two (`slam.loop_closing.merge_maps`).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct MapsReport {
+    /// Maps made: the first and each new one.
+    pub made: usize,
+    /// Merges of an older map into the current one.
+    pub merged: usize,
+    /// The map the trajectory is in: the one holding the most frames.
+    pub main: u32,
+    /// (map number, frames) of every map holding frames at the end, in map order.
+    pub frames: Vec<(u32, usize)>,
 }
 
 /// The whole system: frames in, poses and a map out.
@@ -223,6 +243,8 @@ pub struct Pipeline {
     fx: f64,
     stamps: Vec<f64>,
     poses: Vec<Se3>,
+    /// New maps started so far.
+    new_maps: usize,
 }
 
 impl Pipeline {
@@ -301,6 +323,7 @@ impl Pipeline {
             system,
             stamps: Vec::new(),
             poses: Vec::new(),
+            new_maps: 0,
         }
     }
 
@@ -480,6 +503,7 @@ impl Pipeline {
             backfilled: report.backfilled,
             timings,
         };
+        self.new_maps += result.new_map as usize;
         for (_, t, p) in result.poses_in_time_order() {
             if self.stamps.last().is_none_or(|&l| t > l) {
                 self.stamps.push(t);
@@ -526,23 +550,48 @@ impl Pipeline {
         // Every frame follows its reference keyframe as local BA and loop closing left it
         // (ORB-SLAM's SaveTrajectoryTUM): on the living-room presets 1.67 -> 1.54 cm mean ATE
         // against the poses tracking returned.
-        let (mut stamps, mut poses) = (Vec::new(), Vec::new());
-        for (t, p) in self.system.rebuilt_trajectory() {
-            if stamps.last().is_none_or(|&l| t > l) {
-                stamps.push(t);
-                poses.push(p);
-            }
-        }
-        if stamps.len() < self.stamps.len() {
+        let mut rebuilt = self.system.rebuilt_trajectory();
+        rebuilt.dedup_by(|b, a| b.0 <= a.0);
+        let by_map = split_by_map(&rebuilt);
+        let main = main_map(&by_map);
+        let merged = loops.as_ref().map_or(0, |l| {
+            l.loops.iter().filter(|e| e.merged_map.is_some()).count()
+        });
+        let maps = MapsReport {
+            made: 1 + self.new_maps,
+            merged,
+            main,
+            frames: by_map.iter().map(|(k, (s, _))| (*k, s.len())).collect(),
+        };
+        let (trajectory, other_maps) = if rebuilt.len() < self.stamps.len() {
             // A frame whose keyframe is gone: keep what tracking returned rather than lose it.
             tracing::warn!(
-                rebuilt = stamps.len(),
+                rebuilt = rebuilt.len(),
                 tracked = self.stamps.len(),
                 "frames without a keyframe; the trajectory keeps the tracked poses"
             );
-            (stamps, poses) = (self.stamps, self.poses);
-        }
-        let trajectory = Trajectory::from_parts(stamps, poses)?;
+            (Trajectory::from_parts(self.stamps, self.poses)?, Vec::new())
+        } else {
+            let mut other_maps = Vec::new();
+            let mut trajectory = Trajectory::from_parts(Vec::new(), Vec::new())?;
+            for (map, (stamps, poses)) in by_map {
+                let t = Trajectory::from_parts(stamps, poses)?;
+                if map == main {
+                    trajectory = t;
+                } else {
+                    other_maps.push((map, t));
+                }
+            }
+            if !other_maps.is_empty() {
+                tracing::warn!(
+                    main_map = main,
+                    other_maps = other_maps.len(),
+                    frames = other_maps.iter().map(|(_, t)| t.len()).sum::<usize>(),
+                    "frames of maps that never merged with the main one are left out of its trajectory"
+                );
+            }
+            (trajectory, other_maps)
+        };
         let mut kf = self.system.keyframe_trajectory();
         kf.sort_by(|a, b| a.0.total_cmp(&b.0));
         kf.dedup_by(|a, b| a.0 == b.0);
@@ -552,6 +601,8 @@ impl Pipeline {
         )?;
         Ok(Finished {
             trajectory,
+            other_maps,
+            maps,
             loop_closed,
             keyframe_trajectory,
             keyframes: self.system.keyframe_count(),
@@ -561,6 +612,25 @@ impl Pipeline {
             system: self.system,
         })
     }
+}
+
+/// (stamps, camera-to-world poses) of each map's frames, in time order.
+fn split_by_map(rebuilt: &[(f64, Se3, u32)]) -> BTreeMap<u32, (Vec<f64>, Vec<Se3>)> {
+    let mut by_map: BTreeMap<u32, (Vec<f64>, Vec<Se3>)> = BTreeMap::new();
+    for (t, p, map) in rebuilt {
+        let e = by_map.entry(*map).or_default();
+        e.0.push(*t);
+        e.1.push(*p);
+    }
+    by_map
+}
+
+/// The map the trajectory is in: the one holding the most frames (the first of a tie).
+fn main_map(by_map: &BTreeMap<u32, (Vec<f64>, Vec<Se3>)>) -> u32 {
+    by_map
+        .iter()
+        .max_by_key(|(map, (stamps, _))| (stamps.len(), std::cmp::Reverse(**map)))
+        .map_or(0, |(map, _)| *map)
 }
 
 /// Remove the keypoints flagged dynamic; returns how many were removed. A mask of the wrong
@@ -590,6 +660,25 @@ fn remove_dynamic(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_trajectory_is_the_map_holding_the_most_frames() {
+        let at = |t: f64, map: u32| (t, Se3::identity(), map);
+        let rebuilt = [
+            at(0.0, 0),
+            at(0.1, 0),
+            at(0.5, 1),
+            at(0.6, 1),
+            at(0.7, 1),
+            at(0.9, 2),
+        ];
+        let by_map = split_by_map(&rebuilt);
+        assert_eq!(by_map[&1].0, vec![0.5, 0.6, 0.7]);
+        assert_eq!(main_map(&by_map), 1);
+        let tie = split_by_map(&rebuilt[..4]);
+        assert_eq!(main_map(&tie), 0, "a tie goes to the first map");
+        assert_eq!(main_map(&BTreeMap::new()), 0);
+    }
 
     #[test]
     fn removes_flagged_keypoints_and_ignores_bad_masks() {

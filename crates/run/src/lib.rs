@@ -35,11 +35,12 @@ mod session;
 pub mod settings;
 mod sink;
 
-pub use output::keyframe_path;
+pub use output::{keyframe_path, other_map_path};
 pub use replay::RealtimeReport;
 pub use session::{Event, run_sequence, run_with, settings_layers};
 pub use settings::{Layered, RealtimeSettings, RecordImage, RecordSettings, SettingsTree};
 pub use sink::{Ended, MovingPixels, Sink, Tracked};
+pub use stillpoint_pipeline::MapsReport;
 
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
@@ -169,6 +170,8 @@ pub struct RunSummary {
     pub relocalisations: usize,
     /// Times a new map was started.
     pub new_maps: usize,
+    /// The maps made and merged, and frames per map at the end.
+    pub maps: MapsReport,
     /// Keypoints the front-end culled, per frame processed.
     pub culled_per_frame: Vec<usize>,
     /// The per-frame trajectory (frames following their refined keyframes).

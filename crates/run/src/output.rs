@@ -13,6 +13,16 @@ pub fn keyframe_path(out: &Path) -> PathBuf {
     out.with_file_name(format!("{stem}_keyframes.txt"))
 }
 
+/// Where the frames of map `map`, one that never merged with the main one, go for a run writing
+/// `out`: `<stem>.map<map>.txt` beside it (their own frame of reference, never the main file's).
+pub fn other_map_path(out: &Path, map: u32) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "trajectory".into());
+    out.with_file_name(format!("{stem}.map{map}.txt"))
+}
+
 /// An exclusive lock on the trajectory file for the whole run, taken before the file is
 /// emptied: a second run given the same `--out` fails at once instead of writing into it.
 pub(crate) fn lock_output(path: &Path) -> Result<std::fs::File, RunError> {
@@ -41,6 +51,14 @@ pub(crate) fn lock_output(path: &Path) -> Result<std::fs::File, RunError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn other_maps_go_beside_the_trajectory() {
+        assert_eq!(
+            other_map_path(Path::new("out/run.txt"), 2),
+            Path::new("out/run.map2.txt")
+        );
+    }
 
     #[test]
     fn keyframes_go_beside_the_trajectory() {

@@ -257,6 +257,7 @@ pub fn run_with(
         map_points: fin.map_points,
         relocalisations: tally.relocalisations,
         new_maps: tally.new_maps,
+        maps: fin.maps.clone(),
         culled_per_frame: tally.culled,
         trajectory: fin.trajectory,
         keyframe_trajectory: fin.keyframe_trajectory,

@@ -106,6 +106,16 @@ impl Sink for TrajectoryFile {
             })
         };
         write(&self.path, &e.finished.trajectory, "rewriting")?;
+        for (map, t) in &e.finished.other_maps {
+            let path = crate::output::other_map_path(&self.path, *map);
+            write(&path, t, "writing")?;
+            tracing::info!(
+                map,
+                frames = t.len(),
+                "frames of a map that never merged written to {}",
+                path.display()
+            );
+        }
         if e.finished.loop_closed {
             tracing::info!("loop closed: trajectory rebuilt through the keyframes");
         }

@@ -479,7 +479,10 @@ impl System {
         {
             self.erase_points_seen_through(index, &pose_wc.inverse(), image);
         }
-        self.settle(false);
+        // Lost: the frames still waiting settle on the map as it is now; a new map's keyframes
+        // would otherwise count as the refinement they wait for, and local mapping drops the
+        // lost map's recent points meanwhile.
+        self.settle(self.tracker.state == TrackingState::Lost);
         if let (Some(hygiene), Some(pose_wc)) = (hygiene, &outcome.pose_wc)
             && let Ok(mut map) = self.map.lock()
         {
@@ -669,13 +672,17 @@ impl System {
     /// (timestamp, camera-to-world) of every tracked frame, rebuilt from its pose relative to
     /// its reference keyframe and that keyframe's pose now (ORB-SLAM's `SaveTrajectoryTUM`):
     /// after loop corrections, the frames tracked before the loop follow their keyframes.
-    pub fn rebuilt_trajectory(&self) -> Vec<(f64, Se3)> {
+    /// Each comes with the number of the map it is in (its reference keyframe's, after merges).
+    pub fn rebuilt_trajectory(&self) -> Vec<(f64, Se3, u32)> {
         let Ok(m) = self.map.lock() else {
             return Vec::new();
         };
         self.anchors
             .iter()
-            .filter_map(|(t, r, t_cr)| Some((*t, (t_cr * m.keyframe_pose_cw(*r)?).inverse())))
+            .filter_map(|(t, r, t_cr)| {
+                let pose_wc = (t_cr * m.keyframe_pose_cw(*r)?).inverse();
+                Some((*t, pose_wc, m.keyframes.get(r)?.map_epoch))
+            })
             .collect()
     }
 

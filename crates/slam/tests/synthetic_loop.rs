@@ -16,7 +16,12 @@ use common::{observe, room};
 
 /// Camera-to-world pose at frame i: on a 1 m circle, looking outwards, a lap every `LAP`.
 fn truth(i: usize) -> Se3 {
-    let a = std::f64::consts::TAU * i as f64 / LAP as f64;
+    truth_on(LAP, i)
+}
+
+/// As `truth`, a lap every `lap` frames.
+fn truth_on(lap: usize, i: usize) -> Se3 {
+    let a = std::f64::consts::TAU * i as f64 / lap as f64;
     let z = Vec3::new(a.cos(), 0.0, a.sin());
     let y = Vec3::new(0.0, 1.0, 0.0);
     let x = y.cross(&z);
@@ -33,19 +38,40 @@ struct Outcome {
     tracked: usize,
     /// (frame, loop frame) of each loop closed.
     loops: Vec<(usize, usize)>,
+    /// Loops that merged an older map into the current one.
+    merges: usize,
+    /// Maps the final trajectory's frames are in.
+    maps: usize,
 }
 
 fn run(frames: usize, loop_closing: bool) -> Outcome {
+    run_blind(LAP, frames, loop_closing, 0..0)
+}
+
+/// As `run`, a lap every `lap` frames, the camera seeing nothing (no keypoints) on the frames
+/// of `blind`.
+fn run_blind(
+    lap: usize,
+    frames: usize,
+    loop_closing: bool,
+    blind: std::ops::Range<usize>,
+) -> Outcome {
     let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
     let mut s = SlamSettings::rgbd(cam, 40.0, 30.0);
     s.local_mapping_thread = false;
     s.loop_closing.enabled = loop_closing;
+    // Keyframes here turn ~20 degrees apart and few overlap: the finder of a place in an older
+    // map and one more keyframe confirm a merge (the default asks two more).
+    s.loop_closing.merge_confirmations = 1;
     let sc = room(5, 16_000);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
     let mut sys = System::new(s);
     let mut online = Vec::new();
     for i in 0..frames {
-        let (f, d, depth) = observe(&sc, &truth(i), &cam, &mut rng);
+        let (mut f, mut d, depth) = observe(&sc, &truth_on(lap, i), &cam, &mut rng);
+        if blind.contains(&i) {
+            (f, d) = (Vec::new(), Vec::new());
+        }
         let r = sys
             .track(TrackInput::new(i, i as f64 / 30.0, &f, &d).with_depth(Some(&depth)))
             .expect("tracking");
@@ -54,25 +80,32 @@ fn run(frames: usize, loop_closing: bool) -> Outcome {
         }
     }
     sys.shutdown().expect("shutdown");
-    let loops: Vec<(usize, usize)> = sys
-        .loop_stats()
-        .map(|l| {
-            l.loops
-                .iter()
-                .map(|e| (e.frame_index, e.loop_frame_index))
-                .collect()
-        })
-        .unwrap_or_default();
+    let events = sys.loop_stats().map(|l| l.loops).unwrap_or_default();
+    let loops: Vec<(usize, usize)> = events
+        .iter()
+        .map(|e| (e.frame_index, e.loop_frame_index))
+        .collect();
+    let merges = events.iter().filter(|e| e.merged_map.is_some()).count();
+    let rebuilt = sys.rebuilt_trajectory();
+    let maps = rebuilt
+        .iter()
+        .map(|r| r.2)
+        .collect::<std::collections::BTreeSet<_>>()
+        .len();
     // After a loop the frames follow their keyframes, as `stillpoint run` writes them.
     let estimate = if loops.is_empty() {
         online
     } else {
-        sys.rebuilt_trajectory()
+        rebuilt.into_iter().map(|(t, p, _)| (t, p)).collect()
     };
     let est: Vec<Vec3> = estimate.iter().map(|(_, p)| p.translation.vector).collect();
     let gt: Vec<Vec3> = estimate
         .iter()
-        .map(|(t, _)| truth((t * 30.0).round() as usize).translation.vector)
+        .map(|(t, _)| {
+            truth_on(lap, (t * 30.0).round() as usize)
+                .translation
+                .vector
+        })
         .collect();
     let align = umeyama(&est, &gt, false).expect("alignment");
     let sse: f64 = est
@@ -89,6 +122,8 @@ fn run(frames: usize, loop_closing: bool) -> Outcome {
         ate,
         tracked: est.len(),
         loops,
+        merges,
+        maps,
     }
 }
 
@@ -117,4 +152,28 @@ fn no_loop_without_a_revisit() {
     // Three quarters of a lap: the camera never sees its start again.
     let out = run(LAP * 3 / 4, true);
     assert!(out.loops.is_empty(), "{:?}", out.loops);
+}
+
+#[test]
+fn a_map_started_after_a_blind_stretch_merges_into_the_first_at_the_revisit() {
+    // A slower lap (covisible keyframes overlap more), blind for 100 frames (80 degrees):
+    // relocalisation fails and the new map starts at the last known pose, far from where the
+    // camera is by then, facing walls the first map never saw. At the revisit the two maps
+    // become one.
+    let lap = 450;
+    let frames = 700;
+    let blind = 200..300;
+    let seen = frames - blind.len();
+    let apart = run_blind(lap, frames, false, blind.clone());
+    assert!(apart.maps >= 2, "a new map after the blind stretch");
+    assert!(
+        apart.ate > 0.2,
+        "two maps under one alignment: {}",
+        apart.ate
+    );
+    let merged = run_blind(lap, frames, true, blind);
+    assert_eq!(merged.tracked, seen);
+    assert!(merged.merges >= 1, "loops {:?}", merged.loops);
+    assert_eq!(merged.maps, 1, "every frame in one map");
+    assert!(merged.ate < 0.05, "merged: ATE {}", merged.ate);
 }

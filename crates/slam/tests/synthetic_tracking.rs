@@ -219,10 +219,10 @@ fn rebuilt_error_after_keyframes_moved(settle_keyframes: usize) -> f64 {
         }
     }
     sys.shutdown().unwrap();
-    let (_, pose) = sys
+    let (_, pose, _) = sys
         .rebuilt_trajectory()
         .into_iter()
-        .find(|(t, _)| (t - 40.0 / 30.0).abs() < 1e-9)
+        .find(|(t, _, _)| (t - 40.0 / 30.0).abs() < 1e-9)
         .expect("frame 40 tracked");
     let truth_rel = origin.inverse() * truth(40);
     (truth_rel.translation.vector - pose.translation.vector).norm()

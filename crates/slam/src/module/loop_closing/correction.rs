@@ -37,6 +37,13 @@ impl LoopCloser {
             );
             return None;
         }
+        // A loop into an older map: the current map first moves onto it as a whole.
+        let loop_epoch = m.keyframes[&v.loop_kf].map_epoch;
+        let merged_map = (loop_epoch != epoch).then_some(loop_epoch);
+        let unmerged = match merged_map {
+            Some(older) => self.merge_maps(m, kf, v, older)?,
+            None => BTreeMap::new(),
+        };
         let before: BTreeMap<KfId, Se3> = m
             .keyframes
             .values()
@@ -176,6 +183,8 @@ impl LoopCloser {
         self.loop_edges.insert((kf, v.loop_kf));
         self.last_loop_kf = Some(kf);
         self.groups.clear();
+        self.pending_merge = None;
+        let cur_old = unmerged.get(&kf).copied().unwrap_or(cur_old);
         let cur_final = after.get(&kf).copied().unwrap_or(cur_new);
         let moved_m =
             (cur_old.inverse().translation.vector - cur_final.inverse().translation.vector).norm();
@@ -196,12 +205,72 @@ impl LoopCloser {
             graph_keyframes,
             graph_edges,
             correction_ms: 0.0,
+            merged_map,
         };
+        // Tracking moves with its keyframes from where they were before the merge.
         let poses = after
             .iter()
-            .filter_map(|(k, new)| before.get(k).map(|old| (*k, (*old, *new))))
+            .filter_map(|(k, new)| {
+                unmerged
+                    .get(k)
+                    .or_else(|| before.get(k))
+                    .map(|old| (*k, (*old, *new)))
+            })
             .collect();
         Some((MapCorrection { poses }, event))
+    }
+
+    /// The loop keyframe `v.loop_kf` is in the older map `older`: every keyframe and point of
+    /// the current map moves by the one rigid transform that puts `kf` where the loop says,
+    /// and the older map's keyframes and points join the current map (its first keyframe
+    /// becomes the gauge). Returns the current map's keyframe poses before the move (`None`
+    /// when `kf` is no longer in the current map).
+    fn merge_maps(
+        &self,
+        m: &mut Map,
+        kf: KfId,
+        v: &Verified,
+        older: u32,
+    ) -> Option<BTreeMap<KfId, Se3>> {
+        let epoch = m.keyframes.get(&kf)?.map_epoch;
+        if epoch != m.epoch {
+            return None;
+        }
+        let cur_old = m.keyframes[&kf].pose_cw;
+        let cur_new = v.t_cl * m.keyframes[&v.loop_kf].pose_cw;
+        // World of the current map -> world of the older one, as world-to-camera poses see it:
+        // pose_cw' = pose_cw * t, x' = t^-1 x.
+        let t = cur_old.inverse() * cur_new;
+        let t_inv = t.inverse();
+        let mut unmerged = BTreeMap::new();
+        for k in m.keyframes.values_mut() {
+            if k.map_epoch == epoch {
+                unmerged.insert(k.id, k.pose_cw);
+                k.pose_cw *= t;
+            } else if k.map_epoch == older {
+                k.map_epoch = epoch;
+            }
+        }
+        for p in m.points.values_mut() {
+            if p.map_epoch == epoch {
+                p.position = apply(&t_inv, &p.position);
+            } else if p.map_epoch == older {
+                p.map_epoch = epoch;
+            }
+        }
+        m.origin_kf = m
+            .keyframes
+            .values()
+            .find(|k| !k.bad && k.map_epoch == epoch && !unmerged.contains_key(&k.id))
+            .map(|k| k.id);
+        debug!(
+            keyframe = kf,
+            loop_keyframe = v.loop_kf,
+            older_map = older,
+            moved_m = t.translation.vector.norm(),
+            "maps merged"
+        );
+        Some(unmerged)
     }
 
     /// ORB-SLAM `Fuse(pKF, Scw, vpPoints, th, vpReplacePoint)`: loop points projected into `g`

@@ -36,15 +36,17 @@ impl LoopCloser {
         let mut excluded = connected.clone();
         excluded.insert(kf);
         let epoch = k.map_epoch;
+        // Older maps' keyframes too when merging: a place found there merges the two maps.
+        let older = ls.merge_maps;
         let candidates = self.db.loop_candidates(
             kf,
             &excluded,
             min_score,
             |c| {
                 c < kf
-                    && m.keyframes
-                        .get(&c)
-                        .is_some_and(|x| !x.bad && x.map_epoch == epoch)
+                    && m.keyframes.get(&c).is_some_and(|x| {
+                        !x.bad && (x.map_epoch == epoch || (older && x.map_epoch < epoch))
+                    })
             },
             |c| {
                 m.keyframes
@@ -61,6 +63,13 @@ impl LoopCloser {
         let mut current: Vec<(BTreeSet<KfId>, usize)> = Vec::new();
         let mut enough = Vec::new();
         let mut extended = vec![false; self.groups.len()];
+        // A place in an older map skips this test: verification checks it in the keyframe's
+        // covisible keyframes, then in the next keyframes (ORB-SLAM3's merge detection); a new
+        // map may pass an older one's places in fewer keyframes than this test needs.
+        let (older, candidates): (Vec<_>, Vec<_>) = candidates
+            .into_iter()
+            .partition(|(c, _)| m.keyframes.get(c).is_some_and(|x| x.map_epoch != epoch));
+        enough.extend(older.iter().map(|(c, _)| *c));
         for &(c, _) in &candidates {
             let mut group: BTreeSet<KfId> = m
                 .keyframes

@@ -36,6 +36,16 @@ mod similarity;
 pub struct LoopSettings {
     /// Run loop closing at all (`stillpoint run --no-loop-closing` turns it off).
     pub enabled: bool,
+    /// Look for the current map's places in the older maps too (made when tracking was lost
+    /// for good) and merge the two when one is found (ORB-SLAM3's atlas): the current map moves
+    /// onto the older one as a whole, then the loop is corrected as any other.
+    pub merge_maps: bool,
+    /// A place found in an older map merges once this many more keyframes see it where the
+    /// finder puts it: its best covisible ones, then the next new keyframes (ORB-SLAM3: three
+    /// keyframes in all). Two new keyframes that do not see it drop it.
+    pub merge_confirmations: usize,
+    /// The finder's best covisible keyframes checked, at most this many.
+    pub merge_check_keyframes: usize,
     /// Vocabulary and its online training.
     pub database: DatabaseParams,
     /// No loop is searched while the map holds fewer keyframes (ORB-SLAM: 10).
@@ -94,6 +104,9 @@ impl Default for LoopSettings {
     fn default() -> Self {
         Self {
             enabled: true,
+            merge_maps: true,
+            merge_confirmations: 2,
+            merge_check_keyframes: 5,
             database: DatabaseParams::default(),
             min_keyframes: 10,
             keyframes_after_loop: 10,
@@ -149,6 +162,8 @@ pub struct LoopEvent {
     pub graph_edges: usize,
     /// Time of the correction (fusion and pose graph), ms.
     pub correction_ms: f64,
+    /// The loop keyframe was in an older map, merged into the current one: that map's number.
+    pub merged_map: Option<u32>,
 }
 
 /// What loop closing did over a run.
@@ -182,6 +197,18 @@ pub struct MapCorrection {
     pub poses: BTreeMap<KfId, (Se3, Se3)>,
 }
 
+/// A place of an older map found by a keyframe whose covisible keyframes could not confirm it
+/// yet: the next keyframes may (ORB-SLAM3 counts a merge's coincidences over new keyframes too).
+struct PendingMerge {
+    /// The keyframe that found it.
+    kf: KfId,
+    verified: Verified,
+    /// Keyframes that saw the place so far (the finder and its covisible ones included).
+    confirmed: usize,
+    /// Later keyframes that did not see it.
+    misses: usize,
+}
+
 /// A verified loop, ready to be corrected.
 struct Verified {
     loop_kf: KfId,
@@ -203,6 +230,7 @@ pub struct LoopCloser {
     /// keyframes each has been consistent for.
     groups: Vec<(BTreeSet<KfId>, usize)>,
     last_loop_kf: Option<KfId>,
+    pending_merge: Option<PendingMerge>,
     loop_edges: BTreeSet<(KfId, KfId)>,
     scales: Vec<f64>,
     inv_sigma2: Vec<f64>,
@@ -219,6 +247,7 @@ impl LoopCloser {
             db: KeyFrameDatabase::new(),
             groups: Vec::new(),
             last_loop_kf: None,
+            pending_merge: None,
             loop_edges: BTreeSet::new(),
             stats: LoopStats::default(),
         }
@@ -271,11 +300,20 @@ impl LoopCloser {
         // Train the vocabulary outside the map lock (it takes a while); copy the descriptors.
         let training: Option<Vec<(KfId, Vec<crate::Descriptor>)>> = {
             let m = map.lock().ok()?;
-            let n = m.current_keyframes().count();
+            // The keyframes places are searched among: the older maps' too when merging (a
+            // training keeps only the keyframes it is given).
+            let merge = self.s.loop_closing.merge_maps;
+            let epoch = m.epoch;
+            let searched = || {
+                m.keyframes
+                    .values()
+                    .filter(move |k| !k.bad && (merge || k.map_epoch == epoch))
+            };
+            let n = searched().count();
             // Only keyframes local mapping has finished (ids up to this one): newer ones have
             // no covisibility yet, so they would not be excluded as neighbours of `kf`.
             self.db.needs_training(n, &p).then(|| {
-                m.current_keyframes()
+                searched()
                     .filter(|k| k.id <= kf)
                     .map(|k| (k.id, k.descriptors.clone()))
                     .collect()
@@ -306,11 +344,16 @@ impl LoopCloser {
                 return None;
             };
             self.db.add(kf, &k.descriptors);
-            self.detect(&m, kf)
-                .and_then(|candidates| self.verify(&m, kf, &candidates))
+            // A merge waiting for confirmation is checked in this keyframe first.
+            self.confirm_pending_merge(&m, kf).or_else(|| {
+                self.detect(&m, kf)
+                    .and_then(|candidates| self.verify(&m, kf, &candidates))
+                    .map(|v| (kf, v))
+            })
         };
         self.stats.detection_ms.push(stillpoint_core::ms_since(t0));
-        let v = verified?;
+        // (A confirmed merge is corrected at the keyframe that found it.)
+        let (kf, v) = verified?;
         // Stop local mapping (it finishes its keyframe first), then take the map.
         let busy = mapping_busy.map(|b| b.lock().unwrap_or_else(|e| e.into_inner()));
         let mut m = map.lock().ok()?;

@@ -7,7 +7,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use stillpoint_geometry::{Se3, Vec3};
 use tracing::debug;
 
-use super::{LoopCloser, Verified};
+use super::{LoopCloser, PendingMerge, Verified};
 use crate::data::{KeyFrame, KfId, Map, MapPoint, MpId};
 use crate::hamming;
 use crate::matching::NearestTwo;
@@ -25,9 +25,111 @@ impl LoopCloser {
                 continue;
             };
             match self.verify_one(m, cur, l) {
+                Some(v) if l.map_epoch != cur.map_epoch => {
+                    // The finder counts as one; its covisible keyframes may add the others.
+                    let confirmed = 1 + self.merge_confirmations(m, cur, &v, &mut None);
+                    if confirmed > self.s.loop_closing.merge_confirmations {
+                        return Some(v);
+                    }
+                    debug!(
+                        keyframe = kf,
+                        candidate = c,
+                        confirmed,
+                        "merge waits: too few keyframes see the place yet"
+                    );
+                    self.stats.rejected_candidates += 1;
+                    if self.pending_merge.is_none() {
+                        self.pending_merge = Some(PendingMerge {
+                            kf,
+                            verified: v,
+                            confirmed,
+                            misses: 0,
+                        });
+                    }
+                }
                 Some(v) => return Some(v),
                 None => self.stats.rejected_candidates += 1,
             }
+        }
+        None
+    }
+
+    /// A place found in an older map, checked in the current keyframe's best covisible ones
+    /// (ORB-SLAM3 checks a merge in them before accepting it): moved with it onto the place,
+    /// how many see at least `min_loop_matches` of the place's points where they should be.
+    fn merge_confirmations(
+        &self,
+        m: &Map,
+        cur: &KeyFrame,
+        v: &Verified,
+        only: &mut Option<KfId>,
+    ) -> usize {
+        let ls = &self.s.loop_closing;
+        let older = m.keyframes[&v.loop_kf].map_epoch;
+        let cur_new = v.t_cl * m.keyframes[&v.loop_kf].pose_cw;
+        let (none, taken) = (BTreeSet::new(), BTreeMap::new());
+        // The whole older map: a keyframe further on sees past the loop keyframe's group.
+        let points: Vec<MpId> = m
+            .points
+            .iter()
+            .filter(|(_, p)| !p.bad && p.map_epoch == older)
+            .map(|(id, _)| *id)
+            .collect();
+        let checked = match only.take() {
+            Some(k) => vec![k],
+            None => cur.best_covisibles(ls.merge_check_keyframes),
+        };
+        checked
+            .into_iter()
+            .filter_map(|g| m.keyframes.get(&g))
+            .filter(|g| !g.bad && g.map_epoch == cur.map_epoch)
+            .filter(|g| {
+                let pose = g.pose_cw * cur.pose_cw.inverse() * cur_new;
+                let seen = self.project_points(
+                    m,
+                    (g, &pose),
+                    &points,
+                    (&none, &taken),
+                    ls.projection_radius,
+                );
+                seen.len() >= ls.min_loop_matches
+            })
+            .count()
+    }
+
+    /// A merge waiting for confirmation (`PendingMerge`), checked in the new keyframe `kf`:
+    /// the merge to correct once enough keyframes saw the place; dropped after two misses or
+    /// when its finder is gone.
+    pub(super) fn confirm_pending_merge(&mut self, m: &Map, kf: KfId) -> Option<(KfId, Verified)> {
+        let p = self.pending_merge.as_ref()?;
+        let finder = m
+            .keyframes
+            .get(&p.kf)
+            .filter(|k| !k.bad && k.map_epoch == m.epoch);
+        let (Some(finder), true) = (finder, m.keyframes.contains_key(&p.verified.loop_kf)) else {
+            self.pending_merge = None;
+            return None;
+        };
+        if kf == p.kf {
+            return None;
+        }
+        let seen = self.merge_confirmations(m, finder, &p.verified, &mut Some(kf));
+        let p = self.pending_merge.as_mut()?;
+        p.confirmed += seen;
+        p.misses += 1 - seen;
+        debug!(
+            keyframe = kf,
+            finder = p.kf,
+            confirmed = p.confirmed,
+            misses = p.misses,
+            "pending merge checked"
+        );
+        if p.confirmed > self.s.loop_closing.merge_confirmations {
+            let p = self.pending_merge.take()?;
+            return Some((p.kf, p.verified));
+        }
+        if p.misses >= 2 {
+            self.pending_merge = None;
         }
         None
     }
