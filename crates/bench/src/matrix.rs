@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use serde::Serialize;
 use stillpoint_eval::surface::CloudDistance;
 use stillpoint_run::RunOptions;
-use stillpoint_synth::{Noise, Preset, SynthConfig, WriteOptions};
+use stillpoint_synth::{Blind, BlindView, Noise, Preset, SynthConfig, WriteOptions};
 
 use crate::BenchError;
 
@@ -49,6 +49,12 @@ pub struct MatrixOptions {
     /// Run each sequence monocular: its depth withheld (a `PRESET_sSEED_mono` folder beside it
     /// without `depth.txt`); the ATE is then after a Sim(3) alignment.
     pub monocular: bool,
+    /// Run each sequence as a rectified stereo pair (KITTI layout written beside the TUM one,
+    /// 0.10 m baseline; read as `--kind kitti`).
+    pub stereo: bool,
+    /// Blind the camera for a span of frames in every sequence (a covered lens or a blank
+    /// wall): tracking is lost, a new map starts, and must merge with the first.
+    pub blind: Option<Blind>,
     /// The settings tree's layers (`--config`, `--set`) over each sequence's own, as `run`
     /// takes them; every run of the matrix gets them.
     pub layers: stillpoint_run::Overrides,
@@ -67,8 +73,13 @@ pub struct Row {
     pub mode: String,
     /// ATE RMSE, cm.
     pub ate_cm: Option<f64>,
-    /// Frames with a pose.
+    /// Frames in the trajectory: those of the map holding the most frames (another map's are
+    /// in a frame of reference of their own).
     pub tracked: usize,
+    /// Maps made (the first and each new one after tracking was lost for good).
+    pub maps_made: usize,
+    /// Older maps merged into the current one.
+    pub maps_merged: usize,
     /// Frames run.
     pub frames: usize,
     /// Ground-truth frames before the first pose.
@@ -117,17 +128,35 @@ fn config(o: &MatrixOptions, preset: Preset, seed: u64) -> SynthConfig {
         seed,
         noise: o.noise,
         textures: o.textures.clone(),
+        stereo_baseline: o.stereo.then_some(0.1),
+        blind: o.blind,
         ..SynthConfig::default()
     }
 }
 
+/// The folder of one sequence: `PRESET_sSEED`, with the blind span when there is one
+/// (`_blind200+60`, `_wall200+60`).
+fn sequence_dir(o: &MatrixOptions, preset: Preset, seed: u64) -> PathBuf {
+    let blind = o.blind.map_or(String::new(), |b| {
+        let view = match b.view {
+            BlindView::Covered => "blind",
+            BlindView::Wall => "wall",
+        };
+        format!("_{view}{}+{}", b.start, b.frames)
+    });
+    o.out.join(format!("{}_s{seed}{blind}", preset.name()))
+}
+
 fn generate(o: &MatrixOptions, preset: Preset, seed: u64, dir: &Path) -> Result<(), BenchError> {
-    if dir.join("groundtruth.txt").is_file() && dir.join("mask").is_dir() {
+    if dir.join("groundtruth.txt").is_file()
+        && dir.join("mask").is_dir()
+        && (!o.stereo || dir.join("image_1").is_dir())
+    {
         return Ok(());
     }
     let cfg = config(o, preset, seed);
     let opts = WriteOptions {
-        stereo: false,
+        stereo: o.stereo,
         masks: true,
     };
     stillpoint_synth::write_sequence(&cfg, opts, dir).map_err(|source| BenchError::Synth {
@@ -179,6 +208,7 @@ fn run_one(
     let s = stillpoint_eval::run_scored(
         &RunOptions {
             out: Some(out),
+            kind: o.stereo.then_some(stillpoint_datasets::DatasetKind::Kitti),
             dense_cloud: cloud.clone(),
             detector: (mode != "off").then(|| mode.to_string()),
             model: o.model.clone(),
@@ -239,7 +269,9 @@ fn run_one(
         seed: *seed,
         mode: mode.to_string(),
         ate_cm: ate,
-        tracked: s.run.tracked,
+        tracked: s.run.trajectory.len(),
+        maps_made: s.run.maps.made,
+        maps_merged: s.run.maps.merged,
         frames: s.run.frames,
         first_tracked,
         map_points: s.run.map_points,
@@ -326,11 +358,13 @@ pub fn run_matrix(o: &MatrixOptions) -> Result<Vec<Row>, BenchError> {
     let mut jobs = Vec::new();
     for p in &o.presets {
         for &seed in &o.seeds {
-            let dir = o.out.join(format!("{}_s{seed}", p.name()));
+            let dir = sequence_dir(o, *p, seed);
             tracing::info!("generating {}", dir.display());
             generate(o, *p, seed, &dir)?;
             let (name, dir) = if o.monocular {
                 (format!("{}_mono", p.name()), without_depth(&dir)?)
+            } else if o.stereo {
+                (format!("{}_stereo", p.name()), dir)
             } else {
                 (p.name().to_string(), dir)
             };
@@ -358,6 +392,8 @@ pub fn run_matrix(o: &MatrixOptions) -> Result<Vec<Row>, BenchError> {
                         mode: mode.clone(),
                         ate_cm: None,
                         tracked: 0,
+                        maps_made: 0,
+                        maps_merged: 0,
                         frames: o.frames,
                         first_tracked: None,
                         map_points: 0,
@@ -390,6 +426,8 @@ mod tests {
             mode: "gt".into(),
             ate_cm: Some(1.0),
             tracked: 10,
+            maps_made: 1,
+            maps_merged: 0,
             frames: 10,
             first_tracked: Some(0),
             map_points,
@@ -447,6 +485,8 @@ mod tests {
             threaded: false,
             dense: false,
             monocular: false,
+            stereo: false,
+            blind: None,
             layers: Default::default(),
             stop: None,
         };

@@ -50,6 +50,14 @@ pub struct Args {
     /// `PRESET_sSEED_mono` folder of links beside it.
     #[arg(long)]
     pub monocular: bool,
+    /// Run each sequence as a rectified stereo pair (0.10 m baseline, read as KITTI).
+    #[arg(long, conflicts_with = "monocular")]
+    pub stereo: bool,
+    /// Blind the camera for a span of frames while it moves on: START+FRAMES (a covered lens)
+    /// or START+FRAMES:wall (a blank wall), as `synth --blind`; tracking is lost, a new map
+    /// starts, and should merge with the first when the path comes back.
+    #[arg(long)]
+    pub blind: Option<String>,
     /// Also write each run's dense cloud and measure it: points on movers and distance to the
     /// scene's true static surfaces.
     #[arg(long)]
@@ -106,6 +114,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "kinect" => Noise::Kinect(KinectNoise::default()),
         other => bail!("--noise {other:?}: expected none or kinect"),
     };
+    let blind = args
+        .blind
+        .as_deref()
+        .map(|b| {
+            stillpoint_synth::Blind::parse(b).with_context(|| {
+                format!("--blind {b:?}: expected START+FRAMES or START+FRAMES:wall, e.g. 200+60")
+            })
+        })
+        .transpose()?;
     let rows = run_matrix(&MatrixOptions {
         presets,
         seeds,
@@ -118,6 +135,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         jobs: args.jobs,
         threaded: args.threaded,
         monocular: args.monocular,
+        stereo: args.stereo,
+        blind,
         dense: args.dense,
         layers: stillpoint_run::Overrides {
             config: args.layers.config.clone(),
@@ -167,10 +186,14 @@ fn print_table(rows: &[Row], modes: &[String]) {
             rows.iter()
                 .find(|r| r.preset == *p && r.seed == *s && r.mode == m)
         };
+        // Maps made > merged + 1: frames of a map that never merged are not in the trajectory.
         let tracked = modes
             .iter()
             .filter_map(|m| of(m))
-            .map(|r| format!("{}", r.tracked))
+            .map(|r| match r.maps_made {
+                0 | 1 => format!("{}", r.tracked),
+                made => format!("{} [{made} maps, {} merged]", r.tracked, r.maps_merged),
+            })
             .collect::<Vec<_>>()
             .join("/");
         print!("{p:<16} {s:>4} {tracked:>7}");
