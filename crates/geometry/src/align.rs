@@ -25,6 +25,16 @@ impl Sim3 {
         self.scale * (self.rigid.rotation * p) + self.rigid.translation.vector
     }
 
+    /// The inverse: `x -> (1/s) R^T (x - t)`.
+    pub fn inverse(&self) -> Self {
+        let r_inv = self.rigid.rotation.inverse();
+        let t = -(r_inv * self.rigid.translation.vector) / self.scale;
+        Self {
+            scale: 1.0 / self.scale,
+            rigid: Se3::from_parts(t.into(), r_inv),
+        }
+    }
+
     /// Apply to a camera pose: rotation composed, position transformed.
     pub fn transform_pose(&self, pose: &Se3) -> Se3 {
         let t = self.transform_point(&pose.translation.vector);

@@ -13,7 +13,7 @@ use stillpoint_image::DepthMetres;
 use crate::data::{FreeSpaceCheck, KfId, Map, SharedMap};
 use crate::map_file::{MapFile, MapSensor};
 use crate::module::local_mapping::{LocalMapper, MapperHooks, MapperThread};
-use crate::module::loop_closing::{LoopCloser, LoopStats, LoopThread};
+use crate::module::loop_closing::{LoopCloser, LoopStats, LoopThread, MapCorrection};
 use crate::module::tracking::{FrameObservation, Tracker};
 use crate::optimize::{PoseObservation, optimize_pose};
 use crate::place::{KeyFrameDatabase, Vocabulary};
@@ -222,11 +222,15 @@ impl System {
         let mapping_ms = Arc::new(Mutex::new(Vec::new()));
         let mapper = LocalMapper::new(settings.clone());
         // Loop closing corrects with SE3: a monocular map drifts in scale too (ORB-SLAM
-        // corrects it with Sim3), so monocular runs go without.
+        // corrects a loop with Sim3), so monocular runs close no loop within a map; they merge
+        // maps (with the scale between them) when `merge_maps` is on.
+        let looping_on = settings.loop_closing.enabled
+            && (!settings.monocular || settings.loop_closing.merge_maps);
         if settings.loop_closing.enabled && settings.monocular {
-            tracing::info!("loop closing is for RGB-D and stereo; off for this monocular run");
+            tracing::info!(
+                "monocular: loop closing merges maps only (no loop within a map: that needs Sim(3) correction)"
+            );
         }
-        let looping_on = settings.loop_closing.enabled && !settings.monocular;
         let closer = looping_on.then(|| {
             let mut c = match vocabulary {
                 Some(v) => LoopCloser::with_vocabulary(settings.clone(), v),
@@ -397,7 +401,8 @@ impl System {
                 let pending =
                     std::mem::take(&mut *t.corrections.lock().unwrap_or_else(|e| e.into_inner()));
                 for c in pending {
-                    self.tracker.on_map_corrected(&c.poses);
+                    self.tracker.on_map_corrected(&c);
+                    rescale_anchors(&mut self.anchors, &c);
                 }
             }
             if self.tracker.state == TrackingState::Lost
@@ -539,7 +544,8 @@ impl System {
                 if let Looping::Inline(l) = &mut self.looping
                     && let Some(c) = l.process(&self.map, kf, None, None)
                 {
-                    self.tracker.on_map_corrected(&c.poses);
+                    self.tracker.on_map_corrected(&c);
+                    rescale_anchors(&mut self.anchors, &c);
                 }
                 Ok(())
             }
@@ -730,6 +736,19 @@ impl System {
     /// Shared map (read it under the lock).
     pub fn map(&self) -> Arc<SharedMap> {
         self.map.clone()
+    }
+}
+
+/// A monocular map merged into an older one took that map's scale: the frames anchored to its
+/// keyframes keep their relative rotation, their relative translation scales with it.
+fn rescale_anchors(anchors: &mut [(f64, KfId, Se3)], c: &MapCorrection) {
+    let Some((scale, keyframes)) = &c.rescaled else {
+        return;
+    };
+    for (_, r, t_cr) in anchors.iter_mut() {
+        if keyframes.contains(r) {
+            t_cr.translation.vector *= *scale;
+        }
     }
 }
 

@@ -45,19 +45,24 @@ struct Outcome {
 }
 
 fn run(frames: usize, loop_closing: bool) -> Outcome {
-    run_blind(LAP, frames, loop_closing, 0..0)
+    run_blind(LAP, frames, loop_closing, 0..0, false)
 }
 
 /// As `run`, a lap every `lap` frames, the camera seeing nothing (no keypoints) on the frames
-/// of `blind`.
+/// of `blind`; `mono`: without depth (the ATE then after a Sim(3) alignment).
 fn run_blind(
     lap: usize,
     frames: usize,
     loop_closing: bool,
     blind: std::ops::Range<usize>,
+    mono: bool,
 ) -> Outcome {
     let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
-    let mut s = SlamSettings::rgbd(cam, 40.0, 30.0);
+    let mut s = if mono {
+        SlamSettings::monocular(cam, 30.0)
+    } else {
+        SlamSettings::rgbd(cam, 40.0, 30.0)
+    };
     s.local_mapping_thread = false;
     s.loop_closing.enabled = loop_closing;
     // Keyframes here turn ~20 degrees apart and few overlap: the finder of a place in an older
@@ -72,8 +77,13 @@ fn run_blind(
         if blind.contains(&i) {
             (f, d) = (Vec::new(), Vec::new());
         }
+        let input = TrackInput::new(i, i as f64 / 30.0, &f, &d);
         let r = sys
-            .track(TrackInput::new(i, i as f64 / 30.0, &f, &d).with_depth(Some(&depth)))
+            .track(if mono {
+                input
+            } else {
+                input.with_depth(Some(&depth))
+            })
             .expect("tracking");
         if let Some(p) = r.pose_wc {
             online.push((i as f64 / 30.0, p));
@@ -107,7 +117,7 @@ fn run_blind(
                 .vector
         })
         .collect();
-    let align = umeyama(&est, &gt, false).expect("alignment");
+    let align = umeyama(&est, &gt, mono).expect("alignment");
     let sse: f64 = est
         .iter()
         .zip(&gt)
@@ -164,16 +174,32 @@ fn a_map_started_after_a_blind_stretch_merges_into_the_first_at_the_revisit() {
     let frames = 700;
     let blind = 200..300;
     let seen = frames - blind.len();
-    let apart = run_blind(lap, frames, false, blind.clone());
+    let apart = run_blind(lap, frames, false, blind.clone(), false);
     assert!(apart.maps >= 2, "a new map after the blind stretch");
     assert!(
         apart.ate > 0.2,
         "two maps under one alignment: {}",
         apart.ate
     );
-    let merged = run_blind(lap, frames, true, blind);
+    let merged = run_blind(lap, frames, true, blind, false);
     assert_eq!(merged.tracked, seen);
     assert!(merged.merges >= 1, "loops {:?}", merged.loops);
     assert_eq!(merged.maps, 1, "every frame in one map");
     assert!(merged.ate < 0.05, "merged: ATE {}", merged.ate);
+}
+
+#[test]
+fn a_monocular_map_started_after_a_blind_stretch_merges_with_its_scale() {
+    // As above without depth: the second map starts from two new views at a scale of its own;
+    // the merge finds the similarity between the two maps and takes the first map's scale.
+    let lap = 450;
+    let frames = 700;
+    let blind = 200..300;
+    let apart = run_blind(lap, frames, false, blind.clone(), true);
+    assert!(apart.maps >= 2, "a new map after the blind stretch");
+    let merged = run_blind(lap, frames, true, blind, true);
+    assert!(merged.merges >= 1, "loops {:?}", merged.loops);
+    assert_eq!(merged.maps, 1, "every frame in one map");
+    assert!(merged.tracked >= apart.tracked);
+    assert!(merged.ate < 0.05, "merged: Sim(3) ATE {}", merged.ate);
 }

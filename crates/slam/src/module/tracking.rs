@@ -14,6 +14,7 @@ use crate::matching::{
     search_by_projection_local,
 };
 use crate::module::initializer::MonoInitializer;
+use crate::module::loop_closing::MapCorrection;
 use crate::optimize::{PoseObservation, optimize_pose};
 use crate::solve::{Correspondence, RansacParams, ransac_pnp, ransac_pose};
 
@@ -1006,22 +1007,39 @@ impl Tracker {
     /// Loop closing moved keyframes (`poses`: world-to-camera before and after): the last frame
     /// moves with its reference keyframe (else the newest moved one), as ORB-SLAM's
     /// `UpdateLastFrame` re-anchors it, so the motion model predicts in the corrected map.
-    pub fn on_map_corrected(&mut self, poses: &BTreeMap<KfId, (Se3, Se3)>) {
+    /// A monocular map merged into an older one (`c.rescaled`) also scales the last frame's
+    /// translation from its keyframe, and the motion model's.
+    pub fn on_map_corrected(&mut self, c: &MapCorrection) {
+        let poses = &c.poses;
         let anchor = self
             .reference_kf
             .and_then(|k| poses.get(&k))
             .or_else(|| poses.values().next_back());
-        let Some((before, after)) = anchor else {
+        let Some(&(before, after)) = anchor else {
             return;
         };
-        let delta = before.inverse() * after;
+        let scale = match &c.rescaled {
+            Some((s, keyframes)) if self.reference_kf.is_some_and(|r| keyframes.contains(&r)) => *s,
+            _ => 1.0,
+        };
+        let moved = |p: Se3| {
+            if scale == 1.0 {
+                return p * (before.inverse() * after);
+            }
+            let mut from_keyframe = p * before.inverse();
+            from_keyframe.translation.vector *= scale;
+            from_keyframe * after
+        };
         if let Some(f) = self.last_frame.as_mut()
             && let Some(p) = f.pose_cw
         {
-            f.pose_cw = Some(p * delta);
+            f.pose_cw = Some(moved(p));
         }
         if let Some(p) = self.last_good_pose {
-            self.last_good_pose = Some(p * delta);
+            self.last_good_pose = Some(moved(p));
+        }
+        if let Some(v) = self.velocity.as_mut() {
+            v.translation.vector *= scale;
         }
     }
 }

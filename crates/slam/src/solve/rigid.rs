@@ -3,7 +3,7 @@
 //! fits, scored by the reprojection error in both images, refined on the inliers.
 
 use super::Rng;
-use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3, umeyama};
+use stillpoint_geometry::{PinholeCamera, Se3, Sim3, Vec2, Vec3, umeyama};
 
 /// A matched pair: a map point in camera 1's frame and one in camera 2's, with the keypoints
 /// that observe them.
@@ -73,9 +73,17 @@ pub fn apply(t: &Se3, p: &Vec3) -> Vec3 {
 }
 
 fn fit(pairs: &[RigidPair], idx: impl Iterator<Item = usize> + Clone) -> Option<Se3> {
+    fit_similarity(pairs, idx, false).map(|s| s.rigid)
+}
+
+fn fit_similarity(
+    pairs: &[RigidPair],
+    idx: impl Iterator<Item = usize> + Clone,
+    with_scale: bool,
+) -> Option<Sim3> {
     let src: Vec<Vec3> = idx.clone().map(|i| pairs[i].p2).collect();
     let dst: Vec<Vec3> = idx.map(|i| pairs[i].p1).collect();
-    umeyama(&src, &dst, false).map(|s| s.rigid)
+    umeyama(&src, &dst, with_scale)
 }
 
 /// T12 with the most inliers, refitted on them, with the inlier flags; `None` when no
@@ -85,12 +93,65 @@ pub fn ransac_rigid(
     cam: &PinholeCamera,
     p: &RigidRansacParams,
 ) -> Option<(Se3, Vec<bool>)> {
+    ransac(
+        pairs,
+        p,
+        |idx| fit(pairs, idx.iter().copied()),
+        |t| rigid_inliers(t, pairs, cam, p.chi2),
+    )
+}
+
+/// S12 (camera 2 to camera 1, with the scale: monocular maps each have their own) of the pair
+/// set's inliers under `chi2`: ORB-SLAM's `Sim3Solver`, scored in both images.
+pub fn similarity_inliers(
+    s12: &Sim3,
+    pairs: &[RigidPair],
+    cam: &PinholeCamera,
+    chi2: f64,
+) -> Vec<bool> {
+    let s21 = s12.inverse();
+    pairs
+        .iter()
+        .map(|p| {
+            let err = |q: Vec3, px: &Vec2, inv: f64| {
+                cam.project_undistorted(&q)
+                    .is_some_and(|uv| (uv - px).norm_squared() * inv < chi2)
+            };
+            err(s12.transform_point(&p.p2), &p.px1, p.inv_sigma2_1)
+                && err(s21.transform_point(&p.p1), &p.px2, p.inv_sigma2_2)
+        })
+        .collect()
+}
+
+/// As [`ransac_rigid`] with the scale free: S12 (`p1 = s R p2 + t`) with the most inliers,
+/// refitted on them.
+pub fn ransac_similarity(
+    pairs: &[RigidPair],
+    cam: &PinholeCamera,
+    p: &RigidRansacParams,
+) -> Option<(Sim3, Vec<bool>)> {
+    ransac(
+        pairs,
+        p,
+        |idx| fit_similarity(pairs, idx.iter().copied(), true),
+        |s| similarity_inliers(s, pairs, cam, p.chi2),
+    )
+}
+
+/// RANSAC over 3-pair samples: the hypothesis `fit` gives with the most `inliers`, refitted on
+/// them when that loses none.
+fn ransac<T>(
+    pairs: &[RigidPair],
+    p: &RigidRansacParams,
+    fit: impl Fn(&[usize]) -> Option<T>,
+    inliers: impl Fn(&T) -> Vec<bool>,
+) -> Option<(T, Vec<bool>)> {
     let n = pairs.len();
     if n < 3 || n < p.min_inliers {
         return None;
     }
     let mut rng = Rng(p.seed | 1);
-    let mut best: Option<(usize, Se3, Vec<bool>)> = None;
+    let mut best: Option<(usize, T, Vec<bool>)> = None;
     let mut max_iterations = p.iterations;
     let mut it = 0;
     while it < max_iterations {
@@ -104,10 +165,10 @@ pub fn ransac_rigid(
         if (b - a).cross(&(c - a)).norm() < 1e-6 {
             continue;
         }
-        let Some(t) = fit(pairs, s.into_iter()) else {
+        let Some(t) = fit(&s) else {
             continue;
         };
-        let flags = rigid_inliers(&t, pairs, cam, p.chi2);
+        let flags = inliers(&t);
         let k = flags.iter().filter(|&&f| f).count();
         if best.as_ref().is_none_or(|b| k > b.0) {
             // Iterations needed for `probability` with this inlier ratio (ORB-SLAM's formula).
@@ -125,8 +186,8 @@ pub fn ransac_rigid(
     }
     // Refit on the inliers; keep the refit when it does not lose inliers.
     let inl: Vec<usize> = (0..n).filter(|&i| flags[i]).collect();
-    let refined = fit(pairs, inl.into_iter())?;
-    let f2 = rigid_inliers(&refined, pairs, cam, p.chi2);
+    let refined = fit(&inl)?;
+    let f2 = inliers(&refined);
     if f2.iter().filter(|&&f| f).count() >= k {
         Some((refined, f2))
     } else {
@@ -275,6 +336,28 @@ mod tests {
         let mostly_wrong = pairs(&truth, &cam, 30, 15);
         assert!(ransac_rigid(&mostly_wrong, &cam, &RigidRansacParams::default()).is_none());
         assert!(ransac_rigid(&exact[..2], &cam, &RigidRansacParams::default()).is_none());
+    }
+
+    #[test]
+    fn a_similarity_finds_the_scale_between_two_monocular_maps() {
+        let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
+        let rigid = Se3::new(Vec3::new(0.1, -0.05, 0.2), Vec3::new(0.02, 0.15, -0.03));
+        // Camera 2's map is 2.5 times camera 1's: p1 = s R p2 + t with s = 0.4.
+        let truth = Sim3 { scale: 0.4, rigid };
+        let mut ps = pairs(&rigid, &cam, 60, 20);
+        for p in &mut ps {
+            p.p2 *= 2.5;
+        }
+        let (s12, flags) = ransac_similarity(&ps, &cam, &RigidRansacParams::default()).unwrap();
+        assert!((s12.scale - truth.scale).abs() < 1e-9, "{}", s12.scale);
+        let e = s12.rigid.inverse() * truth.rigid;
+        assert!(e.translation.vector.norm() < 1e-9 && e.rotation.angle() < 1e-9);
+        assert!(flags.iter().enumerate().all(|(i, &f)| f == (i >= 20)));
+        let back = s12.inverse();
+        let x = Vec3::new(0.3, -0.2, 2.0);
+        assert!((back.transform_point(&s12.transform_point(&x)) - x).norm() < 1e-12);
+        // The scale fixed, those pairs agree with no rigid transform.
+        assert!(ransac_rigid(&ps, &cam, &RigidRansacParams::default()).is_none());
     }
 
     #[test]

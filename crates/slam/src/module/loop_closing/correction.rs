@@ -217,13 +217,14 @@ impl LoopCloser {
                     .map(|old| (*k, (*old, *new)))
             })
             .collect();
-        Some((MapCorrection { poses }, event))
+        let rescaled = (v.scale != 1.0).then(|| (v.scale, unmerged.keys().copied().collect()));
+        Some((MapCorrection { poses, rescaled }, event))
     }
 
     /// The loop keyframe `v.loop_kf` is in the older map `older`: every keyframe and point of
-    /// the current map moves by the one rigid transform that puts `kf` where the loop says,
-    /// and the older map's keyframes and points join the current map (its first keyframe
-    /// becomes the gauge). Returns the current map's keyframe poses before the move (`None`
+    /// the current map moves by the one rigid transform (similarity, for monocular maps) that
+    /// puts `kf` where the loop says, and the older map's keyframes and points join the current
+    /// map (its first keyframe becomes the gauge). Returns the current map's keyframe poses before the move (`None`
     /// when `kf` is no longer in the current map).
     fn merge_maps(
         &self,
@@ -238,22 +239,27 @@ impl LoopCloser {
         }
         let cur_old = m.keyframes[&kf].pose_cw;
         let cur_new = v.t_cl * m.keyframes[&v.loop_kf].pose_cw;
-        // World of the current map -> world of the older one, as world-to-camera poses see it:
-        // pose_cw' = pose_cw * t, x' = t^-1 x.
-        let t = cur_old.inverse() * cur_new;
-        let t_inv = t.inverse();
+        // World of the current map -> world of the older one: x' = s R x + t with s the older
+        // map's units per the current one's (1 with depth) and R, t from the finder's two poses;
+        // a world-to-camera pose becomes R_k R^T, s t_k - R_k R^T t.
+        let s = v.scale;
+        let r = cur_new.rotation.inverse() * cur_old.rotation;
+        let t = cur_new.rotation.inverse()
+            * (s * cur_old.translation.vector - cur_new.translation.vector);
         let mut unmerged = BTreeMap::new();
         for k in m.keyframes.values_mut() {
             if k.map_epoch == epoch {
                 unmerged.insert(k.id, k.pose_cw);
-                k.pose_cw *= t;
+                let rot = k.pose_cw.rotation * r.inverse();
+                let trans = s * k.pose_cw.translation.vector - rot * t;
+                k.pose_cw = Se3::from_parts(trans.into(), rot);
             } else if k.map_epoch == older {
                 k.map_epoch = epoch;
             }
         }
         for p in m.points.values_mut() {
             if p.map_epoch == epoch {
-                p.position = apply(&t_inv, &p.position);
+                p.position = s * (r * p.position) + t;
             } else if p.map_epoch == older {
                 p.map_epoch = epoch;
             }
@@ -267,7 +273,8 @@ impl LoopCloser {
             keyframe = kf,
             loop_keyframe = v.loop_kf,
             older_map = older,
-            moved_m = t.translation.vector.norm(),
+            moved_m = t.norm(),
+            scale = s,
             "maps merged"
         );
         Some(unmerged)

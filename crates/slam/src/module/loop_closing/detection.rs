@@ -37,7 +37,9 @@ impl LoopCloser {
         excluded.insert(kf);
         let epoch = k.map_epoch;
         // Older maps' keyframes too when merging: a place found there merges the two maps.
+        // Monocular: only those (a loop within a map needs a Sim(3) correction, not built).
         let older = ls.merge_maps;
+        let same = !self.s.monocular;
         let candidates = self.db.loop_candidates(
             kf,
             &excluded,
@@ -45,7 +47,7 @@ impl LoopCloser {
             |c| {
                 c < kf
                     && m.keyframes.get(&c).is_some_and(|x| {
-                        !x.bad && (x.map_epoch == epoch || (older && x.map_epoch < epoch))
+                        !x.bad && ((same && x.map_epoch == epoch) || (older && x.map_epoch < epoch))
                     })
             },
             |c| {

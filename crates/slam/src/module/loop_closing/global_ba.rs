@@ -139,7 +139,10 @@ impl LoopCloser {
         for id in ids {
             m.update_normal_and_depth(id, &self.scales);
         }
-        let correction = MapCorrection { poses };
+        let correction = MapCorrection {
+            poses,
+            rescaled: None,
+        };
         if let Some(p) = publish
             && let Ok(mut q) = p.lock()
         {

@@ -195,6 +195,10 @@ pub struct LoopStats {
 pub struct MapCorrection {
     /// Keyframe -> (world-to-camera pose before, after).
     pub poses: BTreeMap<KfId, (Se3, Se3)>,
+    /// A monocular map merged into an older one took its scale: the factor (older map's units
+    /// per merged map's unit) and the merged map's keyframes, whose frames' relative
+    /// translations scale with it.
+    pub rescaled: Option<(f64, BTreeSet<KfId>)>,
 }
 
 /// A place of an older map found by a keyframe whose covisible keyframes could not confirm it
@@ -218,6 +222,8 @@ struct Verified {
     matches: BTreeMap<usize, MpId>,
     /// Map points of the loop keyframe's covisible group.
     loop_points: Vec<MpId>,
+    /// The loop keyframe's map's units per the current map's unit (1 but for monocular maps).
+    scale: f64,
     ransac_inliers: usize,
     refined_inliers: usize,
 }

@@ -11,7 +11,10 @@ use super::{LoopCloser, PendingMerge, Verified};
 use crate::data::{KeyFrame, KfId, Map, MapPoint, MpId};
 use crate::hamming;
 use crate::matching::NearestTwo;
-use crate::solve::rigid::{RigidPair, RigidRansacParams, apply, ransac_rigid, refine_rigid};
+use crate::optimize::{PoseObservation, optimize_pose};
+use crate::solve::rigid::{
+    RigidPair, RigidRansacParams, apply, ransac_rigid, ransac_similarity, refine_rigid,
+};
 
 impl LoopCloser {
     /// ORB-SLAM `ComputeSim3` with the scale fixed: the first candidate that passes descriptor
@@ -84,7 +87,10 @@ impl LoopCloser {
             .filter_map(|g| m.keyframes.get(&g))
             .filter(|g| !g.bad && g.map_epoch == cur.map_epoch)
             .filter(|g| {
-                let pose = g.pose_cw * cur.pose_cw.inverse() * cur_new;
+                // From the finder in the older map's units (monocular maps differ in scale).
+                let mut from_finder = g.pose_cw * cur.pose_cw.inverse();
+                from_finder.translation.vector *= v.scale;
+                let pose = from_finder * cur_new;
                 let seen = self.project_points(
                     m,
                     (g, &pose),
@@ -156,29 +162,34 @@ impl LoopCloser {
             min_inliers: ls.ransac_min_inliers,
             ..RigidRansacParams::default()
         };
-        let Some((t_cl, flags)) = ransac_rigid(&pairs, cam, &params) else {
-            debug!(
-                keyframe = cur.id,
-                candidate = l.id,
-                matches = matches.len(),
-                "loop rejected: RANSAC"
-            );
-            return None;
+        let (t_cl, scale, matched, inliers, ransac_inliers) = if self.s.monocular {
+            self.similarity(cur, l, &matches, &pairs, &params)?
+        } else {
+            let Some((t_cl, flags)) = ransac_rigid(&pairs, cam, &params) else {
+                debug!(
+                    keyframe = cur.id,
+                    candidate = l.id,
+                    matches = matches.len(),
+                    "loop rejected: RANSAC"
+                );
+                return None;
+            };
+            let ransac_inliers = flags.iter().filter(|&&f| f).count();
+            // Guided matching with the transform, then refinement on all pairs.
+            let mut matched: Vec<(usize, usize)> = matches
+                .iter()
+                .zip(&flags)
+                .filter(|(_, f)| **f)
+                .map(|(m, _)| *m)
+                .collect();
+            matched.extend(self.guided_matches(m, cur, l, &t_cl, &matched));
+            let pairs: Vec<RigidPair> = matched
+                .iter()
+                .map(|&(i, j)| self.pair(m, cur, i, l, j))
+                .collect();
+            let (t_cl, inliers) = refine_rigid(&t_cl, &pairs, cam, 10.0, 5);
+            (t_cl, 1.0, matched, inliers, ransac_inliers)
         };
-        let ransac_inliers = flags.iter().filter(|&&f| f).count();
-        // Guided matching with the transform, then refinement on all pairs.
-        let mut matched: Vec<(usize, usize)> = matches
-            .iter()
-            .zip(&flags)
-            .filter(|(_, f)| **f)
-            .map(|(m, _)| *m)
-            .collect();
-        matched.extend(self.guided_matches(m, cur, l, &t_cl, &matched));
-        let pairs: Vec<RigidPair> = matched
-            .iter()
-            .map(|&(i, j)| self.pair(m, cur, i, l, j))
-            .collect();
-        let (t_cl, inliers) = refine_rigid(&t_cl, &pairs, cam, 10.0, 5);
         let refined_inliers = inliers.iter().filter(|&&f| f).count();
         if refined_inliers < ls.min_refined_inliers {
             debug!(
@@ -220,6 +231,16 @@ impl LoopCloser {
         ) {
             out.insert(i, mp);
         }
+        // Monocular: two maps' points are triangulated with small baselines, so the similarity
+        // of their 3D points places the camera loosely; its pose is refined on the older map's
+        // points as seen in the image (ORB-SLAM3 optimises the Sim(3) on reprojections), then
+        // the scale taken from the refined depths.
+        let (t_cl, scale) = if self.s.monocular {
+            let (pose, scale) = self.refine_on_older_map(m, cur, &pose, &mut out)?;
+            (pose * l.pose_cw.inverse(), scale)
+        } else {
+            (t_cl, scale)
+        };
         let loop_matches = out.len();
         if loop_matches < ls.min_loop_matches {
             debug!(
@@ -237,7 +258,110 @@ impl LoopCloser {
             loop_points,
             ransac_inliers,
             refined_inliers,
+            scale,
         })
+    }
+
+    /// Monocular: the current keyframe's pose in the older map (`pose`, refined by motion-only
+    /// bundle adjustment on its matches `out` with the older map's points; outliers leave
+    /// `out`) and the older map's units per the current map's unit (the median ratio of a
+    /// matched point's depth in the two maps). `None` when too few matches are left.
+    fn refine_on_older_map(
+        &self,
+        m: &Map,
+        cur: &KeyFrame,
+        pose: &Se3,
+        out: &mut BTreeMap<usize, MpId>,
+    ) -> Option<(Se3, f64)> {
+        let matched: Vec<(usize, MpId)> = out
+            .iter()
+            .filter(|(_, mp)| m.points.get(mp).is_some_and(|p| !p.bad))
+            .map(|(&i, &mp)| (i, mp))
+            .collect();
+        let obs: Vec<PoseObservation> = matched
+            .iter()
+            .map(|&(i, mp)| PoseObservation {
+                world: m.points[&mp].position,
+                u: cur.points[i].x,
+                v: cur.points[i].y,
+                u_right: None,
+                inv_sigma2: self.inv_sigma2[cur.octaves[i] as usize],
+            })
+            .collect();
+        let mut refined = *pose;
+        let outliers = optimize_pose(&mut refined, &obs, &self.s);
+        let mut ratios = Vec::new();
+        for (&(i, mp), &bad) in matched.iter().zip(&outliers) {
+            if bad {
+                out.remove(&i);
+                continue;
+            }
+            let older = apply(&refined, &m.points[&mp].position).z;
+            let own = cur.map_points[i]
+                .and_then(|own| m.points.get(&own))
+                .map(|p| apply(&cur.pose_cw, &p.position).z);
+            if let Some(own) = own.filter(|z| *z > 0.0)
+                && older > 0.0
+            {
+                ratios.push(older / own);
+            }
+        }
+        if ratios.len() < self.s.loop_closing.min_refined_inliers {
+            debug!(
+                keyframe = cur.id,
+                ratios = ratios.len(),
+                "merge rejected: too few matches to fix the scale"
+            );
+            return None;
+        }
+        ratios.sort_by(f64::total_cmp);
+        debug!(
+            keyframe = cur.id,
+            matches = obs.len(),
+            outliers = outliers.iter().filter(|&&o| o).count(),
+            moved_m =
+                (refined.inverse().translation.vector - pose.inverse().translation.vector).norm(),
+            scale = ratios[ratios.len() / 2],
+            "merge pose refined on the older map"
+        );
+        Some((refined, ratios[ratios.len() / 2]))
+    }
+
+    /// Monocular: the similarity between the two keyframes (each map has its own scale), as
+    /// (the current keyframe's camera from the loop keyframe's in the loop map's units, the
+    /// loop map's units per the current map's unit, the matches, their inlier flags, inliers).
+    #[allow(clippy::type_complexity)]
+    fn similarity(
+        &self,
+        cur: &KeyFrame,
+        l: &KeyFrame,
+        matches: &[(usize, usize)],
+        pairs: &[RigidPair],
+        params: &RigidRansacParams,
+    ) -> Option<(Se3, f64, Vec<(usize, usize)>, Vec<bool>, usize)> {
+        let Some((s_cl, flags)) = ransac_similarity(pairs, &self.s.camera, params) else {
+            debug!(
+                keyframe = cur.id,
+                candidate = l.id,
+                matches = matches.len(),
+                "merge rejected: Sim(3) RANSAC"
+            );
+            return None;
+        };
+        // The current camera in the loop keyframe's world, in that map's units: its centre from
+        // the inverse similarity, its rotation composed.
+        let centre_l = s_cl.inverse().transform_point(&Vec3::zeros());
+        let centre = apply(&l.pose_cw.inverse(), &centre_l);
+        let r_cw = s_cl.rigid.rotation * l.pose_cw.rotation;
+        let pose_cw = Se3::from_parts((-(r_cw * centre)).into(), r_cw);
+        let inliers = flags.iter().filter(|&&f| f).count();
+        Some((
+            pose_cw * l.pose_cw.inverse(),
+            1.0 / s_cl.scale,
+            matches.to_vec(),
+            flags,
+            inliers,
+        ))
     }
 
     /// Map point of keypoint `i` of `a` and of `j` of `b`, each in its camera's frame.
