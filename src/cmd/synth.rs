@@ -59,7 +59,7 @@ pub struct Args {
     /// Blind the camera for a span of frames while it moves on: START+FRAMES (a covered lens:
     /// black, no depth) or START+FRAMES:wall (a blank grey wall 0.4 m away), e.g. 200+60.
     #[arg(long)]
-    blind: Option<String>,
+    blind: Option<stillpoint_synth::Blind>,
     /// Write a contact sheet PNG (frames with their boxes: red moving, green still).
     #[arg(long)]
     contact_sheet: Option<PathBuf>,
@@ -107,18 +107,9 @@ fn config(args: &Args, preset: Preset) -> anyhow::Result<SynthConfig> {
     if args.stereo && (args.baseline.is_nan() || args.baseline <= 0.0) {
         bail!("--baseline {} must be positive", args.baseline);
     }
-    let blind = args
-        .blind
-        .as_deref()
-        .map(|b| {
-            stillpoint_synth::Blind::parse(b).with_context(|| {
-                format!("--blind {b:?}: expected START+FRAMES or START+FRAMES:wall, e.g. 200+60")
-            })
-        })
-        .transpose()?;
     Ok(SynthConfig {
         preset,
-        blind,
+        blind: args.blind,
         frames: args.frames,
         seed: args.seed,
         camera: cam,

@@ -169,6 +169,16 @@ impl Blind {
     }
 }
 
+impl std::str::FromStr for Blind {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        Blind::parse(s).ok_or_else(|| {
+            format!("{s:?}: expected START+FRAMES or START+FRAMES:wall, e.g. 200+60")
+        })
+    }
+}
+
 impl Default for SynthConfig {
     fn default() -> Self {
         Self {

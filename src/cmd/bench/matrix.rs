@@ -57,7 +57,7 @@ pub struct Args {
     /// or START+FRAMES:wall (a blank wall), as `synth --blind`; tracking is lost, a new map
     /// starts, and should merge with the first when the path comes back.
     #[arg(long)]
-    pub blind: Option<String>,
+    pub blind: Option<stillpoint_synth::Blind>,
     /// Also write each run's dense cloud and measure it: points on movers and distance to the
     /// scene's true static surfaces.
     #[arg(long)]
@@ -114,15 +114,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "kinect" => Noise::Kinect(KinectNoise::default()),
         other => bail!("--noise {other:?}: expected none or kinect"),
     };
-    let blind = args
-        .blind
-        .as_deref()
-        .map(|b| {
-            stillpoint_synth::Blind::parse(b).with_context(|| {
-                format!("--blind {b:?}: expected START+FRAMES or START+FRAMES:wall, e.g. 200+60")
-            })
-        })
-        .transpose()?;
     let rows = run_matrix(&MatrixOptions {
         presets,
         seeds,
@@ -136,7 +127,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         threaded: args.threaded,
         monocular: args.monocular,
         stereo: args.stereo,
-        blind,
+        blind: args.blind,
         dense: args.dense,
         layers: stillpoint_run::Overrides {
             config: args.layers.config.clone(),

@@ -54,15 +54,26 @@ impl Default for RigidRansacParams {
 /// T12 (camera 2 to camera 1) of the pair set's inliers under `chi2`.
 pub fn rigid_inliers(t12: &Se3, pairs: &[RigidPair], cam: &PinholeCamera, chi2: f64) -> Vec<bool> {
     let t21 = t12.inverse();
+    inliers_both_ways(pairs, cam, chi2, |p| apply(t12, p), |p| apply(&t21, p))
+}
+
+/// Per pair: camera 2's point seen in image 1 (`to1`) and camera 1's in image 2 (`to2`), each
+/// within `chi2` of its keypoint.
+fn inliers_both_ways(
+    pairs: &[RigidPair],
+    cam: &PinholeCamera,
+    chi2: f64,
+    to1: impl Fn(&Vec3) -> Vec3,
+    to2: impl Fn(&Vec3) -> Vec3,
+) -> Vec<bool> {
+    let seen = |q: Vec3, px: &Vec2, inv: f64| {
+        cam.project_undistorted(&q)
+            .is_some_and(|uv| (uv - px).norm_squared() * inv < chi2)
+    };
     pairs
         .iter()
         .map(|p| {
-            let err = |q: Vec3, px: &Vec2, inv: f64| {
-                cam.project_undistorted(&q)
-                    .is_some_and(|uv| (uv - px).norm_squared() * inv < chi2)
-            };
-            err(apply(t12, &p.p2), &p.px1, p.inv_sigma2_1)
-                && err(apply(&t21, &p.p1), &p.px2, p.inv_sigma2_2)
+            seen(to1(&p.p2), &p.px1, p.inv_sigma2_1) && seen(to2(&p.p1), &p.px2, p.inv_sigma2_2)
         })
         .collect()
 }
@@ -110,17 +121,13 @@ pub fn similarity_inliers(
     chi2: f64,
 ) -> Vec<bool> {
     let s21 = s12.inverse();
-    pairs
-        .iter()
-        .map(|p| {
-            let err = |q: Vec3, px: &Vec2, inv: f64| {
-                cam.project_undistorted(&q)
-                    .is_some_and(|uv| (uv - px).norm_squared() * inv < chi2)
-            };
-            err(s12.transform_point(&p.p2), &p.px1, p.inv_sigma2_1)
-                && err(s21.transform_point(&p.p1), &p.px2, p.inv_sigma2_2)
-        })
-        .collect()
+    inliers_both_ways(
+        pairs,
+        cam,
+        chi2,
+        |p| s12.transform_point(p),
+        |p| s21.transform_point(p),
+    )
 }
 
 /// As [`ransac_rigid`] with the scale free: S12 (`p1 = s R p2 + t`) with the most inliers,

@@ -16,6 +16,11 @@ use crate::solve::rigid::{
     RigidPair, RigidRansacParams, apply, ransac_rigid, ransac_similarity, refine_rigid,
 };
 
+/// A verified transform between two keyframes: the current camera from the loop keyframe's
+/// (in the loop map's units), the loop map's units per the current map's unit, the matches,
+/// their inlier flags and RANSAC's inlier count.
+type Hypothesis = (Se3, f64, Vec<(usize, usize)>, Vec<bool>, usize);
+
 impl LoopCloser {
     /// ORB-SLAM `ComputeSim3` with the scale fixed: the first candidate that passes descriptor
     /// matching, RANSAC, guided matching with refinement and the loop-group projection.
@@ -142,7 +147,6 @@ impl LoopCloser {
 
     pub(super) fn verify_one(&self, m: &Map, cur: &KeyFrame, l: &KeyFrame) -> Option<Verified> {
         let ls = &self.s.loop_closing;
-        let cam = &self.s.camera;
         let matches = match_by_descriptor(m, cur, l, self.s.th_low, ls.match_ratio);
         if matches.len() < ls.min_descriptor_matches {
             debug!(
@@ -162,33 +166,19 @@ impl LoopCloser {
             min_inliers: ls.ransac_min_inliers,
             ..RigidRansacParams::default()
         };
-        let (t_cl, scale, matched, inliers, ransac_inliers) = if self.s.monocular {
-            self.similarity(cur, l, &matches, &pairs, &params)?
+        let found = if self.s.monocular {
+            self.similarity(l, &matches, &pairs, &params)
         } else {
-            let Some((t_cl, flags)) = ransac_rigid(&pairs, cam, &params) else {
-                debug!(
-                    keyframe = cur.id,
-                    candidate = l.id,
-                    matches = matches.len(),
-                    "loop rejected: RANSAC"
-                );
-                return None;
-            };
-            let ransac_inliers = flags.iter().filter(|&&f| f).count();
-            // Guided matching with the transform, then refinement on all pairs.
-            let mut matched: Vec<(usize, usize)> = matches
-                .iter()
-                .zip(&flags)
-                .filter(|(_, f)| **f)
-                .map(|(m, _)| *m)
-                .collect();
-            matched.extend(self.guided_matches(m, cur, l, &t_cl, &matched));
-            let pairs: Vec<RigidPair> = matched
-                .iter()
-                .map(|&(i, j)| self.pair(m, cur, i, l, j))
-                .collect();
-            let (t_cl, inliers) = refine_rigid(&t_cl, &pairs, cam, 10.0, 5);
-            (t_cl, 1.0, matched, inliers, ransac_inliers)
+            self.rigid(m, (cur, l), &matches, &pairs, &params)
+        };
+        let Some((t_cl, scale, matched, inliers, ransac_inliers)) = found else {
+            debug!(
+                keyframe = cur.id,
+                candidate = l.id,
+                matches = matches.len(),
+                "loop rejected: RANSAC"
+            );
+            return None;
         };
         let refined_inliers = inliers.iter().filter(|&&f| f).count();
         if refined_inliers < ls.min_refined_inliers {
@@ -327,29 +317,45 @@ impl LoopCloser {
         Some((refined, ratios[ratios.len() / 2]))
     }
 
-    /// Monocular: the similarity between the two keyframes (each map has its own scale), as
-    /// (the current keyframe's camera from the loop keyframe's in the loop map's units, the
-    /// loop map's units per the current map's unit, the matches, their inlier flags, inliers).
-    #[allow(clippy::type_complexity)]
+    /// RGB-D and stereo: the rigid transform between the two keyframes, then guided matching
+    /// with it and refinement on all pairs.
+    fn rigid(
+        &self,
+        m: &Map,
+        (cur, l): (&KeyFrame, &KeyFrame),
+        matches: &[(usize, usize)],
+        pairs: &[RigidPair],
+        params: &RigidRansacParams,
+    ) -> Option<Hypothesis> {
+        let cam = &self.s.camera;
+        let (t_cl, flags) = ransac_rigid(pairs, cam, params)?;
+        let ransac_inliers = flags.iter().filter(|&&f| f).count();
+        let mut matched: Vec<(usize, usize)> = matches
+            .iter()
+            .zip(&flags)
+            .filter(|(_, f)| **f)
+            .map(|(m, _)| *m)
+            .collect();
+        matched.extend(self.guided_matches(m, cur, l, &t_cl, &matched));
+        let pairs: Vec<RigidPair> = matched
+            .iter()
+            .map(|&(i, j)| self.pair(m, cur, i, l, j))
+            .collect();
+        let (t_cl, inliers) = refine_rigid(&t_cl, &pairs, cam, 10.0, 5);
+        Some((t_cl, 1.0, matched, inliers, ransac_inliers))
+    }
+
+    /// Monocular: the similarity between the two keyframes (each map has its own scale), the
+    /// current camera placed in the loop keyframe's world in that map's units.
     fn similarity(
         &self,
-        cur: &KeyFrame,
         l: &KeyFrame,
         matches: &[(usize, usize)],
         pairs: &[RigidPair],
         params: &RigidRansacParams,
-    ) -> Option<(Se3, f64, Vec<(usize, usize)>, Vec<bool>, usize)> {
-        let Some((s_cl, flags)) = ransac_similarity(pairs, &self.s.camera, params) else {
-            debug!(
-                keyframe = cur.id,
-                candidate = l.id,
-                matches = matches.len(),
-                "merge rejected: Sim(3) RANSAC"
-            );
-            return None;
-        };
-        // The current camera in the loop keyframe's world, in that map's units: its centre from
-        // the inverse similarity, its rotation composed.
+    ) -> Option<Hypothesis> {
+        let (s_cl, flags) = ransac_similarity(pairs, &self.s.camera, params)?;
+        // Its centre from the inverse similarity, its rotation composed.
         let centre_l = s_cl.inverse().transform_point(&Vec3::zeros());
         let centre = apply(&l.pose_cw.inverse(), &centre_l);
         let r_cw = s_cl.rigid.rotation * l.pose_cw.rotation;
