@@ -302,6 +302,15 @@ impl LoopCloser {
         mapping_busy: Option<&Mutex<()>>,
         publish: Option<&Mutex<Vec<MapCorrection>>>,
     ) -> Option<MapCorrection> {
+        // Monocular closes no loop within a map: until an older map exists there is nothing to
+        // look for (the vocabulary is trained on every map's keyframes when there is).
+        if self.s.monocular {
+            let m = map.lock().ok()?;
+            let lowest = m.keyframes.values().next();
+            if lowest.is_none_or(|k| k.map_epoch >= m.epoch) {
+                return None;
+            }
+        }
         let p = self.s.loop_closing.database.clone();
         // Train the vocabulary outside the map lock (it takes a while); copy the descriptors.
         let training: Option<Vec<(KfId, Vec<crate::Descriptor>)>> = {
