@@ -593,6 +593,8 @@ impl Pipeline {
             (trajectory, other_maps)
         };
         let mut kf = self.system.keyframe_trajectory();
+        // The keyframes of the trajectory's map only, in its frame of reference.
+        kf.retain(|k| other_maps.is_empty() || k.2 == main);
         kf.sort_by(|a, b| a.0.total_cmp(&b.0));
         kf.dedup_by(|a, b| a.0 == b.0);
         let keyframe_trajectory = Trajectory::from_parts(

@@ -710,16 +710,16 @@ impl System {
         self.map.lock().map(|m| m.points.len()).unwrap_or(0)
     }
 
-    /// (timestamp, camera-to-world) of every good keyframe this run made, in order (a loaded
-    /// map's keyframes carry another run's timestamps).
-    pub fn keyframe_trajectory(&self) -> Vec<(f64, Se3)> {
+    /// (timestamp, camera-to-world, map) of every good keyframe this run made, in order (a
+    /// loaded map's keyframes carry another run's timestamps).
+    pub fn keyframe_trajectory(&self) -> Vec<(f64, Se3, u32)> {
         self.map
             .lock()
             .map(|m| {
                 m.keyframes
                     .values()
                     .filter(|k| !k.bad && k.id >= m.session_first_kf)
-                    .map(|k| (k.timestamp, k.pose_cw.inverse()))
+                    .map(|k| (k.timestamp, k.pose_cw.inverse(), k.map_epoch))
                     .collect()
             })
             .unwrap_or_default()
