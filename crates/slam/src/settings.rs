@@ -199,6 +199,13 @@ pub struct MonoInitSettings {
     pub min_parallax_deg: f64,
     /// Triangulated points needed (ORB-SLAM: 50).
     pub min_triangulated: usize,
+    /// Share of the two-view model's inliers that must triangulate (ORB-SLAM: 0.9).
+    pub min_triangulated_share: f64,
+    /// Rounds of refitting the best RANSAC sample's H and F to all their inliers (ORB-SLAM: 0).
+    pub refit_rounds: usize,
+    /// A two-view map that bundle adjustment leaves with too few points drops the reference
+    /// frame (ORB-SLAM: true). False keeps it: a later frame, with more parallax, may pass.
+    pub reset_on_rejection: bool,
     /// The homography is chosen when S_H / (S_H + S_F) is above this. ORB-SLAM2 0.40, ORB-SLAM3
     /// 0.50. 0.40: when the scene is a plane both models explain it and the share is near 0.5,
     /// and the fundamental matrix of a plane is degenerate, so ties go to the homography; a
@@ -230,6 +237,9 @@ impl Default for MonoInitSettings {
             ransac_iterations: 200,
             min_parallax_deg: 1.0,
             min_triangulated: 50,
+            min_triangulated_share: 0.9,
+            refit_rounds: 0,
+            reset_on_rejection: true,
             homography_ratio: 0.4,
             min_points_after_ba: 100,
             feature_factor: 5,

@@ -136,6 +136,8 @@ impl MonoInitializer {
             iterations: p.ransac_iterations,
             min_parallax_deg: p.min_parallax_deg,
             min_triangulated: p.min_triangulated,
+            min_triangulated_share: p.min_triangulated_share,
+            refit_rounds: p.refit_rounds,
             homography_ratio: p.homography_ratio,
             seed: 0,
         };
@@ -175,7 +177,11 @@ impl MonoInitializer {
                 reference = reference.index,
                 "initial map rejected after bundle adjustment"
             );
-            self.reset();
+            if p.reset_on_rejection {
+                self.reset();
+            } else {
+                self.remember(frame, p.backfill_frames);
+            }
             return None;
         };
         let between = std::mem::take(&mut self.between).into();
