@@ -44,6 +44,9 @@ pub use stillpoint_geometry as geometry;
 pub use stillpoint_image as image;
 /// Frames in, poses out: features, front-end and SLAM in one pipeline.
 pub use stillpoint_pipeline as pipeline;
+/// The ROS 2 node (feature `ros2`).
+#[cfg(feature = "ros2")]
+pub use stillpoint_ros2 as ros2;
 /// A whole run: the settings tree (file, then `key=value` overrides), the detector and
 /// front-end opened from it, the outputs (feature `run`).
 #[cfg(feature = "run")]

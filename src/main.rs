@@ -29,6 +29,8 @@ enum Command {
     Run(Box<cmd::run::Args>),
     /// List a ROS recording's topics: message types, counts, image sizes and encodings.
     Info(cmd::info::Args),
+    /// SLAM as a ROS 2 node (no ROS install): camera topics in, odometry, /tf, path and map out.
+    Ros2(Box<cmd::ros2::Args>),
     /// Print the effective settings tree and where each value came from.
     Settings(cmd::settings::Args),
     /// Write a synthetic dynamic sequence with exact ground truth.
@@ -53,11 +55,18 @@ fn main() -> std::process::ExitCode {
     }
     // `target=level` directives (RUST_LOG first, then --log), without the regular expressions
     // of tracing-subscriber's EnvFilter (the regex crates were ~20 s of a cold build).
+    // The DDS stack of `stillpoint ros2` logs every socket and discovery step at info: its
+    // warnings only, unless RUST_LOG asks for more.
     let filter = std::env::var("RUST_LOG")
         .ok()
         .and_then(|v| v.parse::<Targets>().ok())
-        .or_else(|| cli.log.parse::<Targets>().ok())
-        .unwrap_or_else(|| Targets::new().with_default(tracing::Level::INFO));
+        .unwrap_or_else(|| {
+            cli.log
+                .parse::<Targets>()
+                .unwrap_or_else(|_| Targets::new().with_default(tracing::Level::INFO))
+                .with_target("rustdds", tracing::Level::WARN)
+                .with_target("ros2_client", tracing::Level::ERROR)
+        });
     tracing_subscriber::registry()
         .with(
             tracing_subscriber::fmt::layer()
@@ -71,6 +80,7 @@ fn main() -> std::process::ExitCode {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Run(a) => cmd::run::run(*a),
         Command::Info(a) => cmd::info::run(a),
+        Command::Ros2(a) => cmd::ros2::run(*a),
         Command::Settings(a) => cmd::settings::run(a),
         Command::Synth(a) => cmd::synth::run(a),
         Command::Detect(a) => cmd::detect::run(a),

@@ -5,6 +5,7 @@ pub mod demo;
 pub mod detect;
 pub mod eval;
 pub mod info;
+pub mod ros2;
 pub mod run;
 pub mod settings;
 pub mod synth;

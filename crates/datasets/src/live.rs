@@ -1,5 +1,6 @@
-//! Live sources as a [`Sequence`]: a [`FrameSource`] (a camera, or in tests frames fed from
-//! memory) read on its own thread, the frames handed over as [`Sequence::frame`] asks.
+//! Live sources as a [`Sequence`]: a [`CaptureSource`] (a camera, a ROS 2 subscription, or in
+//! tests frames fed from memory) read on its own thread, the frames handed over as
+//! [`Sequence::frame`] asks.
 //!
 //! A live sequence has no known end: [`Sequence::len`] is `usize::MAX`, [`Sequence::frame`]
 //! waits for the next frame and ignores the index it is given except to number the frame, and
@@ -14,7 +15,7 @@ use crate::{Frame, Settings};
 use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::sync::{Arc, Condvar, Mutex};
-use stillpoint_image::{Rgb8, rgb_to_gray};
+use stillpoint_image::{DepthMetres, Gray8, Rgb8, rgb_to_gray};
 
 /// Something that delivers colour frames one after another.
 pub trait FrameSource: Send + 'static {
@@ -23,6 +24,43 @@ pub trait FrameSource: Send + 'static {
     fn next_frame(&mut self) -> Result<Option<(Rgb8, f64)>, DatasetError>;
     /// What to call the source in messages (`/dev/video0`).
     fn name(&self) -> String;
+}
+
+/// One frame as a live source delivers it: the colour image, and the depth image registered
+/// to it (RGB-D) or the right image of a rectified pair (stereo).
+#[derive(Clone, Debug)]
+pub struct Captured {
+    /// The colour (or only) image.
+    pub rgb: Rgb8,
+    /// Seconds.
+    pub timestamp: f64,
+    /// Metres, registered to `rgb`.
+    pub depth: Option<DepthMetres>,
+    /// The right image of a rectified pair.
+    pub right: Option<Gray8>,
+}
+
+/// Something that delivers frames, colour with depth or a right image, one after another.
+/// Every [`FrameSource`] is one.
+pub trait CaptureSource: Send + 'static {
+    /// The next frame; `Ok(None)` when the stream has ended. Blocks until a frame is there.
+    fn next_capture(&mut self) -> Result<Option<Captured>, DatasetError>;
+    /// What to call the source in messages.
+    fn source_name(&self) -> String;
+}
+
+impl<T: FrameSource> CaptureSource for T {
+    fn next_capture(&mut self) -> Result<Option<Captured>, DatasetError> {
+        Ok(self.next_frame()?.map(|(rgb, timestamp)| Captured {
+            rgb,
+            timestamp,
+            depth: None,
+            right: None,
+        }))
+    }
+    fn source_name(&self) -> String {
+        self.name()
+    }
 }
 
 /// What is kept of frames the consumer has not taken yet.
@@ -38,7 +76,7 @@ pub enum Buffering {
 /// The hand-over between the reading thread and the consumer.
 #[derive(Default)]
 struct Slot {
-    frames: VecDeque<(Rgb8, f64)>,
+    frames: VecDeque<Captured>,
     /// The stream ended (and, until the consumer has been told, why it failed).
     ended: bool,
     failure: Option<DatasetError>,
@@ -46,7 +84,7 @@ struct Slot {
     delivered: usize,
 }
 
-/// A [`FrameSource`] read on its own thread.
+/// A [`CaptureSource`] read on its own thread.
 pub struct LiveSequence {
     settings: Settings,
     name: String,
@@ -56,11 +94,11 @@ pub struct LiveSequence {
 impl LiveSequence {
     /// Start reading `source` on its own thread. `settings` describe its camera.
     pub fn start(
-        mut source: Box<dyn FrameSource>,
+        mut source: Box<dyn CaptureSource>,
         settings: Settings,
         buffering: Buffering,
     ) -> Result<Self, DatasetError> {
-        let name = source.name();
+        let name = source.source_name();
         let shared = Arc::new((Mutex::new(Slot::default()), Condvar::new()));
         let theirs = Arc::clone(&shared);
         std::thread::Builder::new()
@@ -68,7 +106,7 @@ impl LiveSequence {
             .spawn(move || {
                 let (slot, ready) = &*theirs;
                 loop {
-                    let next = source.next_frame();
+                    let next = source.next_capture();
                     let mut s = slot.lock().unwrap_or_else(|e| e.into_inner());
                     match next {
                         Ok(Some(f)) => {
@@ -121,16 +159,16 @@ impl Sequence for LiveSequence {
         let (slot, ready) = &*self.shared;
         let mut s = slot.lock().unwrap_or_else(|e| e.into_inner());
         loop {
-            if let Some((rgb, timestamp)) = s.frames.pop_front() {
+            if let Some(c) = s.frames.pop_front() {
                 s.delivered += 1;
                 drop(s);
                 return Ok(Frame {
                     index: i,
-                    timestamp,
-                    gray: rgb_to_gray(&rgb),
-                    rgb: Some(rgb),
-                    depth: None,
-                    right: None,
+                    timestamp: c.timestamp,
+                    gray: rgb_to_gray(&c.rgb),
+                    rgb: Some(c.rgb),
+                    depth: c.depth,
+                    right: c.right,
                 });
             }
             if s.ended {

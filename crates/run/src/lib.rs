@@ -37,8 +37,10 @@ mod sink;
 
 pub use output::{keyframe_path, other_map_path};
 pub use replay::RealtimeReport;
-pub use session::{Event, run_sequence, run_with, settings_layers};
-pub use settings::{Layered, RealtimeSettings, RecordImage, RecordSettings, SettingsTree};
+pub use session::{Event, run_sequence, run_source, run_with, settings_layers};
+pub use settings::{
+    Layered, RealtimeSettings, RecordImage, RecordSettings, Ros2Settings, SettingsTree,
+};
 pub use sink::{Ended, MovingPixels, Sink, Tracked};
 pub use stillpoint_pipeline::MapsReport;
 

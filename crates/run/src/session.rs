@@ -128,7 +128,19 @@ pub fn run_with(
     sinks: &mut [&mut dyn Sink],
     progress: &mut dyn FnMut(Event),
 ) -> Result<RunSummary, RunError> {
-    let seq = open_sequence(o)?;
+    run_source(o, open_sequence(o)?, truth, sinks, progress)
+}
+
+/// [`run_with`] over a sequence the caller opened (a live source of its own, such as a ROS 2
+/// subscription): `o.dataset` only names it in messages, and `o.realtime` must be off (the
+/// replay reopens `o.dataset`).
+pub fn run_source(
+    o: &RunOptions,
+    seq: Box<dyn Sequence>,
+    truth: Option<&dyn MovingPixels>,
+    sinks: &mut [&mut dyn Sink],
+    progress: &mut dyn FnMut(Event),
+) -> Result<RunSummary, RunError> {
     let ds = seq.settings().clone();
     let layers = settings_layers(&ds, o.settings.as_deref(), o.paper_cull, &o.overrides)?;
     let tree = layers.tree;

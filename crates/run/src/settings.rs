@@ -57,6 +57,82 @@ pub struct SettingsTree {
     /// The replay at camera rate (`run --realtime`).
     #[serde(default)]
     pub realtime: RealtimeSettings,
+    /// The ROS 2 node (`stillpoint ros2`): topics, frames, quality of service.
+    #[serde(default)]
+    pub ros2: Ros2Settings,
+}
+
+/// What `stillpoint ros2` subscribes to and publishes (`[ros2]` in the settings tree). Topic
+/// defaults are a RealSense driver's (`realsense2_camera`, depth aligned to colour).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Ros2Settings {
+    /// `rgbd`, `stereo` or `mono`.
+    pub sensor: String,
+    /// The colour (or left, or only) image: `sensor_msgs/Image` or, with a `/compressed`
+    /// suffix, `sensor_msgs/CompressedImage`.
+    pub image_topic: String,
+    /// The depth image registered to the colour one (`16UC1` millimetres or `32FC1` metres).
+    pub depth_topic: String,
+    /// The right image of a rectified pair.
+    pub right_topic: String,
+    /// The colour camera's `CameraInfo`; empty: `camera_info` beside `image_topic`.
+    pub camera_info_topic: String,
+    /// The right camera's `CameraInfo` (its projection gives the baseline); empty: beside
+    /// `right_topic`.
+    pub right_camera_info_topic: String,
+    /// Images of one frame are paired when their stamps differ by at most this, seconds.
+    pub pair_tolerance_s: f64,
+    /// Subscribe reliably (the default is ROS's sensor-data profile: best effort, keep last).
+    pub reliable: bool,
+    /// Messages kept per subscription before the oldest is dropped.
+    pub queue_depth: i32,
+    /// The map's frame.
+    pub map_frame: String,
+    /// The robot's odometry frame: when set, `map` -> `odom` is published (the robot's own
+    /// `odom` -> camera chain on `/tf` closes it); empty: `map` -> the camera's frame.
+    pub odom_frame: String,
+    /// The camera's frame; empty: the images' `header.frame_id`.
+    pub camera_frame: String,
+    /// Where the outputs go: `<prefix>/odom`, `/path`, `/map_cloud`, `/image_annotated`,
+    /// `/state`.
+    pub output_prefix: String,
+    /// Seconds between map clouds (0: none).
+    pub cloud_period_s: f64,
+    /// Publish the annotated image (kept and culled keypoints, boxes) as JPEG.
+    pub annotated_image: bool,
+    /// JPEG quality of the annotated image.
+    pub jpeg_quality: u8,
+    /// A log line when no frame came for this many seconds.
+    pub silence_warning_s: f64,
+    /// The UDP receive buffer asked of the kernel, MiB: 4 holds two 640x480 colour and depth
+    /// frames (Linux caps it at `net.core.rmem_max`; raise that for more).
+    pub socket_buffer_mib: usize,
+}
+
+impl Default for Ros2Settings {
+    fn default() -> Self {
+        Self {
+            sensor: "rgbd".into(),
+            image_topic: "/camera/camera/color/image_raw".into(),
+            depth_topic: "/camera/camera/aligned_depth_to_color/image_raw".into(),
+            right_topic: String::new(),
+            camera_info_topic: String::new(),
+            right_camera_info_topic: String::new(),
+            pair_tolerance_s: 0.02,
+            reliable: false,
+            queue_depth: 5,
+            map_frame: "map".into(),
+            odom_frame: String::new(),
+            camera_frame: String::new(),
+            output_prefix: "/stillpoint".into(),
+            cloud_period_s: 1.0,
+            annotated_image: true,
+            jpeg_quality: 80,
+            silence_warning_s: 5.0,
+            socket_buffer_mib: 4,
+        }
+    }
 }
 
 /// How `run --realtime` replays a sequence (`[realtime]` in the settings tree).
@@ -134,6 +210,7 @@ impl SettingsTree {
             dense: Default::default(),
             record: Default::default(),
             realtime: Default::default(),
+            ros2: Default::default(),
         }
     }
 
