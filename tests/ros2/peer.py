@@ -84,6 +84,14 @@ class Peer:
         self.w_info = DataWriter(dp, Topic(dp, "rt" + INFO, m.CameraInfo), latched)
         self.r_state = DataReader(dp, Topic(dp, "rt/stillpoint/state", m.String), answers)
         self.r_odom = DataReader(dp, Topic(dp, "rt/stillpoint/odom", m.Odometry), answers)
+        self.r_tf = DataReader(dp, Topic(dp, "rt/tf", m.TFMessage), answers)
+        self.w_tf_static = DataWriter(
+            dp,
+            Topic(dp, "rt/tf_static", m.TFMessage),
+            Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.Durability.TransientLocal,
+                Policy.History.KeepLast(100)),
+        )
+        self.tf = []
         self.waitset = WaitSet(dp)
         self.waitset.attach(
             ReadCondition(self.r_state, ViewState.Any | InstanceState.Any | SampleState.NotRead)
@@ -142,11 +150,13 @@ class Peer:
             got = self.r_state.take(N=100)
         self.states += [s.data for s in got]
         self.odometry += self.r_odom.take(N=1000)
+        self.tf += [t for msg in self.r_tf.take(N=1000) for t in msg.transforms]
         return got
 
     def collect(self):
         self.states += [s.data for s in self.r_state.take(N=1000)]
         self.odometry += self.r_odom.take(N=1000)
+        self.tf += [t for msg in self.r_tf.take(N=1000) for t in msg.transforms]
 
 
 def run(seq, lock_step, limit=None, rate=None, timeout=60.0):

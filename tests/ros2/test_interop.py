@@ -152,6 +152,63 @@ def test_bad_samples_are_logged_and_the_node_keeps_tracking(sequence, tmp_path):
     assert s["frames_processed"] == 10 and s["tracked"] == 10
 
 
+def quat_matrix(q):
+    x, y, z, w = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def homogeneous(t, q):
+    h = np.eye(4)
+    h[:3, :3] = quat_matrix(q)
+    h[:3, 3] = t
+    return h
+
+
+def test_on_a_robot_map_to_odom_closes_the_robots_chain(sequence, tmp_path):
+    """REP 105: with ros2.odom_frame set, the node publishes map -> odom so that map -> odom ->
+    base_link -> camera (the robot's transforms) is the camera's pose, and never a second
+    parent for the camera's frame."""
+    node, summary, err = start_node(
+        ["--sequential", "--settings", str(sequence / "settings.toml"), "--detector", "none",
+         "--set", "ros2.odom_frame=odom", "--out", str(tmp_path / "robot.txt")],
+        tmp_path,
+        "robot",
+    )
+    odom_base = ([0.5, -0.2, 0.0], [0.0, 0.0, 0.3826834, 0.9238795])
+    base_cam = ([0.1, 0.0, 0.4], [-0.5, 0.5, -0.5, 0.5])
+    try:
+        p = peer_mod.Peer(str(sequence), reliable=True)
+        p.w_tf_static.write(m.TFMessage(transforms=[
+            m.TransformStamped(header=m.Header(frame_id="odom"), child_frame_id="base_link",
+                               transform=m.TransformMsg(m.Vector3(*odom_base[0]), m.Quaternion(*odom_base[1]))),
+            m.TransformStamped(header=m.Header(frame_id="base_link"), child_frame_id=peer_mod.FRAME,
+                               transform=m.TransformMsg(m.Vector3(*base_cam[0]), m.Quaternion(*base_cam[1]))),
+        ]))
+        p.wait_for_node(120, lock_step=True)
+        for t, img, metres in peer_mod.frames(str(sequence), 10):
+            p.send(t, img, metres)
+            p.wait_state(120)
+        p.collect()
+    finally:
+        rc = stop(node)
+    assert rc == 0, err.read_text()[-2000:]
+    ours = [t for t in p.tf if t.header.frame_id == "map"]
+    assert ours and all(t.child_frame_id == "odom" for t in ours), [t.child_frame_id for t in ours]
+    odom_cam = homogeneous(*odom_base) @ homogeneous(*base_cam)
+    by_stamp = {(o.header.stamp.sec, o.header.stamp.nanosec): o for o in p.odometry}
+    for t in ours:
+        o = by_stamp[(t.header.stamp.sec, t.header.stamp.nanosec)]
+        tr, q = t.transform.translation, t.transform.rotation
+        map_odom = homogeneous([tr.x, tr.y, tr.z], [q.x, q.y, q.z, q.w])
+        pp, pq = o.pose.pose.position, o.pose.pose.orientation
+        map_cam = homogeneous([pp.x, pp.y, pp.z], [pq.x, pq.y, pq.z, pq.w])
+        assert np.abs(map_odom @ odom_cam - map_cam).max() < 1e-6
+
+
 @pytest.mark.parametrize(
     "args,env,says",
     [

@@ -9,6 +9,7 @@
 pub mod camera;
 pub mod msg;
 pub mod outputs;
+pub mod tf;
 pub mod wire;
 
 use std::time::Duration;
@@ -284,6 +285,7 @@ pub fn run_node(o: &NodeOptions) -> Result<NodeSummary, Ros2Error> {
         &r.output_prefix,
         Frames {
             map: r.map_frame.clone(),
+            odom: r.odom_frame.clone(),
             camera: r.camera_frame.clone(),
         },
         r.cloud_period_s,

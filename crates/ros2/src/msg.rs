@@ -192,3 +192,31 @@ pub fn string(s: &str) -> Vec<u8> {
     w.string(s);
     w.finish()
 }
+
+/// The transforms of a `tf2_msgs/TFMessage`: (parent, child, child to parent), read by the
+/// recording reader's CDR code.
+pub fn decode_tf(bytes: &[u8]) -> Result<Vec<(String, String, Se3)>, String> {
+    use stillpoint_datasets::mcap::cdr::{MessageReader, Wire};
+    let e = |e: stillpoint_datasets::mcap::cdr::DecodeError| e.to_string();
+    let mut r = MessageReader::new(bytes, Wire::Cdr).map_err(e)?;
+    let n = r.u32("transforms").map_err(e)?;
+    // Each transform is at least 60 bytes: a count beyond the message is a bad sample.
+    if n as usize > bytes.len() / 60 {
+        return Err(format!("{n} transforms in {} bytes", bytes.len()));
+    }
+    let mut out = Vec::with_capacity(n as usize);
+    for _ in 0..n {
+        let (_, parent) = r.header().map_err(e)?;
+        let child = r.string("child_frame_id").map_err(e)?;
+        let mut v = [0.0; 7];
+        for x in &mut v {
+            *x = r.f64("transform").map_err(e)?;
+        }
+        let pose = stillpoint_geometry::se3_from_tum([v[0], v[1], v[2]], [v[3], v[4], v[5], v[6]])
+            .ok_or_else(|| {
+                format!("{parent} -> {child}: a rotation that is not a unit quaternion")
+            })?;
+        out.push((parent, child, pose));
+    }
+    Ok(out)
+}

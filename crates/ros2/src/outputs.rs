@@ -15,6 +15,7 @@ use tracing::warn;
 
 use crate::camera::Arrival;
 use crate::msg::{self, RosType, Stamp, Transform};
+use crate::tf::TfListener;
 use crate::wire::{CdrMessage, RawCdr};
 use crate::{Ros2Error, dds_topic_name};
 
@@ -67,6 +68,9 @@ impl Output {
 pub struct Frames {
     /// The map's frame.
     pub map: String,
+    /// The robot's odometry frame: when set, `map` -> `odom` goes on `/tf`; empty: `map` ->
+    /// the camera.
+    pub odom: String,
     /// The camera's frame; empty: the images' own.
     pub camera: String,
 }
@@ -96,6 +100,9 @@ pub struct RosOutputs {
     cloud_period: Option<Duration>,
     last_cloud: Option<Instant>,
     camera_frame: String,
+    listener: TfListener,
+    /// What was said once about `/tf`.
+    said: Option<String>,
     /// What was measured.
     pub latencies: Latencies,
 }
@@ -134,6 +141,8 @@ impl RosOutputs {
             .durability(Durability::Volatile)
             .build();
         let publisher = participant.create_publisher(&reliable).map_err(dds)?;
+        let subscriber = participant.create_subscriber(&tf_qos).map_err(dds)?;
+        let listener = TfListener::new(participant, &subscriber)?;
         let at = |name: &str| format!("{}/{name}", prefix.trim_end_matches('/'));
         let out = |topic: &str, ty, qos: &QosPolicies| {
             Output::new(participant, &publisher, topic, ty, qos)
@@ -162,6 +171,8 @@ impl RosOutputs {
             cloud_period: (cloud_period_s > 0.0).then(|| Duration::from_secs_f64(cloud_period_s)),
             last_cloud: None,
             camera_frame: String::new(),
+            listener,
+            said: None,
             latencies: Latencies::default(),
         })
     }
@@ -216,6 +227,49 @@ impl RosOutputs {
     }
 }
 
+impl RosOutputs {
+    /// What goes on `/tf` for a camera at `pose` in the map (REP 105, one parent per frame):
+    /// `map` -> `odom` through the robot's own `odom` -> camera chain, or `map` -> camera when
+    /// no other node parents the camera. `None` (said once) when neither can be published.
+    fn transform(&mut self, camera: &str, pose: &Se3) -> Option<(String, Se3)> {
+        self.listener.update();
+        let (child, transform, refusal) = if self.frames.odom.is_empty() {
+            match self.listener.tree.parent(camera) {
+                Some(p) => (
+                    camera,
+                    *pose,
+                    Some(format!(
+                        "{camera} already has a parent on /tf ({p}): map -> {camera} not published (set ros2.odom_frame to publish map -> odom)"
+                    )),
+                ),
+                None => (camera, *pose, None),
+            }
+        } else {
+            let odom = self.frames.odom.as_str();
+            match self.listener.tree.lookup(odom, camera) {
+                Some(odom_camera) => (odom, pose * odom_camera.inverse(), None),
+                None => (
+                    odom,
+                    *pose,
+                    Some(format!(
+                        "no {odom} -> {camera} chain on /tf yet: map -> {odom} not published"
+                    )),
+                ),
+            }
+        };
+        if let Some(why) = refusal {
+            if self.said.as_deref() != Some(why.as_str()) {
+                warn!("{why}");
+                self.said = Some(why);
+            }
+            return None;
+        }
+        let child = child.to_string();
+        self.listener.own(&self.frames.map, &child);
+        Some((child, transform))
+    }
+}
+
 /// The words `/state` carries.
 fn state_word(r: &stillpoint_pipeline::FrameResult) -> &'static str {
     match r.state {
@@ -234,14 +288,14 @@ impl Sink for RosOutputs {
         if let Some(pose) = t.result.pose_wc {
             self.odom
                 .send(msg::odometry(stamp, &self.frames.map, &camera, &pose));
-            self.tf.send(msg::tf_message(
-                stamp,
-                &[Transform {
+            if let Some((child, transform)) = self.transform(&camera, &pose) {
+                let t = Transform {
                     parent: &self.frames.map,
-                    child: &camera,
-                    transform: pose,
-                }],
-            ));
+                    child: &child,
+                    transform,
+                };
+                self.tf.send(msg::tf_message(stamp, &[t]));
+            }
             self.path_so_far.push((stamp, pose));
         }
         self.state.send(msg::string(state_word(t.result)));

@@ -129,3 +129,18 @@ fn a_truncated_sample_is_an_error_not_a_panic() {
         assert!(r.is_err(), "{cut} bytes decoded");
     }
 }
+
+#[test]
+fn cyclones_tf_message_decodes() {
+    let t = msg::decode_tf(&golden("tf")).expect("decodes");
+    assert_eq!(t.len(), 1);
+    let (parent, child, pose_) = &t[0];
+    assert_eq!(
+        (parent.as_str(), child.as_str()),
+        ("map", "camera_color_optical_frame")
+    );
+    assert!((pose_.to_homogeneous() - pose().to_homogeneous()).norm() < 1e-12);
+    let mut bytes = golden("tf");
+    bytes[4] = 200; // two hundred transforms in 116 bytes
+    assert!(msg::decode_tf(&bytes).is_err());
+}

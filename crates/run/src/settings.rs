@@ -89,8 +89,9 @@ pub struct Ros2Settings {
     pub queue_depth: i32,
     /// The map's frame.
     pub map_frame: String,
-    /// The robot's odometry frame: when set, `map` -> `odom` is published (the robot's own
-    /// `odom` -> camera chain on `/tf` closes it); empty: `map` -> the camera's frame.
+    /// The robot's odometry frame (REP 105): when set, `map` -> `odom` is published, the
+    /// robot's own `odom` -> ... -> camera transforms on `/tf` and `/tf_static` closing the
+    /// chain; empty: `map` -> the camera's frame (a bare camera).
     pub odom_frame: String,
     /// The camera's frame; empty: the images' `header.frame_id`.
     pub camera_frame: String,
