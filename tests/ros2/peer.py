@@ -48,6 +48,16 @@ def read_settings(seq):
         return tomllib.load(f)
 
 
+def stereo_frames(seq, limit=None):
+    """(stamp, left, right) gray uint8 per frame of a KITTI-layout pair (synth --stereo)."""
+    times = [float(line) for line in open(os.path.join(seq, "times.txt")) if line.strip()]
+    for i, t in enumerate(times[:limit]):
+        name = f"{i:06d}.png"
+        left = np.asarray(PilImage.open(os.path.join(seq, "image_0", name)).convert("L"))
+        right = np.asarray(PilImage.open(os.path.join(seq, "image_1", name)).convert("L"))
+        yield t, left, right
+
+
 def frames(seq, limit=None):
     """(stamp, rgb uint8 HxWx3, depth float32 metres HxW) per frame."""
     rgb = read_list(os.path.join(seq, "rgb.txt"))
@@ -63,8 +73,9 @@ def frames(seq, limit=None):
 class Peer:
     """The camera's publishers and the node's subscriptions on one Cyclone participant."""
 
-    def __init__(self, seq, reliable):
-        s = read_settings(seq)
+    def __init__(self, seq, reliable, image_topic=IMAGE, second_topic=DEPTH, settings="settings.toml"):
+        with open(os.path.join(seq, settings), "rb") as f:
+            s = tomllib.load(f)
         self.camera = s["camera"]
         self.fps = s.get("fps", 30.0)
         self.dp = DomainParticipant(int(os.environ.get("ROS_DOMAIN_ID", "0")))
@@ -79,9 +90,10 @@ class Peer:
         )
         answers = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepAll)
         dp = self.dp
-        self.w_img = DataWriter(dp, Topic(dp, "rt" + IMAGE, m.Image), qos)
-        self.w_depth = DataWriter(dp, Topic(dp, "rt" + DEPTH, m.Image), qos)
-        self.w_info = DataWriter(dp, Topic(dp, "rt" + INFO, m.CameraInfo), latched)
+        self.w_img = DataWriter(dp, Topic(dp, "rt" + image_topic, m.Image), qos)
+        self.w_depth = DataWriter(dp, Topic(dp, "rt" + second_topic, m.Image), qos) if second_topic else None
+        info_topic = image_topic.rsplit("/", 1)[0] + "/camera_info"
+        self.w_info = DataWriter(dp, Topic(dp, "rt" + info_topic, m.CameraInfo), latched)
         self.r_state = DataReader(dp, Topic(dp, "rt/stillpoint/state", m.String), answers)
         self.r_odom = DataReader(dp, Topic(dp, "rt/stillpoint/odom", m.Odometry), answers)
         self.r_tf = DataReader(dp, Topic(dp, "rt/tf", m.TFMessage), answers)
@@ -117,7 +129,9 @@ class Peer:
         deadline = time.monotonic() + timeout
 
         def matched():
-            ok = self.w_img.get_matched_subscriptions() and self.w_depth.get_matched_subscriptions()
+            ok = self.w_img.get_matched_subscriptions() and (
+                self.w_depth is None or self.w_depth.get_matched_subscriptions()
+            )
             return ok and (not lock_step or self.r_state.get_matched_publications())
 
         while not matched():
@@ -125,18 +139,26 @@ class Peer:
                 raise TimeoutError("the node did not appear on the topics")
             time.sleep(0.05)
 
-    def send_depth(self, t, metres, frame_id=FRAME):
+    @staticmethod
+    def image(t, a, frame_id):
+        """A sensor_msgs/Image of an array: rgb8 (HxWx3 uint8), mono8 (HxW uint8) or 32FC1."""
+        h, w = a.shape[:2]
+        enc, step = {
+            (np.dtype(np.uint8), 3): ("rgb8", w * 3),
+            (np.dtype(np.uint8), 2): ("mono8", w),
+            (np.dtype(np.float32), 2): ("32FC1", w * 4),
+        }[(a.dtype, a.ndim)]
         header = m.Header(stamp=m.stamp(t), frame_id=frame_id)
-        h, w = metres.shape
-        self.w_depth.write(
-            m.Image(header=header, height=h, width=w, encoding="32FC1", step=w * 4, data=metres.tobytes())
-        )
+        return m.Image(header=header, height=h, width=w, encoding=enc, step=step, data=a.tobytes())
 
-    def send(self, t, img, metres, frame_id=FRAME):
-        self.send_depth(t, metres, frame_id)
-        header = m.Header(stamp=m.stamp(t), frame_id=frame_id)
-        h, w = img.shape[:2]
-        self.w_img.write(m.Image(header=header, height=h, width=w, encoding="rgb8", step=w * 3, data=img.tobytes()))
+    def send_depth(self, t, second, frame_id=FRAME):
+        self.w_depth.write(self.image(t, second, frame_id))
+
+    def send(self, t, img, second, frame_id=FRAME):
+        """The frame's second image (depth or right) first, then its image."""
+        if second is not None:
+            self.send_depth(t, second, frame_id)
+        self.w_img.write(self.image(t, img, frame_id))
 
     def send_raw_image(self, msg):
         self.w_img.write(msg)

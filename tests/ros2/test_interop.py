@@ -32,7 +32,8 @@ FRAMES = 40
 def sequence(tmp_path_factory):
     out = tmp_path_factory.mktemp("seq") / "living_cross"
     subprocess.run(
-        [BIN, "synth", "--preset", "living_cross", "--frames", str(FRAMES), "--seed", "3", "--out", str(out)],
+        [BIN, "synth", "--preset", "living_cross", "--frames", str(FRAMES), "--seed", "3", "--stereo",
+         "--out", str(out)],
         check=True,
         capture_output=True,
     )
@@ -95,6 +96,47 @@ def test_lock_step_gives_the_sequential_runs_trajectory(sequence, tmp_path):
     assert saved.stat().st_size > 0
     s = json.loads(summary.read_text())
     assert s["frames_processed"] == FRAMES and s["frames_dropped"] == 0
+
+
+@pytest.mark.parametrize("sensor", ["mono", "stereo"])
+def test_lock_step_monocular_and_stereo_give_the_sequential_runs_trajectory(sequence, tmp_path, sensor):
+    ref = tmp_path / "ref.txt"
+    if sensor == "mono":
+        # The colour images alone (no depth.txt): run reads the folder as monocular.
+        mono = tmp_path / "mono"
+        mono.mkdir()
+        for name in ["rgb", "rgb.txt", "settings.toml", "groundtruth.txt"]:
+            (mono / name).symlink_to(sequence / name)
+        run_args = ["--dataset", str(mono)]
+        node_args = ["--sensor", "mono", "--settings", str(sequence / "settings.toml")]
+        peer = peer_mod.Peer(str(sequence), reliable=True, second_topic=None)
+        todo = [(t, img, None) for t, img, _ in peer_mod.frames(str(sequence))]
+    else:
+        run_args = ["--dataset", str(sequence), "--kind", "kitti"]
+        left, right = "/stereo/left/image_rect", "/stereo/right/image_rect"
+        node_args = ["--sensor", "stereo", "--image-topic", left, "--right-topic", right,
+                     "--settings", str(sequence / "settings_stereo.toml")]
+        peer = peer_mod.Peer(str(sequence), reliable=True, image_topic=left, second_topic=right,
+                             settings="settings_stereo.toml")
+        todo = list(peer_mod.stereo_frames(str(sequence)))
+    subprocess.run([BIN, "run", *run_args, "--sequential", "--detector", "none", "--out", str(ref)],
+                   check=True, capture_output=True)
+    out = tmp_path / "node.txt"
+    node, summary, err = start_node(
+        ["--sequential", "--detector", "none", "--out", str(out), *node_args], tmp_path, sensor
+    )
+    try:
+        peer.wait_for_node(120, lock_step=True)
+        for t, img, second in todo:
+            peer.send(t, img, second)
+            peer.wait_state(120)
+    finally:
+        rc = stop(node)
+    assert rc == 0, err.read_text()[-2000:]
+    a, b = read_tum(ref), read_tum(out)
+    assert a.shape == b.shape and a.shape[0] >= FRAMES // 2, (a.shape, b.shape)
+    assert np.abs(a[:, 0] - b[:, 0]).max() < 1e-6
+    assert np.abs(a[:, 1:] - b[:, 1:]).max() <= 1e-9, np.abs(a[:, 1:] - b[:, 1:]).max()
 
 
 def test_live_tracks_the_newest_frames_and_reports(sequence, tmp_path):
@@ -215,6 +257,7 @@ def test_on_a_robot_map_to_odom_closes_the_robots_chain(sequence, tmp_path):
         (["--sensor", "lidar"], {}, 'ros2.sensor = "lidar"'),
         ([], {"ROS_DOMAIN_ID": "999"}, "ROS_DOMAIN_ID"),
         (["--image-topic", "/camera/2d"], {}, "not a ROS 2 topic name"),
+        (["--sensor", "stereo"], {}, "needs its second image topic"),
     ],
 )
 def test_a_configuration_error_is_one_line_and_status_1(args, env, says):

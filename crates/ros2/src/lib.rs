@@ -174,7 +174,28 @@ fn camera_settings(
 pub fn run_node(o: &NodeOptions) -> Result<NodeSummary, Ros2Error> {
     let r = ros2_settings(&o.run)?;
     let sensor = sensor_of(&r)?;
-    let participant = DomainParticipantBuilder::new(domain_id()?)
+    // Every name checked before DDS starts: a wrong one is one line, not a half-built node.
+    let domain = domain_id()?;
+    for t in [&r.image_topic, &r.depth_topic, &r.right_topic]
+        .into_iter()
+        .chain([&r.camera_info_topic, &r.right_camera_info_topic])
+        .filter(|t| !t.is_empty())
+    {
+        dds_topic_name(t)?;
+    }
+    dds_topic_name(&format!("{}/odom", r.output_prefix.trim_end_matches('/')))?;
+    let second_topic = match sensor {
+        Sensor::Rgbd => Some(&r.depth_topic),
+        Sensor::Stereo => Some(&r.right_topic),
+        Sensor::Mono => None,
+    };
+    if second_topic.is_some_and(|t| t.is_empty()) {
+        return Err(Ros2Error::Config(format!(
+            "ros2.sensor = {:?} needs its second image topic (--depth-topic or --right-topic)",
+            r.sensor
+        )));
+    }
+    let participant = DomainParticipantBuilder::new(domain)
         .socket_receive_buffer_size(r.socket_buffer_mib << 20)
         .build()
         .map_err(|e| Ros2Error::Dds(format!("joining the domain: {e}")))?;
@@ -193,18 +214,7 @@ pub fn run_node(o: &NodeOptions) -> Result<NodeSummary, Ros2Error> {
         .create_subscriber(&qos)
         .map_err(|e| Ros2Error::Dds(format!("subscriber: {e}")))?;
     let image = Subscription::image(&participant, &subscriber, &r.image_topic, &qos)?;
-    let second_topic = match sensor {
-        Sensor::Rgbd => Some(&r.depth_topic),
-        Sensor::Stereo => Some(&r.right_topic),
-        Sensor::Mono => None,
-    };
     let second = match second_topic {
-        Some(t) if t.is_empty() => {
-            return Err(Ros2Error::Config(format!(
-                "ros2.sensor = {:?} needs its second image topic (--depth-topic or --right-topic)",
-                r.sensor
-            )));
-        }
         Some(t) => Some((
             Subscription::image(&participant, &subscriber, t, &qos)?,
             sensor,
