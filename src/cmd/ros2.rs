@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use super::run::SettingsArgs;
+use super::run::{MapArgs, SettingsArgs};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -47,15 +47,8 @@ pub struct Args {
     /// The trajectory (TUM), written as it goes and rewritten at the end.
     #[arg(long, default_value = "trajectory.txt")]
     pub out: PathBuf,
-    /// Save the map at the end (also on Ctrl-C or SIGTERM).
-    #[arg(long, conflicts_with = "localize")]
-    pub save_map: Option<PathBuf>,
-    /// Start in a saved map.
-    #[arg(long)]
-    pub load_map: Option<PathBuf>,
-    /// With --load-map: only localise.
-    #[arg(long, requires = "load_map")]
-    pub localize: bool,
+    #[command(flatten)]
+    pub maps: MapArgs,
     #[command(flatten)]
     pub layers: SettingsArgs,
     /// Print a JSON summary on stdout at the end.
@@ -106,9 +99,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ..Overrides::default()
     };
     run.stop = Some(crate::interrupt_flag());
-    run.load_map = args.load_map.clone();
-    run.localize = args.localize;
-    run.save_map = args.save_map.clone();
+    run.load_map = args.maps.load_map.clone();
+    run.localize = args.maps.localize;
+    run.save_map = args.maps.save_map.clone();
     let node = stillpoint_ros2::NodeOptions {
         run,
         lock_step: args.sequential,

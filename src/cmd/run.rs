@@ -111,8 +111,19 @@ pub struct Args {
     /// own thread (not with `--sequential`).
     #[arg(long, conflicts_with = "sequential")]
     pub realtime: bool,
+    #[command(flatten)]
+    pub maps: MapArgs,
+    /// Print a JSON summary on stdout instead of the tables.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Saved maps in and out (`run` and `ros2` share them).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct MapArgs {
     /// Save the final map (keyframes, points, covisibility graph, spanning tree, loop edges,
-    /// vocabulary) to this file: versioned, checksummed, written atomically.
+    /// vocabulary) to this file: versioned, checksummed, written atomically (also on Ctrl-C or
+    /// SIGTERM).
     #[arg(long, conflicts_with = "localize")]
     pub save_map: Option<PathBuf>,
     /// Start in a map saved by --save-map: relocalise in it, then map on in it (new keyframes
@@ -123,9 +134,6 @@ pub struct Args {
     /// changing it: no keyframes, points, bundle adjustment or loop closing).
     #[arg(long, requires = "load_map")]
     pub localize: bool,
-    /// Print a JSON summary on stdout instead of the tables.
-    #[arg(long)]
-    pub json: bool,
 }
 
 /// What the command line lays over the dataset's settings (`run` and `settings` share it).
@@ -473,9 +481,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             media,
         },
         stop: Some(crate::interrupt_flag()),
-        load_map: args.load_map.clone(),
-        localize: args.localize,
-        save_map: args.save_map.clone(),
+        load_map: args.maps.load_map.clone(),
+        localize: args.maps.localize,
+        save_map: args.maps.save_map.clone(),
     };
     let mut bar = ProgressBar::default();
     let scored = stillpoint_eval::run_scored(&o, &mut |e| bar.show(e))?;

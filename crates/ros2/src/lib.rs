@@ -120,9 +120,9 @@ fn sensor_of(r: &Ros2Settings) -> Result<Sensor, Ros2Error> {
     }
 }
 
-/// The subscriptions' quality of service: ROS's sensor-data profile (best effort, keep last),
-/// or reliable.
-fn subscription_qos(reliable: bool, depth: i32) -> QosPolicies {
+/// A quality of service: reliable or best effort (ROS's sensor-data profile), keep last
+/// `depth`, transient local (`latched`: late joiners get the last samples) or volatile.
+pub(crate) fn qos(reliable: bool, depth: i32, latched: bool) -> QosPolicies {
     QosPolicyBuilder::new()
         .reliability(if reliable {
             Reliability::Reliable {
@@ -132,7 +132,11 @@ fn subscription_qos(reliable: bool, depth: i32) -> QosPolicies {
             Reliability::BestEffort
         })
         .history(History::KeepLast { depth })
-        .durability(Durability::Volatile)
+        .durability(if latched {
+            Durability::TransientLocal
+        } else {
+            Durability::Volatile
+        })
         .build()
 }
 
@@ -209,14 +213,14 @@ pub fn run_node(o: &NodeOptions) -> Result<NodeSummary, Ros2Error> {
                 .start_parameter_services(false),
         )
         .map_err(|e| Ros2Error::Dds(format!("creating the node: {e:?}")))?;
-    let qos = subscription_qos(r.reliable || o.lock_step, r.queue_depth.max(1));
+    let images_qos = qos(r.reliable || o.lock_step, r.queue_depth.max(1), false);
     let subscriber = participant
-        .create_subscriber(&qos)
+        .create_subscriber(&images_qos)
         .map_err(|e| Ros2Error::Dds(format!("subscriber: {e}")))?;
-    let image = Subscription::image(&participant, &subscriber, &r.image_topic, &qos)?;
+    let image = Subscription::image(&participant, &subscriber, &r.image_topic, &images_qos)?;
     let second = match second_topic {
         Some(t) => Some((
-            Subscription::image(&participant, &subscriber, t, &qos)?,
+            Subscription::image(&participant, &subscriber, t, &images_qos)?,
             sensor,
         )),
         None => None,
@@ -234,7 +238,7 @@ pub fn run_node(o: &NodeOptions) -> Result<NodeSummary, Ros2Error> {
             } else {
                 r.camera_info_topic.clone()
             };
-            let info_qos = subscription_qos(true, 1);
+            let info_qos = qos(true, 1, true);
             let mut info = Subscription::new(
                 &participant,
                 &subscriber,

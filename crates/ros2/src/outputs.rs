@@ -6,8 +6,7 @@ use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
 
 use rustdds::no_key::DataWriter;
-use rustdds::policy::{Durability, History, Reliability};
-use rustdds::{DomainParticipant, Publisher, QosPolicies, QosPolicyBuilder, TopicKind};
+use rustdds::{DomainParticipant, Publisher, QosPolicies, TopicKind};
 use stillpoint_geometry::Se3;
 use stillpoint_run::{Ended, RunError, Sink, Tracked};
 use stillpoint_slam::TrackingState;
@@ -17,7 +16,7 @@ use crate::camera::Arrival;
 use crate::msg::{self, RosType, Stamp, Transform};
 use crate::tf::TfListener;
 use crate::wire::{CdrMessage, RawCdr};
-use crate::{Ros2Error, dds_topic_name};
+use crate::{Ros2Error, dds_topic_name, qos};
 
 type Writer = DataWriter<CdrMessage, RawCdr>;
 
@@ -119,27 +118,9 @@ impl RosOutputs {
         arrivals: Receiver<Arrival>,
     ) -> Result<Self, Ros2Error> {
         let dds = |e: rustdds::dds::CreateError| Ros2Error::Dds(format!("publisher: {e}"));
-        let reliable = QosPolicyBuilder::new()
-            .reliability(Reliability::Reliable {
-                max_blocking_time: rustdds::Duration::from_millis(100),
-            })
-            .history(History::KeepLast { depth: 10 })
-            .durability(Durability::Volatile)
-            .build();
-        let latched = QosPolicyBuilder::new()
-            .reliability(Reliability::Reliable {
-                max_blocking_time: rustdds::Duration::from_millis(100),
-            })
-            .history(History::KeepLast { depth: 1 })
-            .durability(Durability::TransientLocal)
-            .build();
-        let tf_qos = QosPolicyBuilder::new()
-            .reliability(Reliability::Reliable {
-                max_blocking_time: rustdds::Duration::from_millis(100),
-            })
-            .history(History::KeepLast { depth: 100 })
-            .durability(Durability::Volatile)
-            .build();
+        let reliable = qos(true, 10, false);
+        let latched = qos(true, 1, true);
+        let tf_qos = qos(true, 100, false);
         let publisher = participant.create_publisher(&reliable).map_err(dds)?;
         let subscriber = participant.create_subscriber(&tf_qos).map_err(dds)?;
         let listener = TfListener::new(participant, &subscriber)?;
@@ -211,15 +192,7 @@ impl RosOutputs {
     }
 
     fn publish_map(&mut self, stamp: Stamp, map: &stillpoint_slam::data::map::Map) {
-        let points: Vec<([f32; 3], [u8; 3])> = map
-            .points
-            .values()
-            .filter(|p| !p.bad)
-            .map(|p| {
-                let x = p.position;
-                ([x.x as f32, x.y as f32, x.z as f32], [255, 255, 255])
-            })
-            .collect();
+        let points = stillpoint_run::record::map_cloud(map, [255, 255, 255]);
         self.cloud
             .send(msg::point_cloud(stamp, &self.frames.map, &points));
         self.path

@@ -5,14 +5,13 @@
 use std::collections::HashMap;
 
 use rustdds::no_key::SimpleDataReader;
-use rustdds::policy::{Durability, History, Reliability};
-use rustdds::{DomainParticipant, QosPolicyBuilder, Subscriber, TopicKind};
+use rustdds::{DomainParticipant, Subscriber, TopicKind};
 use stillpoint_geometry::Se3;
 use tracing::warn;
 
 use crate::msg::{TF_MESSAGE, decode_tf};
 use crate::wire::{CdrMessage, RawCdr};
-use crate::{Ros2Error, dds_topic_name};
+use crate::{Ros2Error, dds_topic_name, qos};
 
 /// The latest transform of each frame to its parent.
 #[derive(Default)]
@@ -61,20 +60,8 @@ impl TfListener {
         participant: &DomainParticipant,
         subscriber: &Subscriber,
     ) -> Result<Self, Ros2Error> {
-        let dynamic = QosPolicyBuilder::new()
-            .reliability(Reliability::Reliable {
-                max_blocking_time: rustdds::Duration::from_millis(100),
-            })
-            .history(History::KeepLast { depth: 100 })
-            .durability(Durability::Volatile)
-            .build();
-        let latched = QosPolicyBuilder::new()
-            .reliability(Reliability::Reliable {
-                max_blocking_time: rustdds::Duration::from_millis(100),
-            })
-            .history(History::KeepLast { depth: 100 })
-            .durability(Durability::TransientLocal)
-            .build();
+        let dynamic = qos(true, 100, false);
+        let latched = qos(true, 100, true);
         let mut readers = Vec::new();
         for (topic, qos) in [("/tf", &dynamic), ("/tf_static", &latched)] {
             let t = participant

@@ -212,15 +212,7 @@ impl Recorder {
 
     fn write_map(&mut self, map: &stillpoint_slam::data::map::Map) -> Result<(), RunError> {
         let stamp = self.last_stamp;
-        let points: Vec<([f32; 3], [u8; 3])> = map
-            .points
-            .values()
-            .filter(|p| !p.bad)
-            .map(|p| {
-                let x = p.position;
-                ([x.x as f32, x.y as f32, x.z as f32], MAP_POINT)
-            })
-            .collect();
+        let points = map_cloud(map, MAP_POINT);
         self.write(
             "/map/points",
             stamp,
@@ -327,6 +319,21 @@ fn record_error(path: &Path, e: mcap::McapError) -> RunError {
         context: format!("writing {}", path.display()),
         source: std::io::Error::other(e),
     }
+}
+
+/// The map's good points as a cloud of one colour (the recording's and the ROS 2 node's).
+pub fn map_cloud(
+    map: &stillpoint_slam::data::map::Map,
+    colour: [u8; 3],
+) -> Vec<([f32; 3], [u8; 3])> {
+    map.points
+        .values()
+        .filter(|p| !p.bad)
+        .map(|p| {
+            let x = p.position;
+            ([x.x as f32, x.y as f32, x.z as f32], colour)
+        })
+        .collect()
 }
 
 /// Seconds as MCAP nanoseconds, rounded to the microsecond: a Unix time in an f64 holds no
