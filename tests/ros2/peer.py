@@ -104,6 +104,9 @@ class Peer:
                 Policy.History.KeepLast(100)),
         )
         self.tf = []
+        self.r_annotated = DataReader(
+            dp, Topic(dp, "rt/stillpoint/image_annotated/compressed", m.CompressedImage), answers
+        )
         self.waitset = WaitSet(dp)
         self.waitset.attach(
             ReadCondition(self.r_state, ViewState.Any | InstanceState.Any | SampleState.NotRead)
@@ -207,6 +210,7 @@ def run(seq, lock_step, limit=None, rate=None, timeout=60.0):
             peer.collect()
             time.sleep(0.05)
     return {
+        "annotated": peer.r_annotated.take(N=10000),
         "sent": sent,
         "states": peer.states,
         "odometry": [

@@ -96,6 +96,9 @@ def test_lock_step_gives_the_sequential_runs_trajectory(sequence, tmp_path):
     assert saved.stat().st_size > 0
     s = json.loads(summary.read_text())
     assert s["frames_processed"] == FRAMES and s["frames_dropped"] == 0
+    # The annotated image is made for a listener (the peer subscribes to it): JPEGs came.
+    images = r["annotated"]
+    assert images and all(i.format == "jpeg" and i.data[:2] == b"\xff\xd8" for i in images)
 
 
 @pytest.mark.parametrize("sensor", ["mono", "stereo"])

@@ -6,7 +6,9 @@ use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
 
 use rustdds::no_key::DataWriter;
-use rustdds::{DomainParticipant, Publisher, QosPolicies, TopicKind};
+use rustdds::{
+    DataWriterStatus, DomainParticipant, Publisher, QosPolicies, StatusEvented, TopicKind,
+};
 use stillpoint_geometry::Se3;
 use stillpoint_run::{Ended, RunError, Sink, Tracked};
 use stillpoint_slam::TrackingState;
@@ -25,6 +27,8 @@ struct Output {
     topic: String,
     writer: Writer,
     failed: bool,
+    /// Readers matched now, from the writer's status events.
+    readers: i32,
 }
 
 impl Output {
@@ -45,7 +49,19 @@ impl Output {
             topic: topic.to_string(),
             writer,
             failed: false,
+            readers: 0,
         })
+    }
+
+    /// Whether a reader listens: what is costly to make (the annotated image: a drawing and a
+    /// JPEG on the tracking thread) is made only then.
+    fn listened(&mut self) -> bool {
+        while let Some(status) = self.writer.try_recv_status() {
+            if let DataWriterStatus::PublicationMatched { current, .. } = status {
+                self.readers = current.count();
+            }
+        }
+        self.readers > 0
     }
 
     /// Send; a failure is logged once (a slow reliable reader must not stop tracking).
@@ -275,7 +291,9 @@ impl Sink for RosOutputs {
         if let Some(at) = arrived {
             self.latencies.ms.push(at.elapsed().as_secs_f64() * 1e3);
         }
-        if let Some((out, quality)) = self.annotated.as_mut() {
+        if let Some((out, quality)) = self.annotated.as_mut()
+            && out.listened()
+        {
             let img = stillpoint_run::overlay::draw_overlay(t.frame, t.result);
             if let Ok(jpeg) = stillpoint_image::encode_jpeg(&img, *quality) {
                 out.send(msg::compressed_image(stamp, &camera, "jpeg", &jpeg));

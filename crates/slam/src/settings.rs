@@ -201,7 +201,8 @@ pub struct MonoInitSettings {
     pub min_triangulated: usize,
     /// Share of the two-view model's inliers that must triangulate (ORB-SLAM: 0.9).
     pub min_triangulated_share: f64,
-    /// Rounds of refitting the best RANSAC sample's H and F to all their inliers (ORB-SLAM: 0).
+    /// Rounds of refitting the best RANSAC sample's fundamental matrix to all its inliers, kept
+    /// while its score grows (ORB-SLAM: 0).
     pub refit_rounds: usize,
     /// A two-view map that bundle adjustment leaves with too few points drops the reference
     /// frame (ORB-SLAM: true). False keeps it: a later frame, with more parallax, may pass.

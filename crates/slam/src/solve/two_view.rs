@@ -97,7 +97,7 @@ pub enum TwoViewRejection {
     /// Fewer than 8 correspondences, or every sample degenerate.
     NoModel,
     /// The model's inliers did not triangulate well enough: `good` of `inliers` points, too few
-    /// (`min_triangulated` and 90 % of the inliers are needed).
+    /// (`min_triangulated` and `min_triangulated_share` of the inliers are needed).
     TooFewTriangulated {
         /// The model tried.
         model: TwoViewModel,
@@ -433,7 +433,8 @@ fn check_motion(
 }
 
 /// ORB-SLAM's `ReconstructF`: E = Kᵀ F K, its 4 decompositions; the one with the most good
-/// points must be the only one near it (> 0.7 of its count) and triangulate 90 % of the inliers.
+/// points must be the only one near it (> 0.7 of its count) and triangulate `min_triangulated_share`
+/// (0.9) of the inliers.
 fn reconstruct_f(
     cam: &PinholeCamera,
     p1: &[Vec2],
@@ -566,7 +567,8 @@ fn decompose_homography(h21: &Mat3, k: &Mat3) -> Vec<(Matrix3<f64>, Vec3)> {
 }
 
 /// ORB-SLAM's `ReconstructH`: the best of the 8 decompositions must clearly beat the second
-/// (< 0.75 of its good points), see enough parallax and triangulate 90 % of the inliers.
+/// (< 0.75 of its good points), see enough parallax and triangulate `min_triangulated_share` (0.9)
+/// of the inliers.
 fn reconstruct_h(
     cam: &PinholeCamera,
     p1: &[Vec2],
