@@ -33,8 +33,9 @@ pub struct Args {
     /// keyframes see each point).
     #[arg(long)]
     pub map_cloud: Option<PathBuf>,
-    /// RGB-D: write a dense cloud of the static scene (keyframe depth fused in 1 cm voxels,
-    /// the movers' pixels left out; `--set dense.voxel_m=...`) as PLY.
+    /// RGB-D and stereo: write a dense cloud of the static scene (keyframe depth, or stereo
+    /// depth matched densely, fused in 1 cm voxels, the movers' pixels left out; `--set
+    /// dense.voxel_m=...`) as PLY.
     #[arg(long)]
     pub dense_cloud: Option<PathBuf>,
     /// Record the run as an MCAP file for Foxglove: each frame's image with its keypoints and

@@ -131,6 +131,60 @@ fn stereo_depths_match_the_rendered_depth() {
     );
 }
 
+/// The dense stereo depth the front-end and the dense cloud read, against the renderer's depth.
+#[test]
+fn dense_stereo_depth_matches_the_rendered_depth() {
+    use stillpoint_image::stereo_depth::{DenseStereo, DenseStereoParams};
+    let dir = tempfile::tempdir().unwrap();
+    let seq = synth_static_stereo(dir.path(), 1);
+    let first = |sub: &str| first_image(&seq.join(sub));
+    let left = stillpoint_image::read_gray(&first("image_0")).unwrap();
+    let right = stillpoint_image::read_gray(&first("image_1")).unwrap();
+    let truth = stillpoint_image::read_depth_metres(&first("depth"), 5000.0).unwrap();
+    let dense = DenseStereo::default().depth(&left, &right, 53.54, &DenseStereoParams::default());
+    let mut rel: Vec<f32> = dense
+        .data
+        .iter()
+        .zip(&truth.data)
+        .filter(|(z, t)| **z > 0.0 && **t > 0.0)
+        .map(|(z, t)| (z - t).abs() / t)
+        .collect();
+    rel.sort_by(f32::total_cmp);
+    let share = rel.len() as f32 / dense.data.len() as f32;
+    let (p50, p90) = (rel[rel.len() / 2], rel[rel.len() * 9 / 10]);
+    eprintln!("{share:.2} of pixels with depth; relative error p50 {p50:.4} p90 {p90:.4}");
+    assert!(
+        share > 0.2 && p50 < 0.03 && p90 < 0.10,
+        "{share} {p50} {p90}"
+    );
+}
+
+/// `run --dense-cloud` on a stereo pair fuses the keyframes' dense stereo depth.
+#[test]
+fn a_stereo_run_writes_a_dense_cloud() {
+    let dir = tempfile::tempdir().unwrap();
+    let seq = synth_static_stereo(dir.path(), 20);
+    let ply = dir.path().join("dense.ply");
+    let out = stillpoint()
+        .args(["run", "--kind", "kitti", "--no-dynamic", "--json"])
+        .arg("--dataset")
+        .arg(&seq)
+        .arg("--out")
+        .arg(dir.path().join("traj.txt"))
+        .arg("--dense-cloud")
+        .arg(&ply)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let points = summary["dense_points"].as_u64().unwrap_or(0);
+    assert!(points > 1000, "{summary}");
+    let header = std::fs::read(&ply).unwrap();
+    let header = String::from_utf8_lossy(&header[..200]);
+    assert!(header.contains(&format!("element vertex {points}")), "{header}");
+}
+
 /// The real KITTI pair (sequences 00-02 calibration: fx 718.856, bf 386.1448): most keypoints
 /// find a right match, and the depths are those of a street (metres to tens of metres).
 #[test]

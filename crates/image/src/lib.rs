@@ -14,6 +14,7 @@
 #![deny(missing_docs)]
 
 pub mod codec;
+pub mod stereo_depth;
 
 use std::path::{Path, PathBuf};
 

@@ -39,7 +39,8 @@ use stillpoint_core::{Frame, Sensor};
 use stillpoint_features::{OrbExtractor, OrbParams};
 use stillpoint_frontend::{EraseRecent, FrameInput, FrontEnd, PreviousPose, Regions, SceneObjects};
 use stillpoint_geometry::Se3;
-use stillpoint_image::Gray8;
+use stillpoint_image::stereo_depth::DenseStereo;
+use stillpoint_image::{DepthMetres, Gray8};
 use stillpoint_slam::data::Map;
 use stillpoint_slam::map_file::{MapFile, MapFileError};
 use stillpoint_slam::matching::stereo::{StereoParams, StereoView, stereo_depths};
@@ -118,6 +119,12 @@ pub struct FrameTimings {
 }
 
 impl FrameResult {
+    /// The depth image of `frame` (the one this result is of): its own (RGB-D), or the one
+    /// matched from its stereo pair.
+    pub fn depth<'a>(&'a self, frame: &'a Frame) -> Option<&'a DepthMetres> {
+        frame.depth.as_ref().or(self.stereo_depth.as_deref())
+    }
+
     /// The poses this frame gave, in time order: the earlier frames a new monocular map took
     /// in ([`Self::backfilled`]), then this frame's own when tracked; (index, time, pose).
     pub fn poses_in_time_order(&self) -> impl Iterator<Item = (usize, f64, Se3)> + '_ {
@@ -172,6 +179,9 @@ pub struct FrameResult {
     /// map's two first views) that got their poses now, oldest first. A run's trajectory and
     /// its count of tracked frames take them in.
     pub backfilled: Vec<Backfilled>,
+    /// Stereo: the depth matched densely from the pair (every frame with a front-end, else
+    /// keyframes only; `stereo.dense_depth`), 0 where no match was trusted.
+    pub stereo_depth: Option<Arc<DepthMetres>>,
     /// Time per stage.
     pub timings: FrameTimings,
 }
@@ -239,6 +249,8 @@ pub struct Pipeline {
     /// The last frame fed and its pose, for the front-end's next frame.
     previous: Option<PreviousPose>,
     stereo: StereoParams,
+    /// The dense stereo matcher's buffers (stereo with a front-end only).
+    dense_stereo: DenseStereo,
     bf: f64,
     fx: f64,
     stamps: Vec<f64>,
@@ -318,6 +330,7 @@ impl Pipeline {
             skip_next: Regions::default(),
             previous: None,
             stereo: settings.stereo,
+            dense_stereo: DenseStereo::default(),
             bf: slam.bf,
             fx: slam.camera.fx,
             system,
@@ -335,12 +348,22 @@ impl Pipeline {
     /// Track one frame: features, the front-end's judgement, depth, pose.
     pub fn track(&mut self, frame: &Frame) -> Result<FrameResult, PipelineError> {
         let mut timings = FrameTimings::default();
-        let t0 = Instant::now();
         let (w, h) = (frame.gray.width, frame.gray.height);
-        let mut excluded = self
-            .skip_next
-            .mask(frame.depth.as_ref(), w, h)
-            .map(Arc::new);
+        // A stereo pair's dense depth, for the front-end (tracking matches keypoints itself).
+        let t_dense = Instant::now();
+        let mut stereo_depth_image = if self.front_end.is_some() {
+            self.dense_stereo_depth(frame)
+        } else {
+            None
+        };
+        let depth_image = frame.depth.as_ref().or(stereo_depth_image.as_deref());
+        let dense_stereo_ms = if stereo_depth_image.is_some() {
+            ms_since(t_dense)
+        } else {
+            0.0
+        };
+        let t0 = Instant::now();
+        let mut excluded = self.skip_next.mask(depth_image, w, h).map(Arc::new);
         self.orb.set_exclusion_mask(excluded.clone());
         let left_orb = match self.orb_init.as_mut() {
             Some(o) if self.system.wants_initial_features(frame.index) => {
@@ -356,7 +379,7 @@ impl Pipeline {
             timestamp: frame.timestamp,
             gray: &frame.gray,
             rgb: frame.rgb.as_ref(),
-            depth: frame.depth.as_ref(),
+            depth: depth_image,
             previous: self.previous.take(),
         };
         let front_end = &mut self.front_end;
@@ -398,7 +421,7 @@ impl Pipeline {
         if let (Some(f), true) = (self.front_end.as_mut(), measured) {
             let judged = f.judge(&input, &keypoints);
             timings.semantic_ms = judged.semantic_ms;
-            timings.geometry_ms = judged.geometry_ms;
+            timings.geometry_ms = judged.geometry_ms + dense_stereo_ms;
             dynamic_boxes = judged.dynamic_boxes;
             remove_dynamic(&mut features, &mut descriptors, &judged.dynamic);
             if judged.no_new_points.len() == judged.dynamic.len() {
@@ -454,7 +477,7 @@ impl Pipeline {
             Some(d) => KeypointDepth::PerKeypoint(d),
             None => frame.depth.as_ref().into(),
         };
-        let hygiene = self.recent_points_on_movers_eraser(frame, erase_recent);
+        let hygiene = self.recent_points_on_movers_eraser(frame.index, depth_image, erase_recent);
         let report = self
             .system
             .track(TrackInput {
@@ -469,6 +492,10 @@ impl Pipeline {
             })?;
         timings.tracking_ms = report.tracking_ms;
         timings.map_wait_ms = report.map_wait_ms;
+        if stereo_depth_image.is_none() && report.new_keyframe {
+            // Without a front-end only keyframes need it (the dense cloud fuses keyframes).
+            stereo_depth_image = self.dense_stereo_depth(frame);
+        }
         self.previous = Some(PreviousPose {
             index: frame.index,
             pose_wc: report.pose_wc,
@@ -501,6 +528,7 @@ impl Pipeline {
             relocalised: report.relocalised,
             new_map: report.new_map,
             backfilled: report.backfilled,
+            stereo_depth: stereo_depth_image,
             timings,
         };
         self.new_maps += result.new_map as usize;
@@ -513,6 +541,20 @@ impl Pipeline {
         Ok(result)
     }
 
+    /// A stereo pair's dense depth, when the pair has no depth image of its own.
+    fn dense_stereo_depth(&mut self, frame: &Frame) -> Option<Arc<DepthMetres>> {
+        let params = &self.stereo.dense_depth;
+        match (&frame.right, &frame.depth) {
+            (Some(right), None) if params.enabled => Some(Arc::new(self.dense_stereo.depth(
+                &frame.gray,
+                right,
+                self.bf as f32,
+                params,
+            ))),
+            _ => None,
+        }
+    }
+
     /// Map hygiene after tracking (RGB-D; the points the depth image sees through leave in
     /// `slam::System` itself): points made in the last frames on the surface of objects judged
     /// moving in this one leave the map
@@ -520,18 +562,16 @@ impl Pipeline {
     /// the frame has its pose, `None` when there is nothing to erase.
     fn recent_points_on_movers_eraser<'a>(
         &self,
-        frame: &'a Frame,
+        index: usize,
+        depth: Option<&'a DepthMetres>,
         erase: Option<EraseRecent>,
     ) -> Option<MapHygiene<'a>> {
-        let (Some(erase), Some(depth), false) =
-            (erase, frame.depth.as_ref(), self.system.localizing())
-        else {
+        let (Some(erase), Some(depth), false) = (erase, depth, self.system.localizing()) else {
             return None;
         };
         let mask = erase.movers.mask(Some(depth), depth.width, depth.height)?;
         let since = erase.since;
         let cam = self.system.settings.camera;
-        let index = frame.index;
         Some(Box::new(move |m: &mut Map, pose_wc: &Se3| {
             let erased =
                 m.erase_recent_points_on_movers(&pose_wc.inverse(), &cam, &mask, depth, since);

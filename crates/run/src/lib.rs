@@ -86,7 +86,7 @@ pub struct RunOptions {
     /// A PLY file for the map's points at the end (the sparse map, movers kept out of it).
     pub map_cloud: Option<PathBuf>,
     /// A PLY file for the dense static cloud: keyframe depth fused without the movers' pixels
-    /// (RGB-D; `[dense]` settings).
+    /// (RGB-D, or stereo depth matched densely; `[dense]` settings).
     pub dense_cloud: Option<PathBuf>,
     /// An MCAP file of the run for Foxglove: images, keypoints and boxes, poses, the map
     /// ([`record`]; `[record]` settings).

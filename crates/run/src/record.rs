@@ -177,9 +177,8 @@ impl Recorder {
             self.path_so_far.push((stamp, pose));
             self.write("/tf", stamp, &frame_transform_json(stamp, &pose))?;
             let lifted = f
-                .frame
-                .depth
-                .as_ref()
+                .result
+                .depth(f.frame)
                 .map(|d| lift_culled(f.result, d, f.camera, &pose))
                 .unwrap_or_default();
             let points: Vec<([f32; 3], [u8; 3])> =
@@ -637,6 +636,7 @@ mod tests {
             relocalised: false,
             new_map: false,
             backfilled: vec![],
+            stereo_depth: None,
             timings: Default::default(),
         }
     }

@@ -195,7 +195,7 @@ impl SettingsTree {
         let p = PipelineSettings::from_dataset(ds);
         let mut front_end = FrontEndSettings::default();
         if ds.sensor == stillpoint_datasets::Sensor::Stereo {
-            // A stereo frame's depth comes after the front-end (matched along the rows), so the
+            // Where a stereo pair's dense depth is off (`stereo.dense_depth.enabled`), the
             // front-end judges it without depth; there the two-frame check's box-less outliers
             // are still worth heeding (stereo living_close s0, YOLOX: 4.7 cm with them, 16.4
             // without), where on a monocular camera they eat the static world.

@@ -190,7 +190,7 @@ impl Sink for Recording {
     }
 }
 
-/// RGB-D: keyframe depth fused into a dense cloud of the static scene, the pixels of movers and
+/// RGB-D and stereo: keyframe depth fused into a dense cloud of the static scene, the pixels of movers and
 /// people left out, written as PLY at the end.
 pub(crate) struct DenseCloud<'a> {
     pub(crate) path: PathBuf,
@@ -201,7 +201,7 @@ pub(crate) struct DenseCloud<'a> {
 
 impl Sink for DenseCloud<'_> {
     fn frame(&mut self, t: &Tracked) -> Result<(), RunError> {
-        let (Some(depth), true) = (&t.frame.depth, t.result.new_keyframe) else {
+        let (Some(depth), true) = (t.result.depth(t.frame), t.result.new_keyframe) else {
             return Ok(());
         };
         // The pixels of movers and of people (still or not) stay out of the static cloud.

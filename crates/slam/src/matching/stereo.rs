@@ -8,6 +8,7 @@
 use stillpoint_image::Gray8;
 
 use crate::{Descriptor, Feature, hamming};
+use stillpoint_image::stereo_depth::DenseStereoParams;
 
 /// Stereo matching parameters (ORB-SLAM's values by default).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -23,6 +24,9 @@ pub struct StereoParams {
     pub sad_search: usize,
     /// Drop matches whose SAD exceeds this multiple of the median (1.5 x 1.4).
     pub sad_median_factor: f32,
+    /// Dense depth for what reads a depth image: the dynamic front-end, map hygiene and the
+    /// dense cloud (tracking keeps the per-keypoint depth above).
+    pub dense_depth: DenseStereoParams,
 }
 
 impl Default for StereoParams {
@@ -33,6 +37,7 @@ impl Default for StereoParams {
             sad_half_window: 5,
             sad_search: 5,
             sad_median_factor: 1.5 * 1.4,
+            dense_depth: DenseStereoParams::default(),
         }
     }
 }
