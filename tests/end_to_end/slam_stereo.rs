@@ -182,7 +182,10 @@ fn a_stereo_run_writes_a_dense_cloud() {
     assert!(points > 1000, "{summary}");
     let header = std::fs::read(&ply).unwrap();
     let header = String::from_utf8_lossy(&header[..200]);
-    assert!(header.contains(&format!("element vertex {points}")), "{header}");
+    assert!(
+        header.contains(&format!("element vertex {points}")),
+        "{header}"
+    );
 }
 
 /// The real KITTI pair (sequences 00-02 calibration: fx 718.856, bf 386.1448): most keypoints

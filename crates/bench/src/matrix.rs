@@ -50,7 +50,7 @@ pub struct MatrixOptions {
     /// without `depth.txt`); the ATE is then after a Sim(3) alignment.
     pub monocular: bool,
     /// Run each sequence as a rectified stereo pair (KITTI layout written beside the TUM one,
-    /// 0.10 m baseline; read as `--kind kitti`).
+    /// 0.10 m baseline, the street's 0.54 m as KITTI's; read as `--kind kitti`).
     pub stereo: bool,
     /// Blind the camera for a span of frames in every sequence (a covered lens or a blank
     /// wall): tracking is lost, a new map starts, and must merge with the first.
@@ -128,10 +128,15 @@ fn config(o: &MatrixOptions, preset: Preset, seed: u64) -> SynthConfig {
         seed,
         noise: o.noise,
         textures: o.textures.clone(),
-        stereo_baseline: o.stereo.then_some(0.1),
+        stereo_baseline: o.stereo.then_some(stereo_baseline(preset)),
         blind: o.blind,
         ..SynthConfig::default()
     }
+}
+
+/// The stereo rig's baseline (m): a car's is wide (KITTI's 0.54 m), a room robot's 0.10 m.
+fn stereo_baseline(preset: Preset) -> f64 {
+    if preset == Preset::Street { 0.54 } else { 0.1 }
 }
 
 /// The folder of one sequence: `PRESET_sSEED`, with the blind span when there is one

@@ -70,6 +70,17 @@ pub struct LoopSettings {
     /// Matches with the loop keyframe's covisible group, after projecting its points, needed
     /// to accept the loop (ORB-SLAM: 40).
     pub min_loop_matches: usize,
+    /// Ours, for a loop within one map: the correction it asks of the current keyframe may move
+    /// it by at most this share of the path the keyframes travelled since the loop keyframe
+    /// (plus `max_correction_floor_m`), and turn it by at most `max_correction_deg`. Tracking
+    /// with depth or stereo drifts a few per cent of its path; a place that verifies yet asks
+    /// for more is a look-alike (a street's repeated facades: 31 m and 60 degrees over 30 m
+    /// travelled). 0: no limit.
+    pub max_correction_share: f64,
+    /// The least distance (m, map units) a correction may always move the keyframe.
+    pub max_correction_floor_m: f64,
+    /// The most a correction may turn the current keyframe (degrees; 0: no limit).
+    pub max_correction_deg: f64,
     /// Search radii in pixels at octave 0: guided matching between the two keyframes
     /// (`SearchBySim3`: 7.5), projection of the loop group's points (`SearchByProjection`:
     /// 10), fusion into the corrected keyframes (`Fuse`: 4).
@@ -116,6 +127,9 @@ impl Default for LoopSettings {
             ransac_iterations: 300,
             ransac_min_inliers: 20,
             min_refined_inliers: 20,
+            max_correction_share: 0.25,
+            max_correction_floor_m: 0.5,
+            max_correction_deg: 30.0,
             min_loop_matches: 40,
             guided_radius: 7.5,
             projection_radius: 10.0,
@@ -226,6 +240,18 @@ struct Verified {
     scale: f64,
     ransac_inliers: usize,
     refined_inliers: usize,
+}
+
+impl LoopSettings {
+    /// Whether a loop within one map that would move the current keyframe by `moved_m` and turn
+    /// it by `turned_deg`, after `path_m` travelled since the loop keyframe, is drift
+    /// ([`Self::max_correction_share`], [`Self::max_correction_deg`]).
+    pub fn correction_is_plausible(&self, moved_m: f64, turned_deg: f64, path_m: f64) -> bool {
+        let too_far = self.max_correction_share > 0.0
+            && moved_m > self.max_correction_floor_m + self.max_correction_share * path_m;
+        let too_turned = self.max_correction_deg > 0.0 && turned_deg > self.max_correction_deg;
+        !(too_far || too_turned)
+    }
 }
 
 /// Loop-closing state: the keyframe database, the consistent groups, the loop edges.
@@ -467,5 +493,30 @@ impl LoopThread {
     /// The closer's statistics once [`LoopThread::finish`] returned.
     pub fn stats(&self) -> Option<&LoopStats> {
         self.closer.as_ref().map(|c| c.stats())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::LoopSettings;
+
+    #[test]
+    fn a_correction_is_plausible_only_as_drift() {
+        let s = LoopSettings::default();
+        // A lap of 6 m closing 20 cm and 3 degrees of drift.
+        assert!(s.correction_is_plausible(0.2, 3.0, 6.0));
+        // Short paths keep the floor (0.5 m).
+        assert!(s.correction_is_plausible(0.45, 1.0, 0.1));
+        // A street's look-alike facade 30 m on, over 30 m travelled.
+        assert!(!s.correction_is_plausible(29.9, 0.6, 30.0));
+        // A turn no drift explains.
+        assert!(!s.correction_is_plausible(0.1, 60.0, 30.0));
+        // 0 turns the limits off.
+        let off = LoopSettings {
+            max_correction_share: 0.0,
+            max_correction_deg: 0.0,
+            ..LoopSettings::default()
+        };
+        assert!(off.correction_is_plausible(29.9, 60.0, 30.0));
     }
 }

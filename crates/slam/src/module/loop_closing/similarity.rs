@@ -5,7 +5,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use stillpoint_geometry::{Se3, Vec3};
-use tracing::debug;
+use tracing::{debug, info};
 
 use super::{LoopCloser, PendingMerge, Verified};
 use crate::data::{KeyFrame, KfId, Map, MapPoint, MpId};
@@ -55,11 +55,46 @@ impl LoopCloser {
                         });
                     }
                 }
-                Some(v) => return Some(v),
-                None => self.stats.rejected_candidates += 1,
+                Some(v) if self.plausible(m, cur, l, &v) => return Some(v),
+                _ => self.stats.rejected_candidates += 1,
             }
         }
         None
+    }
+
+    /// A loop within one map asks the current keyframe to move no further than drift could have
+    /// taken it since the loop keyframe ([`LoopSettings::max_correction_share`]).
+    fn plausible(&self, m: &Map, cur: &KeyFrame, l: &KeyFrame, v: &Verified) -> bool {
+        let ls = &self.s.loop_closing;
+        let corrected = v.t_cl * l.pose_cw;
+        let centre = |p: &Se3| p.inverse().translation.vector;
+        let moved_m = (centre(&cur.pose_cw) - centre(&corrected)).norm();
+        let turned_deg = cur
+            .pose_cw
+            .rotation
+            .angle_to(&corrected.rotation)
+            .to_degrees();
+        // The path of the map's keyframes from the loop keyframe to this one.
+        let centres: Vec<_> = m
+            .keyframes
+            .range(l.id..=cur.id)
+            .map(|(_, k)| k)
+            .filter(|k| !k.bad && k.map_epoch == cur.map_epoch)
+            .map(|k| centre(&k.pose_cw))
+            .collect();
+        let path_m: f64 = centres.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+        let plausible = ls.correction_is_plausible(moved_m, turned_deg, path_m);
+        if !plausible {
+            info!(
+                keyframe = cur.id,
+                loop_keyframe = l.id,
+                moved_m,
+                turned_deg,
+                path_m,
+                "loop rejected: it asks for more correction than drift explains"
+            );
+        }
+        plausible
     }
 
     /// A place found in an older map, checked in the current keyframe's best covisible ones
