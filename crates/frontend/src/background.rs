@@ -18,6 +18,11 @@ pub(crate) struct BackgroundDetector {
     interval_s: f64,
     /// [`FrontEndSettings::background_detect_at_side_edge`].
     at_side_edge_every_frame: bool,
+    /// A schedule of frames instead of time: (every, lag) frames
+    /// ([`FrontEndSettings::background_detect_every_frames`]).
+    schedule: Option<(usize, usize)>,
+    /// On a schedule: the frame with the detector, whose boxes are still to be taken.
+    pending: Option<usize>,
     /// The newest finished boxes, already carried to frame `at`, and the frame they were
     /// detected on.
     latest: Option<CarriedDetections>,
@@ -64,6 +69,11 @@ impl BackgroundDetector {
             last_sent: None,
             interval_s: settings.background_detect_interval_s,
             at_side_edge_every_frame: settings.background_detect_at_side_edge,
+            schedule: (settings.background_detect_every_frames > 0).then(|| {
+                let every = settings.background_detect_every_frames;
+                (every, settings.background_detect_lag_frames.clamp(1, every))
+            }),
+            pending: None,
             latest: None,
             tracks: std::collections::VecDeque::new(),
         })
@@ -80,17 +90,24 @@ impl BackgroundDetector {
         while self.tracks.len() > MAX_DETECTION_AGE + 1 {
             self.tracks.pop_front();
         }
-        while let Some((detected, result)) = self.thread.try_recv() {
-            self.busy = false;
-            let boxes = result.unwrap_or_else(|e| {
-                tracing::warn!("frame {detected}: detector failed: {e}");
-                Vec::new()
-            });
-            self.latest = Some(CarriedDetections {
-                detected,
-                at: detected,
-                boxes,
-            });
+        match (self.schedule, self.pending) {
+            // On a schedule the boxes are taken at a fixed frame, never as they happen to come.
+            (Some((_, lag)), Some(sent)) if frame.index >= sent + lag => {
+                self.pending = None;
+                match self.thread.recv() {
+                    Ok(done) => self.take(done),
+                    Err(e) => {
+                        self.busy = false;
+                        tracing::warn!("frame {sent}: detector failed: {e}");
+                    }
+                }
+            }
+            (Some(_), _) => {}
+            (None, _) => {
+                while let Some(done) = self.thread.try_recv() {
+                    self.take(done);
+                }
+            }
         }
         if let Some(l) = self.latest.as_mut() {
             let from = l.at;
@@ -106,12 +123,17 @@ impl BackgroundDetector {
             .latest
             .as_ref()
             .is_some_and(|l| at_side_edge(&l.boxes, frame.gray.width as f32));
-        let due = (entering && self.at_side_edge_every_frame)
-            || self
+        let due = match self.schedule {
+            Some((every, _)) => frame.index.is_multiple_of(every),
+            None => self
                 .last_sent
-                .is_none_or(|t| frame.timestamp - t >= self.interval_s);
-        if !self.busy && due {
+                .is_none_or(|t| frame.timestamp - t >= self.interval_s),
+        };
+        if !self.busy && (due || (entering && self.at_side_edge_every_frame)) {
             self.send(frame);
+            if self.busy && self.schedule.is_some() {
+                self.pending = Some(frame.index);
+            }
         }
         match &self.latest {
             Some(l) if frame.index.saturating_sub(l.detected) <= MAX_DETECTION_AGE => {
@@ -119,6 +141,20 @@ impl BackgroundDetector {
             }
             _ => Vec::new(),
         }
+    }
+
+    /// A finished detection becomes the newest boxes.
+    fn take(&mut self, (detected, result): (usize, Result<Vec<Detection>, DetectError>)) {
+        self.busy = false;
+        let boxes = result.unwrap_or_else(|e| {
+            tracing::warn!("frame {detected}: detector failed: {e}");
+            Vec::new()
+        });
+        self.latest = Some(CarriedDetections {
+            detected,
+            at: detected,
+            boxes,
+        });
     }
 
     fn send(&mut self, frame: &FrameInput) {

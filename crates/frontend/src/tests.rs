@@ -175,6 +175,8 @@ fn the_background_detector_takes_one_frame_per_interval() {
     let settings = FrontEndSettings {
         detector_in_background: true,
         background_detect_interval_s: 0.1,
+        // By the clock, as a live run hands it frames.
+        background_detect_every_frames: 0,
         ..Default::default()
     };
     let mut front = DynamicFrontEnd::new(Box::new(Recording(Arc::clone(&seen))), settings)
@@ -207,6 +209,64 @@ fn the_background_detector_takes_one_frame_per_interval() {
     );
     for w in seen.windows(2) {
         assert!(w[1] - w[0] >= 0.1 - 1e-9, "{seen:?}");
+    }
+}
+
+/// On a schedule of frames the background detector takes exactly every n-th frame, and the boxes
+/// of frame k reach frame k + lag, whatever the detector's speed: a recording's run is the same
+/// on a busy machine.
+#[test]
+fn the_background_detector_on_a_schedule_takes_every_nth_frame() {
+    use std::sync::{Arc, Mutex};
+    struct Marking(Arc<Mutex<Vec<usize>>>);
+    impl Detector for Marking {
+        fn detect(&mut self, _: &DetectInput) -> Result<Vec<Detection>, DetectError> {
+            let mut seen = self.0.lock().unwrap();
+            let n = seen.len() + 1;
+            seen.push(n);
+            // A box whose left edge names the detection, far from the image's side edges.
+            Ok(vec![Detection {
+                bbox: stillpoint_geometry::BBox::new(20.0 + n as f32, 10.0, 60.0, 50.0),
+                class_id: 56, // a chair: judged, never culled on its own
+                score: 0.9,
+            }])
+        }
+        fn name(&self) -> &str {
+            "marking"
+        }
+    }
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let settings = FrontEndSettings {
+        detector_in_background: true,
+        background_detect_every_frames: 3,
+        background_detect_lag_frames: 2,
+        ..Default::default()
+    };
+    let mut front = DynamicFrontEnd::new(Box::new(Marking(Arc::clone(&seen))), settings)
+        .detect_in_background()
+        .unwrap();
+    let gray = Gray8::new(96, 64, 0);
+    let mut objects = Vec::new();
+    // The last frame takes the boxes of frame 39, the last one handed over.
+    for i in 0..42 {
+        let input = FrameInput {
+            index: i,
+            timestamp: i as f64 / 30.0,
+            gray: &gray,
+            rgb: None,
+            depth: None,
+            previous: None,
+        };
+        let judged = front.judge(&input, &[]);
+        objects.push(judged.objects.tracked.first().map(|o| o.bbox.x1));
+    }
+    drop(front);
+    // Frame 0 and every third frame after it.
+    assert_eq!(seen.lock().unwrap().len(), 14);
+    // Detection n (1-based) of frame 3(n-1) is in use from frame 3(n-1) + 2 on (the first at once).
+    for (i, x1) in objects.iter().enumerate() {
+        let n = if i < 5 { 1 } else { (i - 2) / 3 + 1 };
+        assert_eq!(*x1, Some(20.0 + n as f32), "frame {i}: {objects:?}");
     }
 }
 

@@ -379,8 +379,23 @@ fn open_front_end(
         Some((h, w)) => format!("{} {w}x{h}", detector.name()),
         None => detector.name().to_string(),
     };
-    let front = DynamicFrontEnd::new(detector, tree.front_end.clone());
-    let front = if tree.front_end.detector_in_background || o.realtime {
+    let mut settings = tree.front_end.clone();
+    // A live run never waits for the detector: its schedule of frames is for recordings.
+    let live = seq.len() == usize::MAX || o.realtime;
+    if live {
+        settings.background_detect_every_frames = 0;
+    }
+    // A recording's YOLOX works beside tracking on a schedule of frames with depth or stereo.
+    // Ground-truth boxes cost nothing, and a monocular start needs each frame's own boxes
+    // (carried ones cost living_turn seed 3 half its frames): both stay inline.
+    let on_schedule = !live
+        && settings.detect_recordings_on_schedule
+        && settings.background_detect_every_frames > 0
+        && name == "yolox"
+        && seq.settings().sensor != stillpoint_datasets::Sensor::Mono;
+    let in_background = settings.detector_in_background || o.realtime || on_schedule;
+    let front = DynamicFrontEnd::new(detector, settings);
+    let front = if in_background {
         front
             .detect_in_background()
             .map_err(|source| RunError::Detector {
