@@ -70,6 +70,8 @@ pub struct DenseStereo {
     texture: Vec<u16>,
     /// One row's census costs, `[x][d]`.
     raw: Vec<u16>,
+    /// One row of the right census, reversed.
+    reversed: Vec<u32>,
     /// The last `2r+1` rows' costs summed along x, `[row % (2r+1)][x][d]`.
     ring: Vec<u16>,
     /// Those summed down the window's rows: the window costs of the current row, `[x][d]`.
@@ -220,9 +222,12 @@ impl DenseStereo {
                 }
             }
             let row = y * w;
+            self.reversed.clear();
+            self.reversed
+                .extend(self.census_right[row..row + w].iter().rev());
             row_costs_portable(
                 &self.census_left[row..row + w],
-                &self.census_right[row..row + w],
+                &self.reversed,
                 dn,
                 &mut self.raw,
             );
@@ -246,12 +251,11 @@ fn lowest(costs: &[u16]) -> Option<usize> {
     costs.iter().position(|&c| c == min)
 }
 
-/// `raw[x][d]` = Hamming distance of left x and right x - d (24, the most, where x < d).
+/// `raw[x][d]` = Hamming distance of left x and right x - d (24, the most, where x < d);
+/// the right row comes reversed, so that x - d for d = 0, 1, ... reads forwards (vectorised).
 #[inline(always)]
-fn row_costs_portable(left: &[u32], right: &[u32], dn: usize, raw: &mut [u16]) {
-    // The right row reversed, so that x - d for d = 0, 1, ... reads forwards (vectorised).
-    let w = right.len();
-    let reversed: Vec<u32> = right.iter().rev().copied().collect();
+fn row_costs_portable(left: &[u32], reversed: &[u32], dn: usize, raw: &mut [u16]) {
+    let w = reversed.len();
     for (x, (&l, out)) in left.iter().zip(raw.chunks_exact_mut(dn)).enumerate() {
         let reachable = dn.min(x + 1);
         let from = &reversed[w - 1 - x..w - 1 - x + reachable];

@@ -163,7 +163,7 @@ pub fn run_source(
         .transpose()?;
     // Read and checked before the detector opens: a wrong map fails at once.
     let loaded = load_map(o, &slam, vocabulary.as_ref())?;
-    let (front, detector) = open_front_end(o, &tree, seq.as_ref())?;
+    let (front, detector) = open_front_end(o, &tree, seq.as_ref(), live || o.realtime)?;
     let n = frames_to_run(o, seq.len())?;
     let _lock = o.out.as_deref().map(lock_output).transpose()?;
     let mut outputs = Outputs::open(o, &tree, &slam, truth)?;
@@ -356,6 +356,7 @@ fn open_front_end(
     o: &RunOptions,
     tree: &SettingsTree,
     seq: &dyn Sequence,
+    live: bool,
 ) -> Result<(Option<Box<dyn FrontEnd>>, String), RunError> {
     let Some(name) = &o.detector else {
         return Ok((None, "off".to_string()));
@@ -380,8 +381,8 @@ fn open_front_end(
         None => detector.name().to_string(),
     };
     let mut settings = tree.front_end.clone();
-    // A live run never waits for the detector: its schedule of frames is for recordings.
-    let live = seq.len() == usize::MAX || o.realtime;
+    // A live run (camera, ROS 2, `--realtime`) never waits for the detector: its schedule of
+    // frames is for recordings.
     if live {
         settings.background_detect_every_frames = 0;
     }
