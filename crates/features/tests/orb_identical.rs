@@ -55,13 +55,19 @@ fn texture(w: usize, h: usize, seed: u32) -> Gray8 {
 }
 
 fn run(img: &Gray8, n: usize) -> u64 {
-    // ORB-SLAM's own extraction (no third FAST pass, which its unit tests cover): these hashes
-    // pin that path.
-    let mut orb = OrbExtractor::new(OrbParams {
-        n_features: n,
-        low_texture_th_fast: 0,
-        ..OrbParams::default()
-    });
+    // ORB-SLAM's own extraction (no third FAST pass): these hashes pin that path.
+    run_with(
+        img,
+        OrbParams {
+            n_features: n,
+            low_texture_th_fast: 0,
+            ..OrbParams::default()
+        },
+    )
+}
+
+fn run_with(img: &Gray8, params: OrbParams) -> u64 {
+    let mut orb = OrbExtractor::new(params);
     // twice, so buffers kept between frames cannot change the output
     let a = orb.extract(img);
     let b = orb.extract(img);
@@ -91,6 +97,55 @@ fn orb_output_is_unchanged_on_synthetic_textures() {
     assert_eq!(got, want);
 }
 
+/// A flat image with faint noise and a few strong shapes: most cells have no corner at the
+/// first two thresholds, so the third (noise-dependent) pass runs.
+fn plain(w: usize, h: usize, seed: u32) -> Gray8 {
+    let mut img = texture(w, h, seed);
+    for (i, v) in img.data.iter_mut().enumerate() {
+        let (x, y) = (i % w, i / w);
+        let shape = (x / 97 + y / 83) % 5 == 0;
+        *v = if shape {
+            *v
+        } else {
+            (128 + (*v as i32 - 128) / 8) as u8
+        };
+    }
+    img
+}
+
+#[test]
+fn orb_output_with_the_default_parameters_is_unchanged() {
+    // the project's defaults, third FAST pass (threshold from the image's noise) included
+    let cases = [
+        (texture(640, 480, 7), 1000),
+        (plain(640, 480, 3), 1000),
+        (plain(1241, 376, 5), 2000),
+        (plain(752, 480, 9), 1000),
+    ];
+    let got: Vec<u64> = cases
+        .iter()
+        .map(|(img, n)| {
+            run_with(
+                img,
+                OrbParams {
+                    n_features: *n,
+                    ..OrbParams::default()
+                },
+            )
+        })
+        .collect();
+    eprintln!("default-parameter hashes {got:#x?}");
+    // the plain images do take the third pass (else this test would pin nothing new)
+    assert_ne!(got[1], run(&cases[1].0, 1000));
+    let want: [u64; 4] = [
+        0x71a827f1ab4eda57,
+        0xe3bc75e33e7a2b8c,
+        0x7757bdfeaee5a151,
+        0xf1f0a025ff0502de,
+    ];
+    assert_eq!(got, want);
+}
+
 fn shared_dir() -> std::path::PathBuf {
     std::env::var_os("STILLPOINT_SHARED")
         .map(std::path::PathBuf::from)
@@ -111,18 +166,32 @@ fn orb_output_is_unchanged_on_real_images() {
         .collect();
     tum.sort();
     paths.extend(tum.into_iter().take(4));
+    // the three frame sizes ORB is timed on (640x480, KITTI 1241x376, EuRoC 752x480), with the
+    // project's default parameters
+    let sizes = [
+        d.join("bow_loop_frames/1.png"),
+        d.join("kitti/seq01_first51_left/image_0/000000.png"),
+        d.join("euroc_mh01_2frames/mh01_frame1.png"),
+    ];
     let got: Vec<u64> = paths
         .iter()
         .map(|p| run(&stillpoint_image::read_gray(p).expect("image"), 1000))
+        .chain(sizes.iter().map(|p| {
+            let img = stillpoint_image::read_gray(p).expect("image");
+            run_with(&img, OrbParams::default())
+        }))
         .collect();
     eprintln!("real hashes {got:#x?}");
-    let want: [u64; 6] = [
+    let want: [u64; 9] = [
         0xd14cf891ccde65f0,
         0xae5f42fac6de6996,
         0x83ce8be84e6bf038,
         0xe1b59ea6d0d469b7,
         0x52e7a4ec9302da46,
         0xaab7f2522a084a8a,
+        0x22bdaf54902cb776,
+        0x87db84ad6f911823,
+        0xd2b2834eccec4984,
     ];
     assert_eq!(got, want);
 }
