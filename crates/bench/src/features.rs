@@ -30,8 +30,17 @@ pub const STAGES: [&str; 8] = [
     "harris_lk",
 ];
 
-/// The stages OpenCV's script measures too.
-pub const COMPARED: [&str; 4] = ["orb", "harris_subpix", "lk", "harris_lk"];
+/// The stages OpenCV's script measures, each with the stage of ours it is compared with:
+/// `orb` is OpenCV's ORB with ORB-SLAM's border (edgeThreshold 19), `orb_default` with OpenCV's
+/// own defaults but the feature count (edgeThreshold 31, fewer pixels scanned); ours is the
+/// ORB-SLAM extractor with its own parameters against both.
+pub const COMPARED: [(&str, &str); 5] = [
+    ("orb", "orb"),
+    ("orb_default", "orb"),
+    ("harris_subpix", "harris_subpix"),
+    ("lk", "lk"),
+    ("harris_lk", "harris_lk"),
+];
 
 /// What is timed, and how the reference runs.
 #[derive(Clone, Debug)]
@@ -115,9 +124,26 @@ pub struct FeatureReport {
     /// Ours / OpenCV's per [`COMPARED`] stage (below 1 = faster): the median over rounds of the
     /// ratio of the two sides' medians within the round.
     pub ratios: Vec<(&'static str, f64)>,
+    /// The ORB ratios per image size, measured the same way over that size's images.
+    pub orb_by_size: Vec<SizeRatios>,
     /// The 1-minute load average before and after (absolute ms on a shared machine mean little
     /// without it).
     pub load_average: [Option<f64>; 2],
+}
+
+/// ORB on the images of one size: our median and OpenCV's, and the ratios.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SizeRatios {
+    /// Width and height.
+    pub size: (usize, usize),
+    /// Images of this size.
+    pub images: usize,
+    /// Our ORB, median ms per frame.
+    pub ours_ms: Option<f64>,
+    /// OpenCV's `orb` and `orb_default`, median ms per frame.
+    pub opencv_ms: [Option<f64>; 2],
+    /// Ours / `orb` and ours / `orb_default` (median over rounds).
+    pub ratios: [Option<f64>; 2],
 }
 
 /// The script beside the working directory, or in this repository.
@@ -284,6 +310,19 @@ pub fn measure(o: &FeatureOptions) -> Result<FeatureReport, BenchError> {
             }
         },
     };
+    // image indices grouped by size, in order of first appearance
+    let mut sizes: Vec<((usize, usize), Vec<usize>)> = Vec::new();
+    for (i, img) in imgs.iter().enumerate() {
+        let size = (img.width, img.height);
+        match sizes.iter_mut().find(|(s, _)| *s == size) {
+            Some((_, v)) => v.push(i),
+            None => sizes.push((size, vec![i])),
+        }
+    }
+    // per size: ours, OpenCV's two ORBs (all frames) and the two per-round ratios
+    let mut size_ours: Vec<Vec<f64>> = vec![Vec::new(); sizes.len()];
+    let mut size_cv: Vec<[Vec<f64>; 2]> = vec![Default::default(); sizes.len()];
+    let mut size_ratios: Vec<[Vec<f64>; 2]> = vec![Default::default(); sizes.len()];
     let mut cv_t: Vec<Vec<f64>> = vec![Vec::new(); COMPARED.len()];
     let mut cv_counts = [0f64; 3];
     // per round: median of ours / median of OpenCV's, for each compared stage
@@ -338,16 +377,32 @@ pub fn measure(o: &FeatureOptions) -> Result<FeatureReport, BenchError> {
             cv_round = Some(s.round()?);
         }
         if let Some(r) = &cv_round {
-            for (c, k) in COMPARED.iter().enumerate() {
+            let orb_k = STAGES.iter().position(|n| *n == "orb").unwrap_or(0);
+            for (c, (k, ours_name)) in COMPARED.iter().enumerate() {
                 let v: Vec<f64> = r["times"][*k]
                     .as_array()
                     .map(|a| a.iter().filter_map(Value::as_f64).collect())
                     .unwrap_or_default();
-                let ours_k = STAGES.iter().position(|n| n == k).unwrap_or(0);
+                let ours_k = STAGES.iter().position(|n| n == ours_name).unwrap_or(0);
                 if let (Some(a), Some(b)) = (median(&ours_round[ours_k]), median(&v))
                     && b > 0.0
                 {
                     round_ratios[c].push(a / b);
+                }
+                if let Some(which) = ["orb", "orb_default"].iter().position(|n| n == k)
+                    && v.len() == imgs.len()
+                {
+                    for (g, (_, members)) in sizes.iter().enumerate() {
+                        let theirs: Vec<f64> = members.iter().map(|&i| v[i]).collect();
+                        let ours: Vec<f64> =
+                            members.iter().map(|&i| ours_round[orb_k][i]).collect();
+                        if let (Some(a), Some(b)) = (median(&ours), median(&theirs))
+                            && b > 0.0
+                        {
+                            size_ratios[g][which].push(a / b);
+                        }
+                        size_cv[g][which].extend(theirs);
+                    }
                 }
                 cv_t[c].extend(v);
             }
@@ -355,6 +410,11 @@ pub fn measure(o: &FeatureOptions) -> Result<FeatureReport, BenchError> {
                 if let Some(a) = r["counts"][*k].as_array() {
                     cv_counts[n] += a.iter().filter_map(Value::as_f64).sum::<f64>();
                 }
+            }
+        }
+        if let Some(orb_k) = STAGES.iter().position(|n| *n == "orb") {
+            for (g, (_, members)) in sizes.iter().enumerate() {
+                size_ours[g].extend(members.iter().map(|&i| ours_round[orb_k][i]));
             }
         }
         for (all, r) in t.iter_mut().zip(ours_round) {
@@ -371,7 +431,7 @@ pub fn measure(o: &FeatureOptions) -> Result<FeatureReport, BenchError> {
         stages: COMPARED
             .iter()
             .zip(cv_t.iter_mut())
-            .map(|(k, v)| (*k, StageTimes::of(v)))
+            .map(|((k, _), v)| (*k, StageTimes::of(v)))
             .collect(),
         counts: Counts {
             features: per_frame(cv_counts[0]),
@@ -386,7 +446,18 @@ pub fn measure(o: &FeatureOptions) -> Result<FeatureReport, BenchError> {
     let ratios = COMPARED
         .iter()
         .zip(&round_ratios)
-        .filter_map(|(k, r)| Some((*k, median(r)?)))
+        .filter_map(|((k, _), r)| Some((*k, median(r)?)))
+        .collect();
+    let orb_by_size = sizes
+        .iter()
+        .enumerate()
+        .map(|(g, (size, members))| SizeRatios {
+            size: *size,
+            images: members.len(),
+            ours_ms: median(&size_ours[g]),
+            opencv_ms: [median(&size_cv[g][0]), median(&size_cv[g][1])],
+            ratios: [median(&size_ratios[g][0]), median(&size_ratios[g][1])],
+        })
         .collect();
     Ok(FeatureReport {
         images: o.images.clone(),
@@ -399,6 +470,7 @@ pub fn measure(o: &FeatureOptions) -> Result<FeatureReport, BenchError> {
         },
         opencv,
         ratios,
+        orb_by_size,
         load_average: [load_before, load_after],
     })
 }

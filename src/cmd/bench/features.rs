@@ -90,6 +90,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .iter()
         .map(|(k, v)| (k.to_string(), json!(v)))
         .collect();
+    let by_size: Vec<Value> = r
+        .orb_by_size
+        .iter()
+        .map(|g| {
+            json!({
+                "width": g.size.0,
+                "height": g.size.1,
+                "images": g.images,
+                "ours_ms": g.ours_ms,
+                "opencv_orb_ms": g.opencv_ms[0],
+                "opencv_orb_default_ms": g.opencv_ms[1],
+                "ratio_vs_orb": g.ratios[0],
+                "ratio_vs_orb_default": g.ratios[1],
+            })
+        })
+        .collect();
     let [load_before, load_after] = r.load_average;
     if args.json {
         let out = json!({
@@ -98,6 +114,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "stillpoint": ours,
             "opencv": opencv,
             "ratio_vs_opencv": ratios,
+            "orb_by_size": by_size,
             "load_average_1min": [load_before, load_after],
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
@@ -120,24 +137,44 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "{:<14} {:>8} {:>8}   {:>8} {:>8}   {:>7}",
         "stage", "ours", "p90", "opencv", "p90", "ratio"
     );
-    for n in stillpoint_bench::features::STAGES {
+    // every stage of ours; OpenCV's second ORB (its default border) right under ours
+    let rows = stillpoint_bench::features::STAGES.iter().flat_map(|n| {
+        let extra = (*n == "orb").then_some(("orb_default", "orb"));
+        std::iter::once((*n, *n)).chain(extra)
+    });
+    for (name, ours_name) in rows {
         let (cm, cp90) = match cvm {
-            Some(m) => (med(m, n, "median"), med(m, n, "p90")),
+            Some(m) => (med(m, name, "median"), med(m, name, "p90")),
             None => (format!("{:>8}", "-"), format!("{:>8}", "-")),
         };
         let r = ratios
-            .get(n)
+            .get(name)
             .and_then(Value::as_f64)
             .map(|r| format!("{r:7.2}"))
             .unwrap_or_else(|| format!("{:>7}", "-"));
         println!(
             "{:<14} {} {}   {} {}   {}",
-            n,
-            med(&ours, n, "median"),
-            med(&ours, n, "p90"),
+            name,
+            med(&ours, ours_name, "median"),
+            med(&ours, ours_name, "p90"),
             cm,
             cp90,
             r
+        );
+    }
+    let num = |v: Option<f64>, p: usize| v.map_or_else(|| "-".to_string(), |v| format!("{v:.p$}"));
+    println!("ORB by image size: ours ms, OpenCV orb / orb_default ms, ratios");
+    for g in &r.orb_by_size {
+        println!(
+            "  {}x{} ({} images): {} ms vs {} / {} ms, ratio {} / {}",
+            g.size.0,
+            g.size.1,
+            g.images,
+            num(g.ours_ms, 3),
+            num(g.opencv_ms[0], 3),
+            num(g.opencv_ms[1], 3),
+            num(g.ratios[0], 2),
+            num(g.ratios[1], 2)
         );
     }
     let fmt_load = |l: Option<f64>| l.map_or_else(|| "?".to_string(), |l| format!("{l:.2}"));
