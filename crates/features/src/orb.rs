@@ -525,21 +525,31 @@ pub fn noise_sigma(img: &Gray8) -> f32 {
     if w < 3 || h < 3 || img.data.len() != w * h {
         return 0.0;
     }
-    let px = |x: usize, y: usize| img.data[y * w + x] as i32;
-    let (mut sum, mut n) = (0u64, 0u64);
-    for y in (1..h - 1).step_by(2) {
-        for x in 1..w - 1 {
-            let r = px(x - 1, y - 1) - 2 * px(x, y - 1) + px(x + 1, y - 1) - 2 * px(x - 1, y)
-                + 4 * px(x, y)
-                - 2 * px(x + 1, y)
-                + px(x - 1, y + 1)
-                - 2 * px(x, y + 1)
-                + px(x + 1, y + 1);
-            sum += r.unsigned_abs() as u64;
-            n += 1;
-        }
-    }
+    let (sum, n) = laplacian_abs_sum(img);
     (std::f64::consts::FRAC_PI_2.sqrt() * sum as f64 / (6.0 * n as f64)) as f32
+}
+
+crate::imgops::simd_fn! {
+/// Sum of |[1 -2 1]ᵀ[1 -2 1] * img| over every other row (1, 3, ...) and the inner columns, and
+/// how many pixels that is. Exact integers (|r| <= 16 * 255 fits an i16), so the order of the
+/// sums (vectorised) does not change the result.
+fn laplacian_abs_sum(img: &Gray8) -> (u64, u64) {
+    let (w, h) = (img.width, img.height);
+    let n = w - 2;
+    let (mut sum, mut count) = (0u64, 0u64);
+    for y in (1..h - 1).step_by(2) {
+        let (a, b, c) = (img.row(y - 1), img.row(y), img.row(y + 1));
+        let second = |r: &[u8], x: usize| r[x] as i16 - 2 * r[x + 1] as i16 + r[x + 2] as i16;
+        let mut row_sum = 0u32;
+        for x in 0..n {
+            let r = second(a, x) - 2 * second(b, x) + second(c, x);
+            row_sum += r.unsigned_abs() as u32;
+        }
+        sum += row_sum as u64;
+        count += n as u64;
+    }
+    (sum, count)
+}
 }
 
 /// FAST on ORB-SLAM3's grid: cells of ~35 px between borders of 16 px, threshold
