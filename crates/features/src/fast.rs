@@ -247,6 +247,24 @@ fn corner_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<
         // SAFETY: AVX2 is available; `detect` keeps rows and columns 3 px inside the image,
         // so every circle pixel of a whole block lies in `img.data`.
         i = unsafe { corner_blocks_avx2(&img.data, base, n, t, &offsets, out) };
+        // the tail (under 32 pixels): one more whole block that ends at the tail's end, or as
+        // far right as the image allows, with its bits shifted into place; a pixel's test does
+        // not depend on the block it is in
+        let x = x0 + i;
+        if i < n && w >= L + 6 {
+            let start = x.min(w - 3 - L);
+            let mut bits = [0u32; 1];
+            // SAFETY: as above; `3 <= start` and `start + L <= w - 3` keep the block's circle
+            // pixels on row `y` (3 px inside the image) in `img.data`.
+            let covered = unsafe {
+                corner_blocks_avx2(&img.data, y * w + start, L, t, &offsets, &mut bits)
+            };
+            if covered == L {
+                let valid = (1u32 << (n - i)) - 1;
+                out[i / L] = (bits[0] >> (x - start)) & valid;
+                i = n;
+            }
+        }
     }
     while i < n {
         let lanes = L.min(n - i);
@@ -450,21 +468,25 @@ mod tests {
                 img.set(x, y, 128);
             }
         }
-        for t in [1u8, 7, 20, 60, 250] {
-            for y in 3..h - 3 {
-                let mut fast = Vec::new();
-                corner_row(&img, y, 3, w - 3, t, &mut fast);
-                // the segment test, pixel by pixel
-                let offsets: [isize; 16] =
-                    std::array::from_fn(|k| FAST_CIRCLE[k].1 * w as isize + FAST_CIRCLE[k].0);
-                let expect: Vec<usize> = (3..w - 3)
-                    .filter(|&x| score_at(&img.data, y * w + x, &offsets, t) > 0)
-                    .map(|x| x - 3)
-                    .collect();
-                let got: Vec<usize> = (0..w - 6)
-                    .filter(|&j| fast[j / L] >> (j % L) & 1 == 1)
-                    .collect();
-                assert_eq!(got, expect, "t {t} row {y}");
+        // whole rows, and spans whose tail block has to start left of them (short spans,
+        // spans ending at the image's right margin)
+        for (x0, x1) in [(3, w - 3), (5, 20), (60, w - 3), (10, 50), (90, w - 3)] {
+            for t in [1u8, 7, 20, 60, 250] {
+                for y in 3..h - 3 {
+                    let mut fast = Vec::new();
+                    corner_row(&img, y, x0, x1, t, &mut fast);
+                    // the segment test, pixel by pixel
+                    let offsets: [isize; 16] =
+                        std::array::from_fn(|k| FAST_CIRCLE[k].1 * w as isize + FAST_CIRCLE[k].0);
+                    let expect: Vec<usize> = (x0..x1)
+                        .filter(|&x| score_at(&img.data, y * w + x, &offsets, t) > 0)
+                        .map(|x| x - x0)
+                        .collect();
+                    let got: Vec<usize> = (0..x1 - x0)
+                        .filter(|&j| fast[j / L] >> (j % L) & 1 == 1)
+                        .collect();
+                    assert_eq!(got, expect, "span {x0}..{x1} t {t} row {y}");
+                }
             }
         }
     }
