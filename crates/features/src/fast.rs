@@ -175,8 +175,9 @@ fn movemask32(m: &[u8; L]) -> u32 {
 }
 
 /// The whole 32-pixel blocks of [`corner_row`] (`n / 32` of them from `data[base]`) with AVX2
-/// compares and movemasks, written to `out`; returns how many pixels it covered. Same masks as
-/// the portable loop (unsigned compares as signed ones after flipping the top bit).
+/// compares and movemasks, written to `out`, and every pixel's score to `scores` (0 where it is
+/// not a corner); returns how many pixels it covered. Same masks as the portable loop (unsigned
+/// compares as signed ones after flipping the top bit), same scores as [`corner_score`].
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn corner_blocks_avx2(
@@ -186,6 +187,7 @@ unsafe fn corner_blocks_avx2(
     t: u8,
     offsets: &[isize; 16],
     out: &mut [u32],
+    scores: &mut [u8],
 ) -> usize {
     use std::arch::x86_64::*;
     let blocks = n / L;
@@ -195,7 +197,12 @@ unsafe fn corner_blocks_avx2(
     let hi_off = offsets.iter().copied().max().unwrap_or(0).max(0);
     let first = base as isize + lo_off;
     let last = (base + blocks * L) as isize + hi_off; // one past the last byte read
-    if blocks == 0 || first < 0 || last > data.len() as isize || out.len() < blocks {
+    if blocks == 0
+        || first < 0
+        || last > data.len() as isize
+        || out.len() < blocks
+        || scores.len() < blocks * L
+    {
         return 0;
     }
     let sign = _mm256_set1_epi8(i8::MIN);
@@ -203,16 +210,18 @@ unsafe fn corner_blocks_avx2(
     let ptr = data.as_ptr();
     for (b, slot) in out[..blocks].iter_mut().enumerate() {
         let at = base + b * L;
-        // SAFETY: `first..last` bounds every load.
+        // SAFETY: `first..last` bounds every load; `scores` holds `blocks * L` bytes.
         unsafe {
             let c = _mm256_loadu_si256(ptr.add(at).cast::<__m256i>());
             let hi = _mm256_xor_si256(_mm256_adds_epu8(c, tv), sign);
             let lo = _mm256_xor_si256(_mm256_subs_epu8(c, tv), sign);
             let mut bright = [0u32; 16];
             let mut dark = [0u32; 16];
+            let mut ring = [_mm256_setzero_si256(); 16];
             for k in 0..16 {
                 let q = ptr.offset(at as isize + offsets[k]).cast::<__m256i>();
-                let p = _mm256_xor_si256(_mm256_loadu_si256(q), sign);
+                ring[k] = _mm256_loadu_si256(q);
+                let p = _mm256_xor_si256(ring[k], sign);
                 bright[k] = _mm256_movemask_epi8(_mm256_cmpgt_epi8(p, hi)) as u32;
                 dark[k] = _mm256_movemask_epi8(_mm256_cmpgt_epi8(lo, p)) as u32;
             }
@@ -221,23 +230,89 @@ unsafe fn corner_blocks_avx2(
                 bm &= bright[k] | bright[k + 8];
                 dm &= dark[k] | dark[k + 8];
             }
-            if bm | dm != 0 {
-                *slot = arc9(&bright) | arc9(&dark);
+            let corners = if bm | dm != 0 {
+                arc9(&bright) | arc9(&dark)
+            } else {
+                0
+            };
+            *slot = corners;
+            let dst = scores.as_mut_ptr().add(b * L).cast::<__m256i>();
+            if corners == 0 {
+                _mm256_storeu_si256(dst, _mm256_setzero_si256());
+            } else {
+                let score = block_scores_avx2(c, &ring);
+                _mm256_storeu_si256(dst, _mm256_and_si256(score, byte_mask_avx2(corners)));
             }
         }
     }
     blocks * L
 }
 
+/// [`corner_score`] of 32 pixels at once from their circles (`ring[k]` = circle pixel k of
+/// each): the best arc of 9 of the saturated differences `p - c` (bright) and `c - p` (dark),
+/// doubling windows (2, 4, 8, then + 1); saturation only clips arcs that are no corner either
+/// way, so the best of both directions is the same as with signed differences.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn block_scores_avx2(
+    c: std::arch::x86_64::__m256i,
+    ring: &[std::arch::x86_64::__m256i; 16],
+) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    let best_arc = |d: [__m256i; 16]| {
+        let m2: [__m256i; 16] = std::array::from_fn(|k| _mm256_min_epu8(d[k], d[(k + 1) & 15]));
+        let m4: [__m256i; 16] = std::array::from_fn(|k| _mm256_min_epu8(m2[k], m2[(k + 2) & 15]));
+        let mut best = _mm256_setzero_si256();
+        for k in 0..16 {
+            let m8 = _mm256_min_epu8(m4[k], m4[(k + 4) & 15]);
+            best = _mm256_max_epu8(best, _mm256_min_epu8(m8, d[(k + 8) & 15]));
+        }
+        best
+    };
+    let bright = best_arc(std::array::from_fn(|k| _mm256_subs_epu8(ring[k], c)));
+    let dark = best_arc(std::array::from_fn(|k| _mm256_subs_epu8(c, ring[k])));
+    // OpenCV's score: the best margin minus one, at least 1
+    let best = _mm256_max_epu8(bright, dark);
+    _mm256_max_epu8(
+        _mm256_subs_epu8(best, _mm256_set1_epi8(1)),
+        _mm256_set1_epi8(1),
+    )
+}
+
+/// Bit j of `bits` to byte j (0xFF / 0x00) of a 32-byte vector.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn byte_mask_avx2(bits: u32) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    let v = _mm256_set1_epi32(bits as i32);
+    // byte j takes byte j / 8 of the mask, then tests its bit j % 8
+    let pick = _mm256_setr_epi8(
+        0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1, 2, 2, 2, 2, 2, 2, 2, 2, 3, 3, 3, 3, 3, 3,
+        3, 3,
+    );
+    let bit = _mm256_set1_epi64x(0x8040_2010_0804_0201u64 as i64);
+    _mm256_cmpeq_epi8(_mm256_and_si256(_mm256_shuffle_epi8(v, pick), bit), bit)
+}
+
 simd_fn! {
 /// Mark pixels of row `y`, columns `x0..x1`, that are FAST corners at threshold `t` (full
 /// segment test, 32 pixels at a time as bit masks, one `u32` per block in `out`; blocks where
-/// no pixel passes the opposite-pairs pre-test are skipped).
-fn corner_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<u32>) {
+/// no pixel passes the opposite-pairs pre-test are skipped), and write each pixel's score to
+/// `scores` (`x1 - x0` bytes; 0 = not a corner).
+fn corner_row(
+    img: &Gray8,
+    y: usize,
+    x0: usize,
+    x1: usize,
+    t: u8,
+    out: &mut Vec<u32>,
+    scores: &mut [u8],
+) {
     let w = img.width;
     let n = x1 - x0;
     out.clear();
     out.resize(n.div_ceil(L), 0);
+    scores.fill(0);
     let base = y * w + x0;
     let offsets: [isize; 16] = std::array::from_fn(|k| FAST_CIRCLE[k].1 * w as isize + FAST_CIRCLE[k].0);
     let mut i = 0;
@@ -246,7 +321,7 @@ fn corner_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<
         // whole blocks in AVX2 registers; the row's tail block below
         // SAFETY: AVX2 is available; `detect` keeps rows and columns 3 px inside the image,
         // so every circle pixel of a whole block lies in `img.data`.
-        i = unsafe { corner_blocks_avx2(&img.data, base, n, t, &offsets, out) };
+        i = unsafe { corner_blocks_avx2(&img.data, base, n, t, &offsets, out, scores) };
         // the tail (under 32 pixels): one more whole block that ends at the tail's end, or as
         // far right as the image allows, with its bits shifted into place; a pixel's test does
         // not depend on the block it is in
@@ -254,14 +329,25 @@ fn corner_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<
         if i < n && w >= L + 6 {
             let start = x.min(w - 3 - L);
             let mut bits = [0u32; 1];
+            let mut block_scores = [0u8; L];
             // SAFETY: as above; `3 <= start` and `start + L <= w - 3` keep the block's circle
             // pixels on row `y` (3 px inside the image) in `img.data`.
             let covered = unsafe {
-                corner_blocks_avx2(&img.data, y * w + start, L, t, &offsets, &mut bits)
+                corner_blocks_avx2(
+                    &img.data,
+                    y * w + start,
+                    L,
+                    t,
+                    &offsets,
+                    &mut bits,
+                    &mut block_scores,
+                )
             };
             if covered == L {
                 let valid = (1u32 << (n - i)) - 1;
                 out[i / L] = (bits[0] >> (x - start)) & valid;
+                let from = x - start;
+                scores[i..n].copy_from_slice(&block_scores[from..from + (n - i)]);
                 i = n;
             }
         }
@@ -310,7 +396,13 @@ fn corner_row(img: &Gray8, y: usize, x0: usize, x1: usize, t: u8, out: &mut Vec<
         }
         if b | d != 0 {
             let valid = if lanes == L { u32::MAX } else { (1u32 << lanes) - 1 };
-            out[i / L] = (arc9(&bright) | arc9(&dark)) & valid;
+            let mut bits = (arc9(&bright) | arc9(&dark)) & valid;
+            out[i / L] = bits;
+            while bits != 0 {
+                let j = bits.trailing_zeros() as usize;
+                scores[i + j] = corner_score(&img.data, base + i + j, &offsets);
+                bits &= bits - 1;
+            }
         }
         i += L;
     }
@@ -355,24 +447,16 @@ pub(crate) fn detect(img: &Gray8, rect: [usize; 4], t: u8, out: &mut Vec<Corner>
         return;
     }
     let t = t.max(1);
-    let offsets: [isize; 16] = std::array::from_fn(|k| FAST_CIRCLE[k].1 * w as isize + FAST_CIRCLE[k].0);
     let rw = x1 - x0;
     // three rolling score rows (previous, current, next) with a zero column on each side
     let mut rows = [vec![0u8; rw + 2], vec![0u8; rw + 2], vec![0u8; rw + 2]];
     let mut mask = Vec::with_capacity(rw.div_ceil(L));
+    // the end columns stay zero; `corner_row` writes every score between them
     let mut fill = |y: usize, row: &mut Vec<u8>| {
-        row.iter_mut().for_each(|v| *v = 0);
         if y < y0 || y >= y1 {
-            return;
-        }
-        corner_row(img, y, x0, x1, t, &mut mask);
-        for (block, &bits) in mask.iter().enumerate() {
-            let mut bits = bits;
-            while bits != 0 {
-                let j = block * L + bits.trailing_zeros() as usize;
-                row[j + 1] = corner_score(&img.data, y * w + x0 + j, &offsets);
-                bits &= bits - 1;
-            }
+            row.fill(0);
+        } else {
+            corner_row(img, y, x0, x1, t, &mut mask, &mut row[1..=rw]);
         }
     };
     fill(y0, &mut rows[1]);
@@ -474,7 +558,8 @@ mod tests {
             for t in [1u8, 7, 20, 60, 250] {
                 for y in 3..h - 3 {
                     let mut fast = Vec::new();
-                    corner_row(&img, y, x0, x1, t, &mut fast);
+                    let mut scores = vec![7u8; x1 - x0];
+                    corner_row(&img, y, x0, x1, t, &mut fast, &mut scores);
                     // the segment test, pixel by pixel
                     let offsets: [isize; 16] =
                         std::array::from_fn(|k| FAST_CIRCLE[k].1 * w as isize + FAST_CIRCLE[k].0);
@@ -486,6 +571,11 @@ mod tests {
                         .filter(|&j| fast[j / L] >> (j % L) & 1 == 1)
                         .collect();
                     assert_eq!(got, expect, "span {x0}..{x1} t {t} row {y}");
+                    // every corner's score as the scalar score, 0 elsewhere
+                    let want: Vec<u8> = (x0..x1)
+                        .map(|x| score_at(&img.data, y * w + x, &offsets, t))
+                        .collect();
+                    assert_eq!(scores, want, "scores, span {x0}..{x1} t {t} row {y}");
                 }
             }
         }
