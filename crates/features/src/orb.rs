@@ -70,7 +70,8 @@ pub struct OrbExtractor {
     scale_factors: Vec<f32>,
     level_sigma2: Vec<f32>,
     features_per_level: Vec<usize>,
-    umax: Vec<usize>,
+    /// The orientation patch as per-row column weights (built from `umax`).
+    angle_patch: AnglePatch,
     /// Levels 1.. (level 0 is the input itself); buffers kept between frames, the first
     /// `pyramid_len` hold the current frame.
     pyramid: Vec<Gray8>,
@@ -128,28 +129,13 @@ impl OrbExtractor {
             desired *= factor;
         }
         features_per_level[n - 1] = params.n_features.saturating_sub(sum);
-        // umax: half-width of each row of the circular orientation patch, made symmetric
-        let hp = HALF_PATCH_SIZE;
-        let mut umax = vec![0usize; hp + 1];
-        let vmax = (hp as f64 * 2f64.sqrt() / 2.0 + 1.0).floor() as usize;
-        let vmin = (hp as f64 * 2f64.sqrt() / 2.0).ceil() as usize;
-        for (v, u) in umax.iter_mut().enumerate().take(vmax + 1) {
-            *u = ((hp * hp - v * v) as f64).sqrt().round() as usize;
-        }
-        let mut v0 = 0;
-        for v in (vmin..=hp).rev() {
-            while umax[v0] == umax[v0 + 1] {
-                v0 += 1;
-            }
-            umax[v] = v0;
-            v0 += 1;
-        }
+        let angle_patch = AnglePatch::new(&orientation_umax());
         Self {
             params,
             scale_factors,
             level_sigma2,
             features_per_level,
-            umax,
+            angle_patch,
             pyramid: Vec::new(),
             pyramid_len: 0,
             scratch: Default::default(),
@@ -274,7 +260,7 @@ impl OrbExtractor {
             exclude_mask: self.exclude_mask.as_deref(),
             features_per_level: &self.features_per_level,
             scale_factors: &self.scale_factors,
-            umax: &self.umax,
+            angle_patch: &self.angle_patch,
         };
         let [mine, helper] = &mut self.scratch;
         let mut done: Vec<LevelFeatures> = if threads > 1 && levels.len() > 1 {
@@ -367,7 +353,7 @@ struct LevelContext<'a> {
     exclude_mask: Option<&'a Gray8>,
     features_per_level: &'a [usize],
     scale_factors: &'a [f32],
-    umax: &'a [usize],
+    angle_patch: &'a AnglePatch,
 }
 
 /// One thread's buffers, kept between frames.
@@ -467,7 +453,7 @@ fn extract_level(
     for &i in &keep {
         let c = corners[i];
         let (x, y) = (c.x as usize, c.y as usize);
-        let angle = ic_angle(level_img, x, y, ctx.umax);
+        let angle = ic_angle(level_img, x, y, ctx.angle_patch);
         out.descriptors
             .push(steered_brief(&scratch.blurred, x, y, angle));
         let (x0, y0) = to_image.map(x as f32, y as f32);
@@ -788,32 +774,91 @@ fn harris_at(img: &Gray8, x: usize, y: usize) -> f32 {
     ((a * b - c * c - 0.04 * (a + b) * (a + b)) * scale.powi(4)) as f32
 }
 
-/// Orientation (degrees, [0, 360)) of the intensity centroid of the circular patch of radius 15
-/// around (x, y) (ORB-SLAM3 `IC_Angle`). The caller keeps (x, y) 15 px inside the image.
-fn ic_angle(img: &Gray8, x: usize, y: usize, umax: &[usize]) -> f32 {
-    let w = img.width;
-    let hp = HALF_PATCH_SIZE as isize;
-    let c = y * w + x;
-    let d = &img.data;
-    let mut m01 = 0i32;
-    let mut m10 = 0i32;
-    for u in -hp..=hp {
-        m10 += u as i32 * d[(c as isize + u) as usize] as i32;
+/// Half-width of each row of the circular orientation patch of radius 15, made symmetric
+/// (ORB-SLAM3's `umax`).
+fn orientation_umax() -> Vec<usize> {
+    let hp = HALF_PATCH_SIZE;
+    let mut umax = vec![0usize; hp + 1];
+    let vmax = (hp as f64 * 2f64.sqrt() / 2.0 + 1.0).floor() as usize;
+    let vmin = (hp as f64 * 2f64.sqrt() / 2.0).ceil() as usize;
+    for (v, u) in umax.iter_mut().enumerate().take(vmax + 1) {
+        *u = ((hp * hp - v * v) as f64).sqrt().round() as usize;
     }
-    for v in 1..=HALF_PATCH_SIZE {
-        let up = &d[c + v * w - umax[v]..=c + v * w + umax[v]];
-        let down = &d[c - v * w - umax[v]..=c - v * w + umax[v]];
-        let mut v_sum = 0i32;
-        let r = umax[v] as i32;
-        for (i, (&p, &m)) in up.iter().zip(down).enumerate() {
-            let u = i as i32 - r;
-            v_sum += p as i32 - m as i32;
-            m10 += u * (p as i32 + m as i32);
+    let mut v0 = 0;
+    for v in (vmin..=hp).rev() {
+        while umax[v0] == umax[v0 + 1] {
+            v0 += 1;
         }
-        m01 += v as i32 * v_sum;
+        umax[v] = v0;
+        v0 += 1;
     }
+    umax
+}
+
+/// The circular orientation patch of radius 15 as weights over 32 columns (`-16..16`, the first
+/// always 0) for each row `v` of `0..=15`: the column's `u` inside the circle (`|u| <= umax[v]`),
+/// else 0; and 1 / 0 for inside / outside. Fixed-width rows let the sums run in vector lanes.
+#[derive(Clone, Debug)]
+struct AnglePatch {
+    u: [[i16; 32]; HALF_PATCH_SIZE + 1],
+    inside: [[i16; 32]; HALF_PATCH_SIZE + 1],
+}
+
+impl AnglePatch {
+    fn new(umax: &[usize]) -> Self {
+        let mut p = AnglePatch {
+            u: [[0; 32]; HALF_PATCH_SIZE + 1],
+            inside: [[0; 32]; HALF_PATCH_SIZE + 1],
+        };
+        for (v, (u_row, inside_row)) in p.u.iter_mut().zip(&mut p.inside).enumerate() {
+            let r = if v == 0 { HALF_PATCH_SIZE } else { umax[v] } as i16;
+            for (i, (u_col, in_col)) in u_row.iter_mut().zip(inside_row.iter_mut()).enumerate() {
+                let u = i as i16 - 16;
+                if u.abs() <= r {
+                    *u_col = u;
+                    *in_col = 1;
+                }
+            }
+        }
+        p
+    }
+}
+
+/// Orientation (degrees, [0, 360)) of the intensity centroid of the circular patch of radius 15
+/// around (x, y) (ORB-SLAM3 `IC_Angle`). The caller keeps (x, y) 16 px inside the image.
+fn ic_angle(img: &Gray8, x: usize, y: usize, patch: &AnglePatch) -> f32 {
+    let (m01, m10) = angle_moments(&img.data, y * img.width + x, img.width, patch);
     let a = (m01 as f32).atan2(m10 as f32).to_degrees();
     if a < 0.0 { a + 360.0 } else { a }
+}
+
+crate::imgops::simd_fn! {
+/// The patch's moments `(m01, m10)` around `data[c]` (rows `width` apart): every row pair
+/// `±v` over 32 columns with the patch's weights. Exact integers, as ORB-SLAM's loops.
+fn angle_moments(data: &[u8], c: usize, width: usize, patch: &AnglePatch) -> (i32, i32) {
+    let row = |start: usize| -> &[u8; 32] {
+        data[start - 16..start + 16].try_into().expect("32 bytes")
+    };
+    let centre = row(c);
+    let mut m10: i32 = centre
+        .iter()
+        .zip(&patch.u[0])
+        .map(|(&p, &u)| (u * p as i16) as i32)
+        .sum();
+    let mut m01 = 0i32;
+    for v in 1..=HALF_PATCH_SIZE {
+        let (up, down) = (row(c + v * width), row(c - v * width));
+        let (mut s10, mut s01) = (0i32, 0i32);
+        for i in 0..32 {
+            let (p, m) = (up[i] as i16, down[i] as i16);
+            s10 += (patch.u[v][i] * (p + m)) as i32;
+            s01 += (patch.inside[v][i] * (p - m)) as i32;
+        }
+        m10 += s10;
+        m01 += v as i32 * s01;
+    }
+    (m01, m10)
+}
 }
 
 /// The pattern's points as f32, first points of all pairs then second points, so the rotation
@@ -1014,11 +1059,17 @@ mod tests {
 
     #[test]
     fn umax_is_symmetric_circle() {
-        let orb = OrbExtractor::new(OrbParams::default());
+        let umax = orientation_umax();
         assert_eq!(
-            orb.umax,
+            umax,
             vec![15, 15, 15, 15, 14, 14, 14, 13, 13, 12, 11, 10, 9, 8, 6, 3]
         );
+        // the vector patch holds the same rows
+        let patch = AnglePatch::new(&umax);
+        for (v, &r) in umax.iter().enumerate().skip(1) {
+            let n: i16 = patch.inside[v].iter().sum();
+            assert_eq!(n as usize, 2 * r + 1);
+        }
     }
 
     #[test]
@@ -1069,7 +1120,7 @@ mod tests {
                 img.set(x, y, 200);
             }
         }
-        let a = ic_angle(&img, 20, 20, &orb.umax);
+        let a = ic_angle(&img, 20, 20, &orb.angle_patch);
         assert!(!(1.0..=359.0).contains(&a), "{a}");
         let mut img = Gray8::new(40, 40, 0);
         for y in 21..40 {
@@ -1077,7 +1128,7 @@ mod tests {
                 img.set(x, y, 200);
             }
         }
-        let a = ic_angle(&img, 20, 20, &orb.umax);
+        let a = ic_angle(&img, 20, 20, &orb.angle_patch);
         assert!((a - 90.0).abs() < 1.0, "{a}");
     }
 
