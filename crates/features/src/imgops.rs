@@ -229,7 +229,9 @@ pub(crate) fn gaussian_blur7(src: &Gray8, dst: &mut Gray8) {
 }
 
 simd_fn! {
-/// [`gaussian_blur7`] with a scratch buffer for the horizontal pass, kept between calls.
+/// [`gaussian_blur7`] with a scratch buffer for the horizontal pass, kept between calls: a
+/// ring of 8 rows (the 7 a destination row reads lie within 7 consecutive source rows, so
+/// `row % 8` never collides), so the pass's output stays in the first-level cache.
 pub(crate) fn gaussian_blur7_with(src: &Gray8, dst: &mut Gray8, tmp: &mut Vec<u16>) {
     let (w, h) = (src.width, src.height);
     dst.width = w;
@@ -238,31 +240,35 @@ pub(crate) fn gaussian_blur7_with(src: &Gray8, dst: &mut Gray8, tmp: &mut Vec<u1
     if w == 0 || h == 0 {
         return;
     }
-    // horizontal pass into u16 (max 255 * 256)
-    tmp.resize(w * h, 0);
-    let tmp = &mut tmp[..w * h];
+    tmp.resize(8 * w, 0);
+    let mut held = [usize::MAX; 8];
     let mut padded = vec![0u8; w + 6];
     for y in 0..h {
-        let row = src.row(y);
-        padded[3..w + 3].copy_from_slice(row);
-        for i in (0..3).chain(w + 3..w + 6) {
-            padded[i] = row[reflect101(i as isize - 3, w)];
+        let rows: [usize; 7] = std::array::from_fn(|k| reflect101(y as isize + k as isize - 3, h));
+        for &sy in &rows {
+            if held[sy % 8] == sy {
+                continue;
+            }
+            held[sy % 8] = sy;
+            // horizontal pass into u16 (max 255 * 256)
+            let row = src.row(sy);
+            padded[3..w + 3].copy_from_slice(row);
+            for i in (0..3).chain(w + 3..w + 6) {
+                padded[i] = row[reflect101(i as isize - 3, w)];
+            }
+            let out = &mut tmp[(sy % 8) * w..][..w];
+            for (x, o) in out.iter_mut().enumerate() {
+                let s = &padded[x..x + 7];
+                // in u16: every partial sum is at most 255 * 256 (16 lanes per vector, not 8)
+                let g = GAUSS7.map(|v| v as u16);
+                *o = g[0] * (s[0] as u16 + s[6] as u16)
+                    + g[1] * (s[1] as u16 + s[5] as u16)
+                    + g[2] * (s[2] as u16 + s[4] as u16)
+                    + g[3] * s[3] as u16;
+            }
         }
-        let out = &mut tmp[y * w..(y + 1) * w];
-        for (x, o) in out.iter_mut().enumerate() {
-            let s = &padded[x..x + 7];
-            // in u16: every partial sum is at most 255 * 256 (16 lanes per vector, not 8)
-            let g = GAUSS7.map(|v| v as u16);
-            *o = g[0] * (s[0] as u16 + s[6] as u16)
-                + g[1] * (s[1] as u16 + s[5] as u16)
-                + g[2] * (s[2] as u16 + s[4] as u16)
-                + g[3] * s[3] as u16;
-        }
-    }
-    // vertical pass
-    for y in 0..h {
-        let r: [&[u16]; 7] =
-            std::array::from_fn(|k| &tmp[reflect101(y as isize + k as isize - 3, h) * w..][..w]);
+        // vertical pass
+        let r: [&[u16]; 7] = std::array::from_fn(|k| &tmp[(rows[k] % 8) * w..][..w]);
         let out = &mut dst.data[y * w..(y + 1) * w];
         for x in 0..w {
             let v = GAUSS7[0] * (r[0][x] as u32 + r[6][x] as u32)
