@@ -497,11 +497,25 @@ unsafe fn suppress_row_avx2(rows: [&[u8]; 3], kept: &mut [u8]) -> usize {
     j
 }
 
+/// [`detect`]'s buffers, kept between calls (a level's cells call it hundreds of times).
+#[derive(Default)]
+pub(crate) struct FastScratch {
+    rows: [Vec<u8>; 3],
+    mask: Vec<u32>,
+    kept: Vec<u8>,
+}
+
 simd_fn! {
 /// FAST corners at threshold `t` inside `[x0, x1) x [y0, y1)` (clipped to 3 px from the image
 /// border), with 3x3 non-maximum suppression among the corners of that rectangle (like OpenCV's
 /// `FAST(roi, t, true)`).
-pub(crate) fn detect(img: &Gray8, rect: [usize; 4], t: u8, out: &mut Vec<Corner>) {
+pub(crate) fn detect(
+    img: &Gray8,
+    rect: [usize; 4],
+    t: u8,
+    out: &mut Vec<Corner>,
+    scratch: &mut FastScratch,
+) {
     let [x0, y0, x1, y1] = rect;
     let (w, h) = (img.width, img.height);
     if w < 7 || h < 7 {
@@ -515,25 +529,29 @@ pub(crate) fn detect(img: &Gray8, rect: [usize; 4], t: u8, out: &mut Vec<Corner>
     let t = t.max(1);
     let rw = x1 - x0;
     // three rolling score rows (previous, current, next) with a zero column on each side
-    let mut rows = [vec![0u8; rw + 2], vec![0u8; rw + 2], vec![0u8; rw + 2]];
-    let mut mask = Vec::with_capacity(rw.div_ceil(L));
+    let FastScratch { rows, mask, kept } = scratch;
+    for row in rows.iter_mut() {
+        row.clear();
+        row.resize(rw + 2, 0);
+    }
+    kept.clear();
+    kept.resize(rw, 0);
     // the end columns stay zero; `corner_row` writes every score between them
     let mut fill = |y: usize, row: &mut Vec<u8>| {
         if y < y0 || y >= y1 {
             row.fill(0);
         } else {
-            corner_row(img, y, x0, x1, t, &mut mask, &mut row[1..=rw]);
+            corner_row(img, y, x0, x1, t, mask, &mut row[1..=rw]);
         }
     };
     fill(y0, &mut rows[1]);
-    let mut kept = vec![0u8; rw];
     for y in y0..y1 {
-        let [prev, cur, next] = &mut rows;
+        let [prev, cur, next] = &mut *rows;
         fill(y + 1, next);
         // 3x3 suppression for the whole row in vector lanes: a score survives where it is
         // above all 8 neighbours' (0 = no corner), then the few survivors are collected
-        suppress_row([prev, cur, next], &mut kept);
-        for_each_nonzero(&kept, |j| {
+        suppress_row([prev, cur, next], kept);
+        for_each_nonzero(kept, |j| {
             out.push(Corner {
                 x: (x0 + j) as u16,
                 y: y as u16,
@@ -666,7 +684,7 @@ mod tests {
         let img = crate::test_rng::Lcg(12345).noise_image(w, h);
         for t in [7u8, 20, 60] {
             let mut got = vec![];
-            detect(&img, [0, 0, w, h], t, &mut got);
+            detect(&img, [0, 0, w, h], t, &mut got, &mut FastScratch::default());
             let got: Vec<_> = got
                 .iter()
                 .map(|c| (c.x as usize, c.y as usize, c.score))
@@ -682,11 +700,23 @@ mod tests {
         let mut img = Gray8::new(20, 20, 50);
         img.set(10, 10, 150);
         let mut got = vec![];
-        detect(&img, [0, 0, 20, 20], 20, &mut got);
+        detect(
+            &img,
+            [0, 0, 20, 20],
+            20,
+            &mut got,
+            &mut FastScratch::default(),
+        );
         assert_eq!(got.len(), 1);
         assert_eq!((got[0].x, got[0].y, got[0].score), (10, 10, 99));
         let mut none = vec![];
-        detect(&Gray8::new(5, 5, 0), [0, 0, 5, 5], 20, &mut none);
+        detect(
+            &Gray8::new(5, 5, 0),
+            [0, 0, 5, 5],
+            20,
+            &mut none,
+            &mut FastScratch::default(),
+        );
         assert!(none.is_empty());
     }
 }

@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use stillpoint_core::ms_since;
 
-use crate::fast::{self, Corner};
+use crate::fast::{self, Corner, FastScratch};
 use crate::imgops::{gaussian_blur7_with, resize_linear_into};
 use crate::pattern::BIT_PATTERN_31;
 use crate::{Descriptor, valid};
@@ -359,6 +359,7 @@ struct LevelContext<'a> {
 /// One thread's buffers, kept between frames.
 struct LevelScratch {
     corners: Vec<Corner>,
+    fast: FastScratch,
     blurred: Gray8,
     blur_tmp: Vec<u16>,
 }
@@ -367,6 +368,7 @@ impl Default for LevelScratch {
     fn default() -> Self {
         Self {
             corners: Vec::new(),
+            fast: FastScratch::default(),
             blurred: Gray8::new(0, 0, 0),
             blur_tmp: Vec::new(),
         }
@@ -402,7 +404,13 @@ fn extract_level(
     };
     let corners = &mut scratch.corners;
     corners.clear();
-    detect_in_cells(level_img, ctx.params, ctx.low_th, corners);
+    detect_in_cells(
+        level_img,
+        ctx.params,
+        ctx.low_th,
+        corners,
+        &mut scratch.fast,
+    );
     let to_image = LevelToImage::new(ctx.image, level_img);
     if let Some(mask) = ctx.exclude_mask {
         corners.retain(|c| {
@@ -541,7 +549,13 @@ fn laplacian_abs_sum(img: &Gray8) -> (u64, u64) {
 /// FAST on ORB-SLAM3's grid: cells of ~35 px between borders of 16 px, threshold
 /// `ini_th_fast`, `min_th_fast` in the cells where that found nothing, and `low_th` (when
 /// under `min_th_fast`) in the cells still empty.
-fn detect_in_cells(img: &Gray8, p: &OrbParams, low_th: Option<u8>, out: &mut Vec<Corner>) {
+fn detect_in_cells(
+    img: &Gray8,
+    p: &OrbParams,
+    low_th: Option<u8>,
+    out: &mut Vec<Corner>,
+    scratch: &mut FastScratch,
+) {
     let (min_x, min_y) = (EDGE_THRESHOLD - 3, EDGE_THRESHOLD - 3);
     let (max_x, max_y) = (
         img.width - EDGE_THRESHOLD + 3,
@@ -555,18 +569,17 @@ fn detect_in_cells(img: &Gray8, p: &OrbParams, low_th: Option<u8>, out: &mut Vec
     // the strong threshold over the whole detection area at once (a corner's score does not
     // depend on the threshold, so this equals running it cell by cell), then the fallback
     let area = [min_x + 3, min_y + 3, max_x - 3, max_y - 3];
-    let mut strong = Vec::new();
-    fast::detect(img, area, p.ini_th_fast, &mut strong);
+    let first = out.len();
+    fast::detect(img, area, p.ini_th_fast, out, scratch);
     let mut per_cell = vec![0u32; n_cols * n_rows];
     let cell_of = |c: &Corner| {
         let j = ((c.x as usize - area[0]) / w_cell).min(n_cols - 1);
         let i = ((c.y as usize - area[1]) / h_cell).min(n_rows - 1);
         i * n_cols + j
     };
-    for c in &strong {
+    for c in &out[first..] {
         per_cell[cell_of(c)] += 1;
     }
-    out.extend_from_slice(&strong);
     if p.min_th_fast >= p.ini_th_fast {
         return;
     }
@@ -589,9 +602,9 @@ fn detect_in_cells(img: &Gray8, p: &OrbParams, low_th: Option<u8>, out: &mut Vec
             };
             if x0 < x1 && y0 < y1 {
                 let before = out.len();
-                fast::detect(img, [x0, y0, x1, y1], p.min_th_fast, out);
+                fast::detect(img, [x0, y0, x1, y1], p.min_th_fast, out, scratch);
                 if let Some(th) = low_th.filter(|_| out.len() == before) {
-                    fast::detect(img, [x0, y0, x1, y1], th, out);
+                    fast::detect(img, [x0, y0, x1, y1], th, out, scratch);
                 }
             }
         }
