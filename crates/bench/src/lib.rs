@@ -31,6 +31,7 @@ pub mod detector;
 pub mod features;
 pub mod keypoints;
 pub mod matrix;
+pub mod realtime;
 pub mod soak;
 pub mod tum;
 

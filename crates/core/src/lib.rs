@@ -40,9 +40,71 @@ pub fn lower_this_thread_priority(nice: i32) {
     let _ = nice;
 }
 
+/// Keep the calling thread, and every thread it starts from now on, to the first `n` CPUs it
+/// may run on (Linux; elsewhere an error): a benchmark's stand-in for a smaller machine. Returns
+/// the CPUs kept.
+pub fn pin_this_thread_to_first_cpus(n: usize) -> Result<Vec<usize>, String> {
+    #[cfg(target_os = "linux")]
+    // SAFETY: `cpu_set_t` is plain data, zeroed then filled with the CPU_* helpers; the
+    // syscalls act on the calling thread (pid 0) and report failure by their return value.
+    unsafe {
+        let mut allowed: libc::cpu_set_t = std::mem::zeroed();
+        if libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut allowed) != 0 {
+            return Err(format!(
+                "sched_getaffinity: {}",
+                std::io::Error::last_os_error()
+            ));
+        }
+        let cpus: Vec<usize> = (0..libc::CPU_SETSIZE as usize)
+            .filter(|&c| libc::CPU_ISSET(c, &allowed))
+            .take(n)
+            .collect();
+        if n == 0 || cpus.len() < n {
+            return Err(format!("{n} CPUs asked, {} available", cpus.len()));
+        }
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        for &c in &cpus {
+            libc::CPU_SET(c, &mut set);
+        }
+        if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
+            return Err(format!(
+                "sched_setaffinity: {}",
+                std::io::Error::last_os_error()
+            ));
+        }
+        Ok(cpus)
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = n;
+        Err("pinning to CPUs needs Linux".into())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_pinned_thread_and_its_children_run_on_the_first_cpu() {
+        std::thread::spawn(|| {
+            let kept = pin_this_thread_to_first_cpus(1);
+            #[cfg(target_os = "linux")]
+            {
+                let kept = kept.expect("one CPU");
+                assert_eq!(kept.len(), 1);
+                // a thread started afterwards inherits the mask
+                let child = std::thread::spawn(|| pin_this_thread_to_first_cpus(2))
+                    .join()
+                    .unwrap();
+                assert!(child.is_err(), "only one CPU is left to the child");
+            }
+            #[cfg(not(target_os = "linux"))]
+            assert!(kept.is_err());
+        })
+        .join()
+        .unwrap();
+    }
 
     #[test]
     fn a_lowered_thread_runs_at_a_higher_nice_value() {

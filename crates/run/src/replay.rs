@@ -41,10 +41,16 @@ pub(crate) struct ReplayCamera {
 }
 
 impl ReplayCamera {
-    /// Start replaying the first `n` frames of `seq`. When all of them fit in `preload_bytes`
-    /// (judged by the first frame), they are decoded before the clock starts, as a camera hands
-    /// over decoded frames; otherwise each is read just before it is due.
-    pub(crate) fn start(seq: Box<dyn Sequence>, n: usize, preload_bytes: usize) -> Self {
+    /// Start replaying the first `n` frames of `seq`, each due at its timestamp or, with
+    /// `rate_hz`, at `i / rate_hz`. When all of them fit in `preload_bytes` (judged by the first
+    /// frame), they are decoded before the clock starts, as a camera hands over decoded frames;
+    /// otherwise each is read just before it is due.
+    pub(crate) fn start(
+        seq: Box<dyn Sequence>,
+        n: usize,
+        preload_bytes: usize,
+        rate_hz: Option<f64>,
+    ) -> Self {
         // Unbounded: the camera never waits for the consumer (a bounded queue would hold it back
         // and hide drops); the consumer takes all that arrived each time, so it stays short.
         let (tx, rx) = std::sync::mpsc::channel();
@@ -59,8 +65,11 @@ impl ReplayCamera {
                         .get_mut(i)
                         .and_then(Option::take)
                         .unwrap_or_else(|| seq.frame(i));
-                    let t = seq.timestamp(i).unwrap_or(t0 + i as f64 / 30.0);
-                    let due = start + Duration::from_secs_f64((t - t0).max(0.0));
+                    let since_first = match rate_hz {
+                        Some(rate) => i as f64 / rate,
+                        None => seq.timestamp(i).unwrap_or(t0 + i as f64 / 30.0) - t0,
+                    };
+                    let due = start + Duration::from_secs_f64(since_first.max(0.0));
                     let now = Instant::now();
                     // The camera's clock: a frame exists from its timestamp on.
                     if due > now {
@@ -186,7 +195,7 @@ mod tests {
     fn a_sequence_that_fits_is_decoded_before_the_clock_starts_and_replayed_whole() {
         for (cap, preloads) in [(64 * 20, true), (64 * 20 - 1, false), (0, false)] {
             let (seq, reads) = tiny(20);
-            let mut camera = ReplayCamera::start(seq, 20, cap);
+            let mut camera = ReplayCamera::start(seq, 20, cap, None);
             let (mut last, mut seen) = (None, 0);
             let first = camera.next().unwrap();
             if preloads {

@@ -498,7 +498,8 @@ impl<'a> Feed<'a> {
     ) -> Result<Self, RunError> {
         Ok(if o.realtime {
             let preload = tree.realtime.preload_mib.saturating_mul(1024 * 1024);
-            Feed::Replay(ReplayCamera::start(open_sequence(o)?, n, preload))
+            let rate = Some(tree.realtime.rate_hz).filter(|r| r.is_finite() && *r > 0.0);
+            Feed::Replay(ReplayCamera::start(open_sequence(o)?, n, preload, rate))
         } else {
             Feed::InOrder { seq, next: 0, n }
         })

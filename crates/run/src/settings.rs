@@ -144,11 +144,18 @@ pub struct RealtimeSettings {
     /// never). A camera hands over decoded frames; decoding a dataset's PNGs at 30 Hz took
     /// ~4 ms of the two cores' time a frame, which a robot's camera does not cost.
     pub preload_mib: usize,
+    /// Deliver frame `i` at `i / rate_hz` seconds instead of at its timestamp (0: the
+    /// timestamps), to replay a 30 Hz recording as a 60 Hz camera (`bench realtime --rate`).
+    #[serde(default)]
+    pub rate_hz: f64,
 }
 
 impl Default for RealtimeSettings {
     fn default() -> Self {
-        Self { preload_mib: 2048 }
+        Self {
+            preload_mib: 2048,
+            rate_hz: 0.0,
+        }
     }
 }
 

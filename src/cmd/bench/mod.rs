@@ -5,6 +5,7 @@ pub mod detect;
 pub mod dynamic;
 pub mod features;
 pub mod matrix;
+pub mod realtime;
 pub mod soak;
 pub mod tum;
 
@@ -22,6 +23,9 @@ pub enum BenchCommand {
     Matrix(matrix::Args),
     /// One long lapping run: memory and time per frame along it (flat, or it fails).
     Soak(soak::Args),
+    /// A sequence replayed as a live camera at a given rate on a given number of CPUs, N
+    /// times: frames processed, latency, ATE, map points on movers per run.
+    Realtime(realtime::Args),
 }
 
 /// The shared data folder: `$STILLPOINT_SHARED`, else `../shared` (the benches' default inputs).
@@ -39,5 +43,6 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Tum(a) => tum::run(a),
         BenchCommand::Matrix(a) => matrix::run(a),
         BenchCommand::Soak(a) => soak::run(a),
+        BenchCommand::Realtime(a) => realtime::run(a),
     }
 }
