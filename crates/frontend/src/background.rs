@@ -16,6 +16,12 @@ pub(crate) struct BackgroundDetector {
     last_sent: Option<f64>,
     /// [`FrontEndSettings::background_detect_interval_s`].
     interval_s: f64,
+    /// [`FrontEndSettings::background_detect_max_wait_s`].
+    max_wait_s: f64,
+    /// Classes that move on their own (people, animals, vehicles): only while one is in view are
+    /// old boxes worth waiting for (an empty room loses nothing to them, a fast turn loses
+    /// frames).
+    movable_classes: Vec<u16>,
     /// [`FrontEndSettings::background_detect_at_side_edge`].
     at_side_edge_every_frame: bool,
     /// A schedule of frames instead of time: (every, lag) frames
@@ -68,6 +74,8 @@ impl BackgroundDetector {
             busy: false,
             last_sent: None,
             interval_s: settings.background_detect_interval_s,
+            max_wait_s: settings.background_detect_max_wait_s,
+            movable_classes: settings.dynamic.objects.movable_classes.clone(),
             at_side_edge_every_frame: settings.background_detect_at_side_edge,
             schedule: (settings.background_detect_every_frames > 0).then(|| {
                 let every = settings.background_detect_every_frames;
@@ -107,6 +115,14 @@ impl BackgroundDetector {
                 while let Some(done) = self.thread.try_recv() {
                     self.take(done);
                 }
+                // live, the detector behind: wait for the frame it holds rather than go on
+                // with boxes too old (frames arriving meanwhile are dropped)
+                let held_too_long = self
+                    .last_sent
+                    .is_some_and(|t| frame.timestamp - t > self.max_wait_s);
+                if self.busy && self.max_wait_s > 0.0 && held_too_long && self.mover_in_view() {
+                    self.wait_for_detection();
+                }
             }
         }
         if let Some(l) = self.latest.as_mut() {
@@ -135,11 +151,39 @@ impl BackgroundDetector {
                 self.pending = Some(frame.index);
             }
         }
+        // old boxes are dropped, but (live, waiting allowed) not while a newer detection is on
+        // its way: carried boxes keep the person out, none would let them into the map
+        let on_its_way = self.busy && self.schedule.is_none() && self.max_wait_s > 0.0;
         match &self.latest {
-            Some(l) if frame.index.saturating_sub(l.detected) <= MAX_DETECTION_AGE => {
-                l.boxes.clone()
-            }
+            Some(l) if on_its_way || !self.stale(frame.index) => l.boxes.clone(),
             _ => Vec::new(),
+        }
+    }
+
+    /// Whether the newest boxes hold an object of a class that moves on its own.
+    fn mover_in_view(&self) -> bool {
+        self.latest.as_ref().is_some_and(|l| {
+            l.boxes
+                .iter()
+                .any(|d| self.movable_classes.contains(&d.class_id))
+        })
+    }
+
+    /// Whether the newest boxes are too old to be carried to frame `index` (or there are none).
+    fn stale(&self, index: usize) -> bool {
+        self.latest
+            .as_ref()
+            .is_none_or(|l| index.saturating_sub(l.detected) > MAX_DETECTION_AGE)
+    }
+
+    /// Block until the detector returns the frame it holds, and take its boxes.
+    fn wait_for_detection(&mut self) {
+        match self.thread.recv() {
+            Ok(done) => self.take(done),
+            Err(e) => {
+                self.busy = false;
+                tracing::warn!("detector failed: {e}");
+            }
         }
     }
 

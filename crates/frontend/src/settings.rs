@@ -83,6 +83,14 @@ pub struct FrontEndSettings {
     /// are carried by the corners' flow. Ours: 0.1 (every third frame at 30 Hz). Measurements:
     /// docs/measurements.md.
     pub background_detect_interval_s: f64,
+    /// Live, with the detector in the background and a person (any movable class) in its newest
+    /// boxes: a frame waits for the detection of the frame the detector holds once that was
+    /// handed over more than this long ago (seconds of the
+    /// frames' clock), instead of going on with ever older carried boxes: on a starved machine
+    /// (one core, 60 Hz) the system then drops frames rather than map the person; and boxes
+    /// older than 15 frames are kept while a newer detection is on its way. 0: as before, never
+    /// wait and drop them (docs/realtime.md).
+    pub background_detect_max_wait_s: f64,
     /// Nice steps (Linux) the background detector runs below tracking, as local mapping does
     /// (`slam.background_nice`): its boxes may come a little later, a frame may not.
     pub background_detect_nice: i32,
@@ -124,6 +132,7 @@ impl Default for FrontEndSettings {
             erase_recent_mover_points_frames: 60,
             detector_in_background: false,
             background_detect_interval_s: 0.1,
+            background_detect_max_wait_s: 0.5,
             background_detect_nice: 10,
             background_detect_at_side_edge: true,
             detect_recordings_on_schedule: true,

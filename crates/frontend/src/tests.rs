@@ -270,6 +270,73 @@ fn the_background_detector_on_a_schedule_takes_every_nth_frame() {
     }
 }
 
+/// Live, with a person in view, a detector that falls behind is waited for once the frame it
+/// holds was handed over more than `background_detect_max_wait_s` ago: no frame goes on with
+/// older boxes (a starved machine drops frames instead of mapping the person).
+#[test]
+fn a_live_detector_that_falls_behind_is_waited_for() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    /// Finishes the detection of frame k only once the caller has started frame k + 4.
+    struct Behind(Arc<AtomicUsize>);
+    impl Detector for Behind {
+        fn detect(&mut self, input: &DetectInput) -> Result<Vec<Detection>, DetectError> {
+            let frame = (input.timestamp * 60.0).round() as usize;
+            while frame > 0 && self.0.load(Ordering::SeqCst) < frame + 4 {
+                std::thread::yield_now();
+            }
+            Ok(vec![Detection {
+                bbox: stillpoint_geometry::BBox::new(20.0 + frame as f32, 10.0, 60.0, 50.0),
+                class_id: crate::PERSON_CLASS,
+                score: 0.9,
+            }])
+        }
+        fn name(&self) -> &str {
+            "behind"
+        }
+    }
+    let started = Arc::new(AtomicUsize::new(0));
+    let settings = FrontEndSettings {
+        detector_in_background: true,
+        background_detect_every_frames: 0,
+        background_detect_interval_s: 0.0,
+        // 60 Hz: a detection held 4 frames (0.067 s) is waited for, 3 (0.05 s) is not
+        background_detect_max_wait_s: 0.06,
+        ..Default::default()
+    };
+    let mut front = DynamicFrontEnd::new(Box::new(Behind(Arc::clone(&started))), settings)
+        .detect_in_background()
+        .unwrap();
+    let gray = Gray8::new(96, 64, 0);
+    let mut ages = Vec::new();
+    for i in 0..30 {
+        started.store(i, Ordering::SeqCst);
+        let input = FrameInput {
+            index: i,
+            timestamp: i as f64 / 60.0,
+            gray: &gray,
+            rgb: None,
+            depth: None,
+            previous: None,
+        };
+        let judged = front.judge(&input, &[]);
+        let detected = judged.objects.tracked.first().map(|o| o.bbox.x1 - 20.0);
+        ages.push(detected.map(|d| i as f32 - d));
+    }
+    started.store(usize::MAX / 2, Ordering::SeqCst);
+    drop(front);
+    // frame 1 is handed over and waited for at frame 5 (held 4 frames), frame 5 at frame 9,
+    // ...: those frames get boxes 4 frames old, the frames between carry them (never older
+    // than 7); without the wait they would age until the detection happened to be collected
+    for (i, age) in ages.iter().enumerate() {
+        let age = age.expect("boxes on every frame");
+        assert!(age <= 7.0, "frame {i}: boxes {age} frames old: {ages:?}");
+        if i >= 5 && (i - 5) % 4 == 0 {
+            assert_eq!(age, 4.0, "frame {i}: {ages:?}");
+        }
+    }
+}
+
 #[test]
 fn a_dominant_textured_mover_never_reaches_the_map() {
     let (ours, total) = mover_keypoints_let_into_the_map(FrontEndSettings::default());
