@@ -24,7 +24,7 @@ Two modes, both print JSON on stdout:
       points, so `cargo run --release -p stillpoint-features --example match_quality` can score
       them with stillpoint's RANSAC.
 
-Needs opencv-python-headless (pip install opencv-python-headless==4.6.0.66 "numpy<2").
+Needs opencv-python-headless (pip install opencv-python-headless==5.0.0.93 numpy).
 """
 
 import argparse
