@@ -102,13 +102,7 @@ impl BackgroundDetector {
             // On a schedule the boxes are taken at a fixed frame, never as they happen to come.
             (Some((_, lag)), Some(sent)) if frame.index >= sent + lag => {
                 self.pending = None;
-                match self.thread.recv() {
-                    Ok(done) => self.take(done),
-                    Err(e) => {
-                        self.busy = false;
-                        tracing::warn!("frame {sent}: detector failed: {e}");
-                    }
-                }
+                self.wait_for_detection(sent);
             }
             (Some(_), _) => {}
             (None, _) => {
@@ -121,7 +115,7 @@ impl BackgroundDetector {
                     .last_sent
                     .is_some_and(|t| frame.timestamp - t > self.max_wait_s);
                 if self.busy && self.max_wait_s > 0.0 && held_too_long && self.mover_in_view() {
-                    self.wait_for_detection();
+                    self.wait_for_detection(frame.index);
                 }
             }
         }
@@ -176,13 +170,14 @@ impl BackgroundDetector {
             .is_none_or(|l| index.saturating_sub(l.detected) > MAX_DETECTION_AGE)
     }
 
-    /// Block until the detector returns the frame it holds, and take its boxes.
-    fn wait_for_detection(&mut self) {
+    /// Block until the detector returns the frame it holds, and take its boxes (`waiting`: the
+    /// frame that waits, for the log).
+    fn wait_for_detection(&mut self, waiting: usize) {
         match self.thread.recv() {
             Ok(done) => self.take(done),
             Err(e) => {
                 self.busy = false;
-                tracing::warn!("detector failed: {e}");
+                tracing::warn!("frame {waiting}: detector failed: {e}");
             }
         }
     }
