@@ -35,6 +35,29 @@ impl Sim3 {
         }
     }
 
+    /// A rigid transform as a similarity of scale 1.
+    pub fn from_rigid(rigid: Se3) -> Self {
+        Self { scale: 1.0, rigid }
+    }
+
+    /// `self ∘ other`: `other` first, then `self`.
+    pub fn compose(&self, other: &Sim3) -> Self {
+        let t = self.transform_point(&other.rigid.translation.vector);
+        Self {
+            scale: self.scale * other.scale,
+            rigid: Se3::from_parts(t.into(), self.rigid.rotation * other.rigid.rotation),
+        }
+    }
+
+    /// A world-to-camera similarity as the camera pose it places (the rotation, the
+    /// translation divided by the scale: ORB-SLAM's Sim(3) to SE(3) after a loop).
+    pub fn to_pose(&self) -> Se3 {
+        Se3::from_parts(
+            (self.rigid.translation.vector / self.scale).into(),
+            self.rigid.rotation,
+        )
+    }
+
     /// Apply to a camera pose: rotation composed, position transformed.
     pub fn transform_pose(&self, pose: &Se3) -> Se3 {
         let t = self.transform_point(&pose.translation.vector);
@@ -110,6 +133,23 @@ mod tests {
         for (s, d) in src.iter().zip(&dst) {
             assert!((est.transform_point(s) - d).norm() < 1e-9);
         }
+        // Composition and inverse agree with applying the transforms one by one.
+        let other = Sim3 {
+            scale: 0.6,
+            rigid: Se3::new(Vec3::new(-0.5, 0.2, 1.0), Vec3::new(-0.1, 0.4, 0.2)),
+        };
+        let both = truth.compose(&other);
+        for s in &src {
+            let by_steps = truth.transform_point(&other.transform_point(s));
+            assert!((both.transform_point(s) - by_steps).norm() < 1e-9);
+            assert!((both.inverse().transform_point(&by_steps) - s).norm() < 1e-9);
+        }
+        // A pose of scale 1 is the rigid transform itself.
+        let pose = Se3::new(Vec3::new(0.1, 0.2, 0.3), Vec3::new(0.0, 0.5, 0.0));
+        assert!(
+            (Sim3::from_rigid(pose).to_pose().translation.vector - pose.translation.vector).norm()
+                < 1e-12
+        );
         let rigid = umeyama(&src, &dst, false).unwrap();
         assert_eq!(rigid.scale, 1.0);
         assert!(umeyama(&src[..1], &dst[..1], true).is_none());
