@@ -1,12 +1,13 @@
-//! Pose-graph optimisation over SE3 (ORB-SLAM's essential graph, with the scale fixed as for
-//! RGB-D and stereo): vertices are world-to-camera poses, each edge a measured relative pose.
+//! Pose-graph optimisation (ORB-SLAM's essential graph): over SE3, the scale fixed as for RGB-D
+//! and stereo, and over Sim(3) for monocular maps, whose scale drifts. Vertices are
+//! world-to-camera poses, each edge a measured relative pose.
 //!
 //! Levenberg-Marquardt on the normal equations; the system is sparse (a chain of keyframes plus
 //! a few loop and covisibility edges), so it is reordered by reverse Cuthill-McKee and solved by
 //! an envelope (profile) Cholesky: the loop edges only widen the rows they touch.
 
-use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
-use stillpoint_geometry::{Se3, skew};
+use nalgebra::{Matrix3, Matrix6, SMatrix, SVector, Vector3, Vector6};
+use stillpoint_geometry::{Se3, Sim3, skew};
 
 use super::retract;
 
@@ -102,21 +103,76 @@ fn cost(g: &PoseGraph) -> f64 {
 /// Optimise the free poses for at most `iterations` Levenberg-Marquardt steps. A graph without
 /// a fixed pose gets its first pose fixed (the gauge).
 pub fn optimize_pose_graph(g: &mut PoseGraph, iterations: usize) -> PoseGraphReport {
-    let n = g.poses.len();
-    g.fixed.resize(n, false);
-    if !g.fixed.iter().any(|&f| f) && n > 0 {
-        g.fixed[0] = true;
+    levenberg_marquardt::<6, _>(g, iterations)
+}
+
+/// A graph the Levenberg-Marquardt solver optimises, `D` parameters a vertex.
+trait GraphProblem<const D: usize> {
+    type Vertex: Clone;
+    fn poses_mut(&mut self) -> &mut Vec<Self::Vertex>;
+    fn fixed_mut(&mut self) -> &mut Vec<bool>;
+    /// Drops the edges that do not join two different vertices of the graph.
+    fn retain_edges(&mut self, n: usize);
+    fn ends(&self) -> Vec<(usize, usize)>;
+    /// Residual, Jacobians w.r.t. both ends, and weight of edge `e`.
+    fn linearise_edge(
+        &self,
+        e: usize,
+    ) -> (SVector<f64, D>, SMatrix<f64, D, D>, SMatrix<f64, D, D>, f64);
+    fn cost(&self) -> f64;
+    /// The vertex moved by `d` (the tangent step of its left perturbation).
+    fn retract(v: &Self::Vertex, d: &SVector<f64, D>) -> Self::Vertex;
+}
+
+impl GraphProblem<6> for PoseGraph {
+    type Vertex = Se3;
+    fn poses_mut(&mut self) -> &mut Vec<Se3> {
+        &mut self.poses
     }
-    g.edges.retain(|e| e.i < n && e.j < n && e.i != e.j);
+    fn fixed_mut(&mut self) -> &mut Vec<bool> {
+        &mut self.fixed
+    }
+    fn retain_edges(&mut self, n: usize) {
+        self.edges.retain(|e| e.i < n && e.j < n && e.i != e.j);
+    }
+    fn ends(&self) -> Vec<(usize, usize)> {
+        self.edges.iter().map(|e| (e.i, e.j)).collect()
+    }
+    fn linearise_edge(&self, e: usize) -> (Vector6<f64>, Matrix6<f64>, Matrix6<f64>, f64) {
+        let e = &self.edges[e];
+        let (r, ji, jj) = linearise(self, e);
+        (r, ji, jj, e.weight)
+    }
+    fn cost(&self) -> f64 {
+        cost(self)
+    }
+    fn retract(v: &Se3, d: &Vector6<f64>) -> Se3 {
+        retract(v, d)
+    }
+}
+
+fn levenberg_marquardt<const D: usize, G: GraphProblem<D>>(
+    g: &mut G,
+    iterations: usize,
+) -> PoseGraphReport {
+    let n = g.poses_mut().len();
+    let fixed = g.fixed_mut();
+    fixed.resize(n, false);
+    if !fixed.iter().any(|&f| f) && n > 0 {
+        fixed[0] = true;
+    }
+    let fixed = fixed.clone();
+    g.retain_edges(n);
+    let ends = g.ends();
     // Free vertices, reordered to keep the Cholesky envelope narrow.
-    let free: Vec<usize> = (0..n).filter(|&v| !g.fixed[v]).collect();
+    let free: Vec<usize> = (0..n).filter(|&v| !fixed[v]).collect();
     let mut slot = vec![usize::MAX; n];
     for (k, &v) in free.iter().enumerate() {
         slot[v] = k;
     }
     let mut neighbours: Vec<Vec<usize>> = vec![Vec::new(); free.len()];
-    for e in &g.edges {
-        let (a, b) = (slot[e.i], slot[e.j]);
+    for &(i, j) in &ends {
+        let (a, b) = (slot[i], slot[j]);
         if a != usize::MAX && b != usize::MAX {
             neighbours[a].push(b);
             neighbours[b].push(a);
@@ -143,13 +199,13 @@ pub fn optimize_pose_graph(g: &mut PoseGraph, iterations: usize) -> PoseGraphRep
                 .unwrap_or(position[k])
         })
         .collect();
-    let dim = 6 * free.len();
+    let dim = D * free.len();
     let index = |v: usize| -> Option<usize> {
         let k = slot[v];
-        (k != usize::MAX).then(|| 6 * position[k])
+        (k != usize::MAX).then(|| D * position[k])
     };
 
-    let initial_cost = cost(g);
+    let initial_cost = g.cost();
     let mut current = initial_cost;
     let mut lambda = 1e-4;
     let mut done = 0;
@@ -158,14 +214,14 @@ pub fn optimize_pose_graph(g: &mut PoseGraph, iterations: usize) -> PoseGraphRep
             break;
         }
         done += 1;
-        let mut h = Envelope::new(dim, &first_block);
+        let mut h = Envelope::new(dim, D, &first_block);
         let mut b = vec![0.0; dim];
-        for e in &g.edges {
-            let (r, ji, jj) = linearise(g, e);
-            let blocks = [(index(e.i), ji), (index(e.j), jj)];
+        for (e, &(ei, ej)) in ends.iter().enumerate() {
+            let (r, ji, jj, weight) = g.linearise_edge(e);
+            let blocks = [(index(ei), ji), (index(ej), jj)];
             for (ia, ja) in &blocks {
                 let Some(ia) = *ia else { continue };
-                let g_a = ja.transpose() * r * e.weight;
+                let g_a = ja.transpose() * r * weight;
                 for (k, v) in g_a.iter().enumerate() {
                     b[ia + k] += v;
                 }
@@ -174,9 +230,9 @@ pub fn optimize_pose_graph(g: &mut PoseGraph, iterations: usize) -> PoseGraphRep
                     if ib > ia {
                         continue; // lower triangle only
                     }
-                    let hab = ja.transpose() * jb * e.weight;
-                    for r_ in 0..6 {
-                        for c in 0..6 {
+                    let hab = ja.transpose() * jb * weight;
+                    for r_ in 0..D {
+                        for c in 0..D {
                             if ia + r_ >= ib + c {
                                 h.add(ia + r_, ib + c, hab[(r_, c)]);
                             }
@@ -197,20 +253,21 @@ pub fn optimize_pose_graph(g: &mut PoseGraph, iterations: usize) -> PoseGraphRep
                 lambda *= 10.0;
                 continue;
             };
-            let backup = g.poses.clone();
+            let backup = g.poses_mut().clone();
             for &v in &free {
                 let Some(i0) = index(v) else { continue };
-                let d = Vector6::from_fn(|k, _| -step[i0 + k]);
-                g.poses[v] = retract(&g.poses[v], &d);
+                let d = SVector::<f64, D>::from_fn(|k, _| -step[i0 + k]);
+                let poses = g.poses_mut();
+                poses[v] = G::retract(&poses[v], &d);
             }
-            let c = cost(g);
+            let c = g.cost();
             if c < current {
                 current = c;
                 lambda = (lambda / 10.0).max(1e-9);
                 improved = true;
                 break;
             }
-            g.poses = backup;
+            *g.poses_mut() = backup;
             lambda *= 10.0;
         }
         if !improved || current < 1e-18 {
@@ -222,6 +279,109 @@ pub fn optimize_pose_graph(g: &mut PoseGraph, iterations: usize) -> PoseGraphRep
         final_cost: current,
         iterations: done,
     }
+}
+
+/// One relative similarity measurement: `s_ij` = S_iw ∘ S_jw⁻¹.
+#[derive(Clone, Copy, Debug)]
+pub struct Sim3Edge {
+    /// Index of camera i in `Sim3Graph::poses`.
+    pub i: usize,
+    /// Index of camera j.
+    pub j: usize,
+    /// The measured similarity from camera j to camera i.
+    pub s_ij: Sim3,
+    /// Information weight (ORB-SLAM: identity for every edge).
+    pub weight: f64,
+}
+
+/// The essential graph of a monocular map (ORB-SLAM's, in Sim(3)): vertices are
+/// world-to-camera similarities, so a loop can spread the scale the map lost on its way
+/// along with the pose.
+#[derive(Clone, Debug, Default)]
+pub struct Sim3Graph {
+    /// World-to-camera similarities.
+    pub poses: Vec<Sim3>,
+    /// Per pose: held fixed.
+    pub fixed: Vec<bool>,
+    /// The relative measurements.
+    pub edges: Vec<Sim3Edge>,
+}
+
+/// Error coordinates of a similarity near the identity: rotation log, translation, log scale.
+fn sim3_error(e: &Sim3) -> SVector<f64, 7> {
+    let w = e.rigid.rotation.scaled_axis();
+    let t = e.rigid.translation.vector;
+    SVector::<f64, 7>::from_column_slice(&[w.x, w.y, w.z, t.x, t.y, t.z, e.scale.ln()])
+}
+
+/// The similarity of a tangent step (ω, υ, σ): rotation exp(ω), translation υ, scale e^σ.
+fn sim3_step(d: &SVector<f64, 7>) -> Sim3 {
+    Sim3 {
+        scale: d[6].exp(),
+        rigid: Se3::from_parts(
+            Vector3::new(d[3], d[4], d[5]).into(),
+            nalgebra::UnitQuaternion::from_scaled_axis(Vector3::new(d[0], d[1], d[2])),
+        ),
+    }
+}
+
+fn sim3_residual(e: &Sim3Edge, si: &Sim3, sj: &Sim3) -> SVector<f64, 7> {
+    sim3_error(&e.s_ij.inverse().compose(&si.compose(&sj.inverse())))
+}
+
+impl GraphProblem<7> for Sim3Graph {
+    type Vertex = Sim3;
+    fn poses_mut(&mut self) -> &mut Vec<Sim3> {
+        &mut self.poses
+    }
+    fn fixed_mut(&mut self) -> &mut Vec<bool> {
+        &mut self.fixed
+    }
+    fn retain_edges(&mut self, n: usize) {
+        self.edges.retain(|e| e.i < n && e.j < n && e.i != e.j);
+    }
+    fn ends(&self) -> Vec<(usize, usize)> {
+        self.edges.iter().map(|e| (e.i, e.j)).collect()
+    }
+    /// Jacobians by central differences: 7x7 per end, cheap beside the solve.
+    fn linearise_edge(
+        &self,
+        e: usize,
+    ) -> (SVector<f64, 7>, SMatrix<f64, 7, 7>, SMatrix<f64, 7, 7>, f64) {
+        let e = &self.edges[e];
+        let (si, sj) = (self.poses[e.i], self.poses[e.j]);
+        let r = sim3_residual(e, &si, &sj);
+        let h = 1e-6;
+        let mut ji = SMatrix::<f64, 7, 7>::zeros();
+        let mut jj = SMatrix::<f64, 7, 7>::zeros();
+        for k in 0..7 {
+            let mut d = SVector::<f64, 7>::zeros();
+            d[k] = h;
+            let (plus, minus) = (sim3_step(&d), sim3_step(&-d));
+            let di = sim3_residual(e, &plus.compose(&si), &sj)
+                - sim3_residual(e, &minus.compose(&si), &sj);
+            let dj = sim3_residual(e, &si, &plus.compose(&sj))
+                - sim3_residual(e, &si, &minus.compose(&sj));
+            ji.set_column(k, &(di / (2.0 * h)));
+            jj.set_column(k, &(dj / (2.0 * h)));
+        }
+        (r, ji, jj, e.weight)
+    }
+    fn cost(&self) -> f64 {
+        self.edges
+            .iter()
+            .map(|e| e.weight * sim3_residual(e, &self.poses[e.i], &self.poses[e.j]).norm_squared())
+            .sum()
+    }
+    fn retract(v: &Sim3, d: &SVector<f64, 7>) -> Sim3 {
+        sim3_step(d).compose(v)
+    }
+}
+
+/// [`optimize_pose_graph`] in Sim(3): the free similarities for at most `iterations`
+/// Levenberg-Marquardt steps; without a fixed pose the first is fixed.
+pub fn optimize_sim3_graph(g: &mut Sim3Graph, iterations: usize) -> PoseGraphReport {
+    levenberg_marquardt::<7, _>(g, iterations)
 }
 
 /// Reverse Cuthill-McKee order of an undirected graph (adjacency lists): breadth-first from a
@@ -261,13 +421,13 @@ struct Envelope {
 }
 
 impl Envelope {
-    /// `first_block[b]`: the first 6x6 block column of block row b.
-    fn new(dim: usize, first_block: &[usize]) -> Self {
+    /// `first_block[b]`: the first `block` x `block` block column of block row b.
+    fn new(dim: usize, block: usize, first_block: &[usize]) -> Self {
         let mut first = Vec::with_capacity(dim);
         let mut start = Vec::with_capacity(dim + 1);
         let mut len = 0;
         for r in 0..dim {
-            let f = 6 * first_block[r / 6];
+            let f = block * first_block[r / block];
             first.push(f);
             start.push(len);
             len += r + 1 - f;
@@ -450,6 +610,116 @@ mod tests {
     }
 
     #[test]
+    fn a_sim3_loop_edge_undoes_scale_drift() {
+        // Monocular odometry whose scale shrinks 1 % a step round a 3 m circle, and one loop
+        // edge that knows the true scale at the start. Camera centres are compared after
+        // the drifted start is undone by the optimiser.
+        let n = 60;
+        let truth: Vec<Se3> = circle(n).iter().map(|p| p.inverse()).collect();
+        let mut scale = 1.0;
+        let mut poses = vec![Sim3::from_rigid(truth[0])];
+        let mut edges = Vec::new();
+        for k in 1..n {
+            // Relative motion k-1 <- k, measured at the scale the map has at k.
+            let mut rel = truth[k - 1] * truth[k].inverse();
+            rel.translation.vector *= scale;
+            let step = Sim3 {
+                scale: 1.0,
+                rigid: rel,
+            };
+            // S_k = step⁻¹ ∘ S_(k-1): the drifted chain.
+            poses.push(step.inverse().compose(&poses[k - 1]));
+            edges.push(Sim3Edge {
+                i: k - 1,
+                j: k,
+                s_ij: step,
+                weight: 1.0,
+            });
+            scale *= 0.99;
+        }
+        // The loop: camera n-1 seen from camera 0 in the map's units at 0, at the scale
+        // the map reached by n-1 (one of its units is `scale` true metres there).
+        let loop_rel = truth[0] * truth[n - 1].inverse();
+        edges.push(Sim3Edge {
+            i: 0,
+            j: n - 1,
+            s_ij: Sim3 {
+                scale: 1.0 / scale,
+                rigid: loop_rel,
+            },
+            weight: 1.0,
+        });
+        let centres = |ps: &[Sim3]| -> Vec<Vector3<f64>> {
+            ps.iter()
+                .map(|p| p.inverse().rigid.translation.vector)
+                .collect()
+        };
+        let worst = |ps: &[Sim3]| {
+            centres(ps)
+                .iter()
+                .zip(&truth)
+                .map(|(c, t)| (c - t.inverse().translation.vector).norm())
+                .fold(0.0, f64::max)
+        };
+        let before = worst(&poses);
+        let mut g = Sim3Graph {
+            poses,
+            fixed: vec![false; n],
+            edges,
+        };
+        g.fixed[0] = true;
+        let report = optimize_sim3_graph(&mut g, 20);
+        let after = worst(&g.poses);
+        assert!(before > 1.0, "drift {before}");
+        assert!(
+            after < 0.2 * before,
+            "before {before} after {after} ({report:?})"
+        );
+        // The end of the chain carries the drift as its similarity's scale.
+        let s = g.poses[n - 1].scale;
+        assert!((s / scale - 1.0).abs() < 0.05, "{s} vs {scale}");
+    }
+
+    #[test]
+    fn sim3_jacobians_match_a_smaller_step() {
+        let a = Sim3 {
+            scale: 1.3,
+            rigid: Se3::new(Vector3::new(0.3, -0.2, 1.0), Vector3::new(0.1, 0.5, -0.2)),
+        };
+        let b = Sim3 {
+            scale: 0.8,
+            rigid: Se3::new(Vector3::new(-0.4, 0.1, 0.2), Vector3::new(-0.3, 0.2, 0.4)),
+        };
+        let m = Sim3 {
+            scale: 1.1,
+            rigid: Se3::new(Vector3::new(0.05, 0.0, -0.02), Vector3::new(0.2, -0.1, 0.3)),
+        };
+        let g = Sim3Graph {
+            poses: vec![a, b],
+            fixed: vec![false, false],
+            edges: vec![Sim3Edge {
+                i: 0,
+                j: 1,
+                s_ij: m,
+                weight: 1.0,
+            }],
+        };
+        let (r0, ji, _, _) = g.linearise_edge(0);
+        for k in 0..7 {
+            let mut d = SVector::<f64, 7>::zeros();
+            d[k] = 1e-8;
+            let mut g2 = g.clone();
+            g2.poses[0] = Sim3Graph::retract(&g2.poses[0], &d);
+            let (r1, _, _, _) = g2.linearise_edge(0);
+            let fd = (r1 - r0) / 1e-8;
+            assert!(
+                (fd - ji.column(k)).norm() < 1e-4 * (1.0 + fd.norm()),
+                "column {k}"
+            );
+        }
+    }
+
+    #[test]
     fn consistent_graph_stays_and_no_fixed_pose_fixes_the_first() {
         let truth: Vec<Se3> = circle(8).iter().map(|p| p.inverse()).collect();
         let edges: Vec<PoseGraphEdge> = (1..8)
@@ -484,7 +754,7 @@ mod tests {
         }
         a[(11, 0)] = 0.5;
         a[(0, 11)] = 0.5;
-        let mut env = Envelope::new(dim, &[0, 0]);
+        let mut env = Envelope::new(dim, 6, &[0, 0]);
         for r in 0..dim {
             for c in 0..=r {
                 env.add(r, c, a[(r, c)]);
