@@ -221,14 +221,13 @@ impl System {
         let map = Arc::new(SharedMap::new(map));
         let mapping_ms = Arc::new(Mutex::new(Vec::new()));
         let mapper = LocalMapper::new(settings.clone());
-        // Loop closing corrects with SE3: a monocular map drifts in scale too (ORB-SLAM
-        // corrects a loop with Sim3), so monocular runs close no loop within a map; they merge
-        // maps (with the scale between them) when `merge_maps` is on.
-        let looping_on = settings.loop_closing.enabled
-            && (!settings.monocular || settings.loop_closing.merge_maps);
-        if settings.loop_closing.enabled && settings.monocular {
+        // A monocular run closes loops within its map in Sim(3) when `monocular_loops` is on,
+        // and merges maps (with the scale between them) when `merge_maps` is.
+        let ls = &settings.loop_closing;
+        let looping_on = ls.enabled && (!settings.monocular || ls.merge_maps || ls.monocular_loops);
+        if ls.enabled && settings.monocular && !ls.monocular_loops {
             tracing::info!(
-                "monocular: loop closing merges maps only (no loop within a map: that needs Sim(3) correction)"
+                "monocular: loop closing merges maps only (slam.loop_closing.monocular_loops is off)"
             );
         }
         let closer = looping_on.then(|| {
@@ -739,14 +738,11 @@ impl System {
     }
 }
 
-/// A monocular map merged into an older one took that map's scale: the frames anchored to its
-/// keyframes keep their relative rotation, their relative translation scales with it.
+/// Monocular keyframes whose scale changed (a merge, a Sim(3) loop): the frames anchored to
+/// them keep their relative rotation, their relative translation scales with it.
 fn rescale_anchors(anchors: &mut [(f64, KfId, Se3)], c: &MapCorrection) {
-    let Some((scale, keyframes)) = &c.rescaled else {
-        return;
-    };
     for (_, r, t_cr) in anchors.iter_mut() {
-        if keyframes.contains(r) {
+        if let Some(scale) = c.rescaled.get(r) {
             t_cr.translation.vector *= *scale;
         }
     }

@@ -1007,8 +1007,8 @@ impl Tracker {
     /// Loop closing moved keyframes (`poses`: world-to-camera before and after): the last frame
     /// moves with its reference keyframe (else the newest moved one), as ORB-SLAM's
     /// `UpdateLastFrame` re-anchors it, so the motion model predicts in the corrected map.
-    /// A monocular map merged into an older one (`c.rescaled`) also scales the last frame's
-    /// translation from its keyframe, and the motion model's.
+    /// A monocular keyframe whose scale changed (`c.rescaled`: a merge, a Sim(3) loop) also
+    /// scales the last frame's translation from it, and the motion model's.
     pub fn on_map_corrected(&mut self, c: &MapCorrection) {
         let poses = &c.poses;
         let anchor = self
@@ -1018,10 +1018,11 @@ impl Tracker {
         let Some(&(before, after)) = anchor else {
             return;
         };
-        let scale = match &c.rescaled {
-            Some((s, keyframes)) if self.reference_kf.is_some_and(|r| keyframes.contains(&r)) => *s,
-            _ => 1.0,
-        };
+        let scale = self
+            .reference_kf
+            .and_then(|r| c.rescaled.get(&r))
+            .copied()
+            .unwrap_or(1.0);
         let moved = |p: Se3| {
             if scale == 1.0 {
                 return p * (before.inverse() * after);

@@ -45,11 +45,24 @@ pub fn room(seed: u64, n: usize) -> Scene {
 }
 
 /// The scene's points seen from `pose_wc`: features, descriptors and a sparse depth image.
+#[allow(dead_code)] // not every test file uses it
 pub fn observe(
     sc: &Scene,
     pose_wc: &Se3,
     cam: &PinholeCamera,
     rng: &mut impl Rng,
+) -> (Vec<Feature>, Vec<Descriptor>, DepthMetres) {
+    observe_with_noise(sc, pose_wc, cam, rng, 0.3)
+}
+
+/// As [`observe`], keypoints off by up to `noise_px` in each direction.
+#[allow(dead_code)] // not every test file uses it
+pub fn observe_with_noise(
+    sc: &Scene,
+    pose_wc: &Se3,
+    cam: &PinholeCamera,
+    rng: &mut impl Rng,
+    noise_px: f64,
 ) -> (Vec<Feature>, Vec<Descriptor>, DepthMetres) {
     let mut depth = DepthMetres::new(cam.width as usize, cam.height as usize, 0.0);
     let (mut f, mut d) = (Vec::new(), Vec::new());
@@ -60,8 +73,8 @@ pub fn observe(
         if !cam.in_image(&px, 2.0) {
             continue;
         }
-        let x = px.x + rng.random_range(-0.3..0.3);
-        let y = px.y + rng.random_range(-0.3..0.3);
+        let x = px.x + rng.random_range(-noise_px..noise_px);
+        let y = px.y + rng.random_range(-noise_px..noise_px);
         let (xi, yi) = (x.round() as usize, y.round() as usize);
         if xi >= depth.width || yi >= depth.height {
             continue;

@@ -4,12 +4,14 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use stillpoint_geometry::Se3;
+use stillpoint_geometry::{Se3, Sim3};
 use tracing::debug;
 
 use super::{LoopCloser, LoopEvent, LoopSettings, MapCorrection, Verified};
 use crate::data::{KfId, Map, MpId};
-use crate::optimize::{PoseGraph, PoseGraphEdge, optimize_pose_graph};
+use crate::optimize::{
+    PoseGraph, PoseGraphEdge, Sim3Edge, Sim3Graph, optimize_pose_graph, optimize_sim3_graph,
+};
 use crate::solve::rigid::apply;
 
 impl LoopCloser {
@@ -65,10 +67,33 @@ impl LoopCloser {
                 })
                 .take(ls.correction_group_max),
         );
+        // Monocular: a similarity per keyframe (ORB-SLAM's Sim(3) correction), so the scale the
+        // map lost between the loop keyframe and this one comes back; the loop's scale is the
+        // loop keyframe's units per this keyframe's (1 after a merge: the map took it whole).
+        let similar_loop = self.s.monocular.then(|| {
+            let scale = if merged_map.is_some() { 1.0 } else { v.scale };
+            Sim3 {
+                scale: 1.0 / scale,
+                rigid: Se3::from_parts(
+                    (cur_new.translation.vector / scale).into(),
+                    cur_new.rotation,
+                ),
+            }
+        });
         let mut corrected: BTreeMap<KfId, Se3> = BTreeMap::new();
+        let mut similar: BTreeMap<KfId, Sim3> = BTreeMap::new();
         for &g in &group {
             let t_gc = before[&g] * cur_old.inverse();
-            corrected.insert(g, t_gc * cur_new);
+            match similar_loop {
+                Some(s_cw) => {
+                    let s_gw = Sim3::from_rigid(t_gc).compose(&s_cw);
+                    corrected.insert(g, s_gw.to_pose());
+                    similar.insert(g, s_gw);
+                }
+                None => {
+                    corrected.insert(g, t_gc * cur_new);
+                }
+            }
         }
         // Points seen by the group move with the keyframe that moves them first.
         let mut moved_by: BTreeMap<MpId, KfId> = BTreeMap::new();
@@ -85,7 +110,12 @@ impl LoopCloser {
                     continue;
                 }
                 if let Some(p) = m.points.get_mut(&mp) {
-                    p.position = apply(&delta, &p.position);
+                    p.position = match similar.get(&g) {
+                        Some(s_gw) => s_gw
+                            .inverse()
+                            .transform_point(&apply(&before[&g], &p.position)),
+                        None => apply(&delta, &p.position),
+                    };
                     moved_by.insert(mp, g);
                 }
             }
@@ -134,14 +164,34 @@ impl LoopCloser {
                 loop_links.insert(g, links);
             }
         }
-        let (graph_keyframes, graph_edges, after) = self.essential_graph(
-            m,
-            epoch,
-            (kf, v.loop_kf),
-            (&before, &corrected),
-            &loop_links,
-            &ls,
-        );
+        let edges = self.essential_edges(m, epoch, (kf, v.loop_kf), &loop_links, &ls);
+        let graph_keyframes = edges.keyframes.len();
+        let graph_edges = edges.pairs.len();
+        // Each keyframe's similarity after the graph (scale 1 for RGB-D and stereo), and the
+        // one it started from, by which a point anchored to it moved.
+        let (initial_of, after_of): (BTreeMap<KfId, Sim3>, BTreeMap<KfId, Sim3>) =
+            if self.s.monocular {
+                let initial: BTreeMap<KfId, Sim3> = edges
+                    .keyframes
+                    .iter()
+                    .map(|&k| {
+                        let s = similar
+                            .get(&k)
+                            .copied()
+                            .unwrap_or_else(|| Sim3::from_rigid(before[&k]));
+                        (k, s)
+                    })
+                    .collect();
+                let after = sim3_essential_graph(&edges, &initial, &before, &ls);
+                (initial, after)
+            } else {
+                (BTreeMap::new(), BTreeMap::new())
+            };
+        let after: BTreeMap<KfId, Se3> = if self.s.monocular {
+            after_of.iter().map(|(k, s)| (*k, s.to_pose())).collect()
+        } else {
+            se3_essential_graph(&edges, (&before, &corrected), &ls)
+        };
         // Keyframes and points follow the optimised poses; a point moves with the keyframe
         // that moved it above, else with its reference keyframe.
         let initial = |k: KfId| {
@@ -162,10 +212,17 @@ impl LoopCloser {
                     .find(|k| after.contains_key(k))
             });
             let Some(a) = anchor else { continue };
-            let (Some(old), Some(new)) = (initial(a), after.get(&a)) else {
-                continue;
+            let pos = match (initial_of.get(&a), after_of.get(&a)) {
+                (Some(old), Some(new)) => new
+                    .inverse()
+                    .transform_point(&old.transform_point(&p.position)),
+                _ => {
+                    let (Some(old), Some(new)) = (initial(a), after.get(&a)) else {
+                        continue;
+                    };
+                    apply(&new.inverse(), &apply(&old, &p.position))
+                }
             };
-            let pos = apply(&new.inverse(), &apply(&old, &p.position));
             if let Some(p) = m.points.get_mut(&mp) {
                 p.position = pos;
             }
@@ -175,7 +232,15 @@ impl LoopCloser {
                 x.pose_cw = *pose;
             }
         }
-        move_culled_keyframes(m, epoch, &before, &after);
+        if self.s.monocular {
+            let before_of: BTreeMap<KfId, Sim3> = before
+                .iter()
+                .map(|(k, p)| (*k, Sim3::from_rigid(*p)))
+                .collect();
+            move_culled_keyframes_sim3(m, epoch, &before_of, &after_of);
+        } else {
+            move_culled_keyframes(m, epoch, &before, &after);
+        }
         let ids: Vec<MpId> = m.points.keys().copied().collect();
         for mp in ids {
             m.update_normal_and_depth(mp, &self.scales);
@@ -217,7 +282,18 @@ impl LoopCloser {
                     .map(|old| (*k, (*old, *new)))
             })
             .collect();
-        let rescaled = (v.scale != 1.0).then(|| (v.scale, unmerged.keys().copied().collect()));
+        // A frame anchored to a keyframe sees the world nearer or farther by the keyframe's
+        // scale change: the merge's (older map's units per the merged map's), then the
+        // similarity's (its camera coordinates shrink by 1 / scale).
+        let mut rescaled: BTreeMap<KfId, f64> = BTreeMap::new();
+        if v.scale != 1.0 && merged_map.is_some() {
+            rescaled.extend(unmerged.keys().map(|k| (*k, v.scale)));
+        }
+        for (k, s) in &after_of {
+            if s.scale != 1.0 {
+                *rescaled.entry(*k).or_insert(1.0) /= s.scale;
+            }
+        }
         Some((MapCorrection { poses, rescaled }, event))
     }
 
@@ -311,44 +387,42 @@ impl LoopCloser {
         }
     }
 
-    /// ORB-SLAM `OptimizeEssentialGraph` over SE3: the loop keyframe fixed, edges of the new
-    /// loop links (from the corrected poses), the spanning tree, earlier loops and strong
-    /// covisibility (from the poses before the correction). Returns the keyframe and edge
-    /// counts and the optimised pose of every good keyframe.
-    pub(super) fn essential_graph(
+    /// ORB-SLAM `OptimizeEssentialGraph`'s edges: the loop keyframe fixed, edges of the new
+    /// loop links (measured on the corrected poses), the spanning tree, earlier loops and strong
+    /// covisibility (measured on the poses before the correction), over every good keyframe.
+    pub(super) fn essential_edges(
         &self,
         m: &Map,
         epoch: u32,
         (kf, loop_kf): (KfId, KfId),
-        (before, corrected): (&BTreeMap<KfId, Se3>, &BTreeMap<KfId, Se3>),
         loop_links: &BTreeMap<KfId, BTreeSet<KfId>>,
         ls: &LoopSettings,
-    ) -> (usize, usize, BTreeMap<KfId, Se3>) {
-        let ids: Vec<KfId> = m
+    ) -> EssentialEdges {
+        let keyframes: Vec<KfId> = m
             .keyframes
             .values()
             .filter(|k| !k.bad && k.map_epoch == epoch)
             .map(|k| k.id)
             .collect();
-        let index: BTreeMap<KfId, usize> = ids.iter().enumerate().map(|(i, k)| (*k, i)).collect();
-        let initial = |k: KfId| corrected.get(&k).copied().unwrap_or(before[&k]);
-        let mut g = PoseGraph {
-            poses: ids.iter().map(|&k| initial(k)).collect(),
-            fixed: ids.iter().map(|&k| k == loop_kf).collect(),
-            edges: Vec::new(),
+        let index: BTreeMap<KfId, usize> =
+            keyframes.iter().enumerate().map(|(i, k)| (*k, i)).collect();
+        let mut edges = EssentialEdges {
+            keyframes,
+            fixed: loop_kf,
+            pairs: Vec::new(),
         };
         let mut inserted: BTreeSet<(KfId, KfId)> = BTreeSet::new();
-        let mut add = |g: &mut PoseGraph, a: KfId, b: KfId, t_ab: Se3| {
+        let mut add = |e: &mut EssentialEdges, a: KfId, b: KfId, corrected: bool| {
             let key = (a.min(b), a.max(b));
             if a == b || !inserted.insert(key) {
                 return;
             }
             if let (Some(&i), Some(&j)) = (index.get(&a), index.get(&b)) {
-                g.edges.push(PoseGraphEdge {
+                e.pairs.push(EssentialEdge {
                     i,
                     j,
-                    t_ij: t_ab,
-                    weight: 1.0,
+                    ids: (a, b),
+                    corrected,
                 });
             }
         };
@@ -357,26 +431,20 @@ impl LoopCloser {
                 let strong = m.keyframes[&a].connections.get(&b).copied().unwrap_or(0)
                     >= ls.essential_min_weight;
                 if (a == kf && b == loop_kf) || strong {
-                    add(&mut g, a, b, initial(a) * initial(b).inverse());
+                    add(&mut edges, a, b, true);
                 }
             }
         }
         // The loop itself, in case fusion did not link the two keyframes strongly.
-        add(
-            &mut g,
-            kf,
-            loop_kf,
-            initial(kf) * initial(loop_kf).inverse(),
-        );
-        let rel = |a: KfId, b: KfId| before[&a] * before[&b].inverse();
-        for &k in &ids {
+        add(&mut edges, kf, loop_kf, true);
+        for k in edges.keyframes.clone() {
             let x = &m.keyframes[&k];
             if let Some(p) = x.parent.filter(|p| index.contains_key(p)) {
-                add(&mut g, k, p, rel(k, p));
+                add(&mut edges, k, p, false);
             }
             for &(a, b) in &self.loop_edges {
                 if (a == k || b == k) && index.contains_key(&a) && index.contains_key(&b) {
-                    add(&mut g, a, b, rel(a, b));
+                    add(&mut edges, a, b, false);
                 }
             }
             let strong = x
@@ -389,22 +457,106 @@ impl LoopCloser {
                 });
             for o in strong {
                 if index.contains_key(&o) {
-                    add(&mut g, k, o, rel(k, o));
+                    add(&mut edges, k, o, false);
                 }
             }
         }
-        let report = optimize_pose_graph(&mut g, ls.pose_graph_iterations);
-        debug!(
-            keyframes = ids.len(),
-            edges = g.edges.len(),
-            before = report.initial_cost,
-            after = report.final_cost,
-            iterations = report.iterations,
-            "essential graph"
-        );
-        let after = ids.iter().copied().zip(g.poses.iter().copied()).collect();
-        (ids.len(), g.edges.len(), after)
+        edges
     }
+}
+
+/// The essential graph's keyframes and edges, before any pose is attached.
+pub(super) struct EssentialEdges {
+    /// Every good keyframe of the map, in id order (the graph's vertices).
+    keyframes: Vec<KfId>,
+    /// The loop keyframe, held fixed.
+    fixed: KfId,
+    pairs: Vec<EssentialEdge>,
+}
+
+/// One edge: vertex indices, keyframe ids, and whether it is measured on the corrected poses.
+struct EssentialEdge {
+    i: usize,
+    j: usize,
+    ids: (KfId, KfId),
+    corrected: bool,
+}
+
+/// The essential graph over SE3 (RGB-D, stereo): the optimised pose of every good keyframe.
+fn se3_essential_graph(
+    edges: &EssentialEdges,
+    (before, corrected): (&BTreeMap<KfId, Se3>, &BTreeMap<KfId, Se3>),
+    ls: &LoopSettings,
+) -> BTreeMap<KfId, Se3> {
+    let initial = |k: KfId| corrected.get(&k).copied().unwrap_or(before[&k]);
+    let mut g = PoseGraph {
+        poses: edges.keyframes.iter().map(|&k| initial(k)).collect(),
+        fixed: edges.keyframes.iter().map(|&k| k == edges.fixed).collect(),
+        edges: Vec::new(),
+    };
+    for e in &edges.pairs {
+        let (a, b) = e.ids;
+        let t_ij = if e.corrected {
+            initial(a) * initial(b).inverse()
+        } else {
+            before[&a] * before[&b].inverse()
+        };
+        g.edges.push(PoseGraphEdge {
+            i: e.i,
+            j: e.j,
+            t_ij,
+            weight: 1.0,
+        });
+    }
+    let report = optimize_pose_graph(&mut g, ls.pose_graph_iterations);
+    debug!(
+        keyframes = edges.keyframes.len(),
+        edges = g.edges.len(),
+        before = report.initial_cost,
+        after = report.final_cost,
+        iterations = report.iterations,
+        "essential graph"
+    );
+    edges.keyframes.iter().copied().zip(g.poses).collect()
+}
+
+/// The essential graph over Sim(3) (monocular): the optimised similarity of every good
+/// keyframe, from `initial` (the corrected group's similarities, the others' poses).
+fn sim3_essential_graph(
+    edges: &EssentialEdges,
+    initial: &BTreeMap<KfId, Sim3>,
+    before: &BTreeMap<KfId, Se3>,
+    ls: &LoopSettings,
+) -> BTreeMap<KfId, Sim3> {
+    let mut g = Sim3Graph {
+        poses: edges.keyframes.iter().map(|k| initial[k]).collect(),
+        fixed: edges.keyframes.iter().map(|&k| k == edges.fixed).collect(),
+        edges: Vec::new(),
+    };
+    for e in &edges.pairs {
+        let (a, b) = e.ids;
+        let s_ij = if e.corrected {
+            initial[&a].compose(&initial[&b].inverse())
+        } else {
+            Sim3::from_rigid(before[&a] * before[&b].inverse())
+        };
+        g.edges.push(Sim3Edge {
+            i: e.i,
+            j: e.j,
+            s_ij,
+            weight: 1.0,
+        });
+    }
+    let report = optimize_sim3_graph(&mut g, ls.pose_graph_iterations);
+    debug!(
+        keyframes = edges.keyframes.len(),
+        edges = g.edges.len(),
+        before = report.initial_cost,
+        after = report.final_cost,
+        iterations = report.iterations,
+        "essential graph (Sim3)"
+    );
+    edges.keyframes.iter().copied().zip(g.poses).collect()
 }
 
 /// Culled keyframes stay anchors of the frame trajectory: each moves with its nearest good
@@ -422,20 +574,52 @@ pub(super) fn move_culled_keyframes(
         .map(|k| k.id)
         .collect();
     for b in bad {
-        let mut a = m.keyframes[&b].parent;
-        let mut hops = 0;
-        while let Some(x) = a {
-            if after.contains_key(&x) || hops > m.keyframes.len() {
-                break;
-            }
-            a = m.keyframes.get(&x).and_then(|k| k.parent);
-            hops += 1;
-        }
-        if let Some(x) = a
+        if let Some(x) = good_ancestor(m, b, after)
             && let (Some(old), Some(new)) = (before.get(&x), after.get(&x))
             && let Some(k) = m.keyframes.get_mut(&b)
         {
             k.pose_cw = k.pose_cw * old.inverse() * new;
         }
     }
+}
+
+/// [`move_culled_keyframes`] for a monocular map corrected in Sim(3): each culled keyframe
+/// keeps its pose relative to its ancestor's similarity (`before` / `after`: the good ones').
+fn move_culled_keyframes_sim3(
+    m: &mut Map,
+    epoch: u32,
+    before: &BTreeMap<KfId, Sim3>,
+    after: &BTreeMap<KfId, Sim3>,
+) {
+    let bad: Vec<KfId> = m
+        .keyframes
+        .values()
+        .filter(|k| k.bad && k.map_epoch == epoch)
+        .map(|k| k.id)
+        .collect();
+    for b in bad {
+        let Some(x) = good_ancestor(m, b, after) else {
+            continue;
+        };
+        if let (Some(old), Some(new)) = (before.get(&x), after.get(&x))
+            && let Some(k) = m.keyframes.get_mut(&b)
+        {
+            let rel = Sim3::from_rigid(k.pose_cw).compose(&old.inverse());
+            k.pose_cw = rel.compose(new).to_pose();
+        }
+    }
+}
+
+/// The nearest ancestor of `b` in the spanning tree that is a key of `good`.
+fn good_ancestor<V>(m: &Map, b: KfId, good: &BTreeMap<KfId, V>) -> Option<KfId> {
+    let mut a = m.keyframes[&b].parent;
+    let mut hops = 0;
+    while let Some(x) = a {
+        if good.contains_key(&x) || hops > m.keyframes.len() {
+            break;
+        }
+        a = m.keyframes.get(&x).and_then(|k| k.parent);
+        hops += 1;
+    }
+    a
 }

@@ -37,9 +37,9 @@ impl LoopCloser {
         excluded.insert(kf);
         let epoch = k.map_epoch;
         // Older maps' keyframes too when merging: a place found there merges the two maps.
-        // Monocular: only those (a loop within a map needs a Sim(3) correction, not built).
+        // Monocular: within the map only with `monocular_loops` (corrected in Sim(3)).
         let older = ls.merge_maps;
-        let same = !self.s.monocular;
+        let same = !self.s.monocular || ls.monocular_loops;
         let candidates = self.db.loop_candidates(
             kf,
             &excluded,

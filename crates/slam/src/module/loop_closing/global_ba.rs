@@ -141,7 +141,7 @@ impl LoopCloser {
         }
         let correction = MapCorrection {
             poses,
-            rescaled: None,
+            rescaled: BTreeMap::new(),
         };
         if let Some(p) = publish
             && let Ok(mut q) = p.lock()

@@ -1,5 +1,5 @@
-//! Loop closing (ORB-SLAM2/3 `LoopClosing` for RGB-D and stereo, where the scale is known and a
-//! loop is an SE3): per keyframe from local mapping, bag-of-words candidates, covisibility
+//! Loop closing (ORB-SLAM2/3 `LoopClosing`: an SE3 for RGB-D and stereo, where the scale is
+//! known, a Sim(3) for monocular maps): per keyframe from local mapping, bag-of-words candidates, covisibility
 //! consistency, geometric verification, then the correction: the keyframe's covisible group is
 //! moved onto the loop, duplicated points are fused, and the essential graph is optimised.
 //!
@@ -40,6 +40,10 @@ pub struct LoopSettings {
     /// for good) and merge the two when one is found (ORB-SLAM3's atlas): the current map moves
     /// onto the older one as a whole, then the loop is corrected as any other.
     pub merge_maps: bool,
+    /// Monocular runs close loops within a map too, correcting in Sim(3) (ORB-SLAM's
+    /// monocular loop closing: each keyframe's pose and scale). Off: a monocular run only
+    /// merges maps.
+    pub monocular_loops: bool,
     /// A place found in an older map merges once this many more keyframes see it where the
     /// finder puts it: its best covisible ones, then the next new keyframes (ORB-SLAM3: three
     /// keyframes in all). Two new keyframes that do not see it drop it.
@@ -117,6 +121,7 @@ impl Default for LoopSettings {
         Self {
             enabled: true,
             merge_maps: true,
+            monocular_loops: true,
             merge_confirmations: 2,
             merge_check_keyframes: 5,
             database: DatabaseParams::default(),
@@ -210,10 +215,10 @@ pub struct LoopStats {
 pub struct MapCorrection {
     /// Keyframe -> (world-to-camera pose before, after).
     pub poses: BTreeMap<KfId, (Se3, Se3)>,
-    /// A monocular map merged into an older one took its scale: the factor (older map's units
-    /// per merged map's unit) and the merged map's keyframes, whose frames' relative
-    /// translations scale with it.
-    pub rescaled: Option<(f64, BTreeSet<KfId>)>,
+    /// Monocular keyframes whose scale changed (a map merged into an older one took its scale;
+    /// a loop corrected in Sim(3)): per keyframe, the factor by which the translation of a
+    /// frame relative to it scales. Keyframes not in it keep theirs.
+    pub rescaled: BTreeMap<KfId, f64>,
 }
 
 /// A place of an older map found by a keyframe whose covisible keyframes could not confirm it
@@ -329,9 +334,9 @@ impl LoopCloser {
         mapping_busy: Option<&Mutex<()>>,
         publish: Option<&Mutex<Vec<MapCorrection>>>,
     ) -> Option<MapCorrection> {
-        // Monocular closes no loop within a map: until an older map exists there is nothing to
+        // Monocular without loops within a map: until an older map exists there is nothing to
         // look for (the vocabulary is trained on every map's keyframes when there is).
-        if self.s.monocular {
+        if self.s.monocular && !self.s.loop_closing.monocular_loops {
             let m = map.lock().ok()?;
             let lowest = m.keyframes.values().next();
             if lowest.is_none_or(|k| k.map_epoch >= m.epoch) {
