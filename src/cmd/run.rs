@@ -221,6 +221,7 @@ fn loops_json(scored: &ScoredRun) -> serde_json::Value {
                 "ransac_inliers": e.ransac_inliers, "refined_inliers": e.refined_inliers,
                 "loop_matches": e.loop_matches,
                 "correction_m": e.correction_m, "correction_deg": e.correction_deg,
+                "correction_scale": e.correction_scale,
                 "graph_keyframes": e.graph_keyframes, "graph_edges": e.graph_edges,
                 "correction_ms": e.correction_ms,
                 "gt_distance_m": truth.map(|t| t.0), "gt_angle_deg": truth.map(|t| t.1),

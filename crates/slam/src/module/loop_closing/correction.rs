@@ -267,6 +267,7 @@ impl LoopCloser {
             loop_matches: v.matches.len(),
             correction_m: moved_m,
             correction_deg: moved_deg,
+            correction_scale: v.scale,
             graph_keyframes,
             graph_edges,
             correction_ms: 0.0,

@@ -82,6 +82,11 @@ pub struct LoopSettings {
     /// Drift itself stays below: in a room where a person corrupted the map (front-end off),
     /// true loops asked for up to 93 % of a 1.8 m path. 0: no limit.
     pub max_correction_share: f64,
+    /// [`Self::max_correction_share`] for a loop within a monocular map (ours: 0.3). A
+    /// monocular map holds no person who corrupted it unseen by depth, and its Sim(3) loop
+    /// corrects scale along with pose, so real drift asks for a small share; a look-alike place
+    /// on a drive asked for most of the path (a street 60 m apart in truth: 59 %).
+    pub max_correction_share_monocular: f64,
     /// The least distance (m, map units) a correction may always move the keyframe.
     pub max_correction_floor_m: f64,
     /// The most a correction may turn the current keyframe (degrees; 0: no limit).
@@ -134,6 +139,7 @@ impl Default for LoopSettings {
             ransac_min_inliers: 20,
             min_refined_inliers: 20,
             max_correction_share: 0.9,
+            max_correction_share_monocular: 0.3,
             max_correction_floor_m: 0.5,
             max_correction_deg: 0.0,
             min_loop_matches: 40,
@@ -176,6 +182,9 @@ pub struct LoopEvent {
     pub correction_m: f64,
     /// How far the keyframe turned, degrees.
     pub correction_deg: f64,
+    /// The loop keyframe's map units per the current keyframe's (monocular: the scale drift
+    /// the loop found; 1 with depth).
+    pub correction_scale: f64,
     /// Keyframes in the essential graph and its edges.
     pub graph_keyframes: usize,
     /// Edges of the essential graph.
@@ -251,10 +260,21 @@ struct Verified {
 impl LoopSettings {
     /// Whether a loop within one map that would move the current keyframe by `moved_m` and turn
     /// it by `turned_deg`, after `path_m` travelled since the loop keyframe, is drift
-    /// ([`Self::max_correction_share`], [`Self::max_correction_deg`]).
-    pub fn correction_is_plausible(&self, moved_m: f64, turned_deg: f64, path_m: f64) -> bool {
-        let too_far = self.max_correction_share > 0.0
-            && moved_m > self.max_correction_floor_m + self.max_correction_share * path_m;
+    /// ([`Self::max_correction_share`] or, `monocular`, [`Self::max_correction_share_monocular`];
+    /// [`Self::max_correction_deg`]).
+    pub fn correction_is_plausible(
+        &self,
+        moved_m: f64,
+        turned_deg: f64,
+        path_m: f64,
+        monocular: bool,
+    ) -> bool {
+        let share = if monocular {
+            self.max_correction_share_monocular
+        } else {
+            self.max_correction_share
+        };
+        let too_far = share > 0.0 && moved_m > self.max_correction_floor_m + share * path_m;
         let too_turned = self.max_correction_deg > 0.0 && turned_deg > self.max_correction_deg;
         !(too_far || too_turned)
     }
@@ -510,24 +530,29 @@ mod tests {
     fn a_correction_is_plausible_only_as_drift() {
         let s = LoopSettings::default();
         // A lap of 6 m closing 20 cm and 3 degrees of drift.
-        assert!(s.correction_is_plausible(0.2, 3.0, 6.0));
+        assert!(s.correction_is_plausible(0.2, 3.0, 6.0, false));
         // Short paths keep the floor (0.5 m); a map a person corrupted drifts far.
-        assert!(s.correction_is_plausible(0.45, 1.0, 0.1));
-        assert!(s.correction_is_plausible(1.85, 27.0, 2.26));
+        assert!(s.correction_is_plausible(0.45, 1.0, 0.1, false));
+        assert!(s.correction_is_plausible(1.85, 27.0, 2.26, false));
         // A street's look-alike facade 30 m on, over 30 m travelled.
-        assert!(!s.correction_is_plausible(29.9, 0.6, 30.0));
+        assert!(!s.correction_is_plausible(29.9, 0.6, 30.0, false));
+        // Monocular (map units): a street 60 m apart in truth asked 1.6 over 2.7 travelled;
+        // a lap's drift 0.2 over 3.
+        assert!(!s.correction_is_plausible(1.6, 0.3, 2.7, true));
+        assert!(s.correction_is_plausible(1.6, 0.3, 2.7, false));
+        assert!(s.correction_is_plausible(0.2, 3.7, 3.0, true));
         // A turn limit, when one is set.
         let turning = LoopSettings {
             max_correction_deg: 30.0,
             ..LoopSettings::default()
         };
-        assert!(!turning.correction_is_plausible(0.1, 60.0, 30.0));
+        assert!(!turning.correction_is_plausible(0.1, 60.0, 30.0, false));
         // 0 turns the limits off.
         let off = LoopSettings {
             max_correction_share: 0.0,
             max_correction_deg: 0.0,
             ..LoopSettings::default()
         };
-        assert!(off.correction_is_plausible(29.9, 60.0, 30.0));
+        assert!(off.correction_is_plausible(29.9, 60.0, 30.0, false));
     }
 }

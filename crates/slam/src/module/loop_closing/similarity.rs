@@ -83,7 +83,7 @@ impl LoopCloser {
             .map(|k| centre(&k.pose_cw))
             .collect();
         let path_m: f64 = centres.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
-        let plausible = ls.correction_is_plausible(moved_m, turned_deg, path_m);
+        let plausible = ls.correction_is_plausible(moved_m, turned_deg, path_m, self.s.monocular);
         if !plausible {
             info!(
                 keyframe = cur.id,
