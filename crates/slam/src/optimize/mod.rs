@@ -8,8 +8,8 @@ pub mod pose_graph;
 pub use local_ba::{BaObservation, BaProblem, local_bundle_adjustment};
 pub use pose::{PoseObservation, optimize_pose};
 pub use pose_graph::{
-    PoseGraph, PoseGraphEdge, PoseGraphReport, Sim3Edge, Sim3Graph, optimize_pose_graph,
-    optimize_sim3_graph,
+    Graph, GraphEdge, PoseGraph, PoseGraphEdge, PoseGraphReport, Sim3Edge, Sim3Graph,
+    optimize_pose_graph, optimize_sim3_graph,
 };
 
 use nalgebra::{Matrix3, Vector3};

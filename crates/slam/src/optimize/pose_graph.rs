@@ -11,29 +11,50 @@ use stillpoint_geometry::{Se3, Sim3, skew};
 
 use super::retract;
 
-/// One relative-pose measurement: `t_ij` = T_iw * T_jw⁻¹, the pose of camera j seen from i.
+/// One relative measurement: `t_ij` = X_iw * X_jw⁻¹, camera j seen from camera i (a pose, or a
+/// similarity in a monocular map).
 #[derive(Clone, Copy, Debug)]
-pub struct PoseGraphEdge {
-    /// Index of camera i in `PoseGraph::poses`.
+pub struct GraphEdge<V> {
+    /// Index of camera i in `Graph::poses`.
     pub i: usize,
     /// Index of camera j.
     pub j: usize,
-    /// The measured pose of j seen from i.
-    pub t_ij: Se3,
+    /// The measured transform from camera j to camera i.
+    pub t_ij: V,
     /// Information weight (ORB-SLAM: identity for every edge).
     pub weight: f64,
 }
 
-/// Poses (world-to-camera), which of them stay fixed, and the edges.
-#[derive(Clone, Debug, Default)]
-pub struct PoseGraph {
-    /// World-to-camera poses.
-    pub poses: Vec<Se3>,
+/// World-to-camera transforms, which of them stay fixed, and the edges.
+#[derive(Clone, Debug)]
+pub struct Graph<V> {
+    /// World-to-camera transforms.
+    pub poses: Vec<V>,
     /// Per pose: held fixed.
     pub fixed: Vec<bool>,
-    /// The relative-pose measurements.
-    pub edges: Vec<PoseGraphEdge>,
+    /// The relative measurements.
+    pub edges: Vec<GraphEdge<V>>,
 }
+
+impl<V> Default for Graph<V> {
+    fn default() -> Self {
+        Self {
+            poses: Vec::new(),
+            fixed: Vec::new(),
+            edges: Vec::new(),
+        }
+    }
+}
+
+/// The essential graph over SE3 (RGB-D, stereo).
+pub type PoseGraph = Graph<Se3>;
+/// An edge of [`PoseGraph`].
+pub type PoseGraphEdge = GraphEdge<Se3>;
+/// The essential graph of a monocular map (ORB-SLAM's, in Sim(3)): a loop spreads the scale
+/// the map lost on its way along with the pose.
+pub type Sim3Graph = Graph<Sim3>;
+/// An edge of [`Sim3Graph`].
+pub type Sim3Edge = GraphEdge<Sim3>;
 
 /// What the optimiser did.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -107,13 +128,9 @@ pub fn optimize_pose_graph(g: &mut PoseGraph, iterations: usize) -> PoseGraphRep
 }
 
 /// A graph the Levenberg-Marquardt solver optimises, `D` parameters a vertex.
-trait GraphProblem<const D: usize> {
+trait GraphProblem<const D: usize>: Sized {
     type Vertex: Clone;
-    fn poses_mut(&mut self) -> &mut Vec<Self::Vertex>;
-    fn fixed_mut(&mut self) -> &mut Vec<bool>;
-    /// Drops the edges that do not join two different vertices of the graph.
-    fn retain_edges(&mut self, n: usize);
-    fn ends(&self) -> Vec<(usize, usize)>;
+    fn graph(&mut self) -> &mut Graph<Self::Vertex>;
     /// Residual, Jacobians w.r.t. both ends, and weight of edge `e`.
     fn linearise_edge(
         &self,
@@ -126,17 +143,8 @@ trait GraphProblem<const D: usize> {
 
 impl GraphProblem<6> for PoseGraph {
     type Vertex = Se3;
-    fn poses_mut(&mut self) -> &mut Vec<Se3> {
-        &mut self.poses
-    }
-    fn fixed_mut(&mut self) -> &mut Vec<bool> {
-        &mut self.fixed
-    }
-    fn retain_edges(&mut self, n: usize) {
-        self.edges.retain(|e| e.i < n && e.j < n && e.i != e.j);
-    }
-    fn ends(&self) -> Vec<(usize, usize)> {
-        self.edges.iter().map(|e| (e.i, e.j)).collect()
+    fn graph(&mut self) -> &mut PoseGraph {
+        self
     }
     fn linearise_edge(&self, e: usize) -> (Vector6<f64>, Matrix6<f64>, Matrix6<f64>, f64) {
         let e = &self.edges[e];
@@ -155,15 +163,15 @@ fn levenberg_marquardt<const D: usize, G: GraphProblem<D>>(
     g: &mut G,
     iterations: usize,
 ) -> PoseGraphReport {
-    let n = g.poses_mut().len();
-    let fixed = g.fixed_mut();
-    fixed.resize(n, false);
-    if !fixed.iter().any(|&f| f) && n > 0 {
-        fixed[0] = true;
+    let graph = g.graph();
+    let n = graph.poses.len();
+    graph.fixed.resize(n, false);
+    if !graph.fixed.iter().any(|&f| f) && n > 0 {
+        graph.fixed[0] = true;
     }
-    let fixed = fixed.clone();
-    g.retain_edges(n);
-    let ends = g.ends();
+    let fixed = graph.fixed.clone();
+    graph.edges.retain(|e| e.i < n && e.j < n && e.i != e.j);
+    let ends: Vec<(usize, usize)> = graph.edges.iter().map(|e| (e.i, e.j)).collect();
     // Free vertices, reordered to keep the Cholesky envelope narrow.
     let free: Vec<usize> = (0..n).filter(|&v| !fixed[v]).collect();
     let mut slot = vec![usize::MAX; n];
@@ -253,11 +261,11 @@ fn levenberg_marquardt<const D: usize, G: GraphProblem<D>>(
                 lambda *= 10.0;
                 continue;
             };
-            let backup = g.poses_mut().clone();
+            let backup = g.graph().poses.clone();
             for &v in &free {
                 let Some(i0) = index(v) else { continue };
                 let d = SVector::<f64, D>::from_fn(|k, _| -step[i0 + k]);
-                let poses = g.poses_mut();
+                let poses = &mut g.graph().poses;
                 poses[v] = G::retract(&poses[v], &d);
             }
             let c = g.cost();
@@ -267,7 +275,7 @@ fn levenberg_marquardt<const D: usize, G: GraphProblem<D>>(
                 improved = true;
                 break;
             }
-            *g.poses_mut() = backup;
+            g.graph().poses = backup;
             lambda *= 10.0;
         }
         if !improved || current < 1e-18 {
@@ -279,32 +287,6 @@ fn levenberg_marquardt<const D: usize, G: GraphProblem<D>>(
         final_cost: current,
         iterations: done,
     }
-}
-
-/// One relative similarity measurement: `s_ij` = S_iw ∘ S_jw⁻¹.
-#[derive(Clone, Copy, Debug)]
-pub struct Sim3Edge {
-    /// Index of camera i in `Sim3Graph::poses`.
-    pub i: usize,
-    /// Index of camera j.
-    pub j: usize,
-    /// The measured similarity from camera j to camera i.
-    pub s_ij: Sim3,
-    /// Information weight (ORB-SLAM: identity for every edge).
-    pub weight: f64,
-}
-
-/// The essential graph of a monocular map (ORB-SLAM's, in Sim(3)): vertices are
-/// world-to-camera similarities, so a loop can spread the scale the map lost on its way
-/// along with the pose.
-#[derive(Clone, Debug, Default)]
-pub struct Sim3Graph {
-    /// World-to-camera similarities.
-    pub poses: Vec<Sim3>,
-    /// Per pose: held fixed.
-    pub fixed: Vec<bool>,
-    /// The relative measurements.
-    pub edges: Vec<Sim3Edge>,
 }
 
 /// Error coordinates of a similarity near the identity: rotation log, translation, log scale.
@@ -326,22 +308,13 @@ fn sim3_step(d: &SVector<f64, 7>) -> Sim3 {
 }
 
 fn sim3_residual(e: &Sim3Edge, si: &Sim3, sj: &Sim3) -> SVector<f64, 7> {
-    sim3_error(&e.s_ij.inverse().compose(&si.compose(&sj.inverse())))
+    sim3_error(&e.t_ij.inverse().compose(&si.compose(&sj.inverse())))
 }
 
 impl GraphProblem<7> for Sim3Graph {
     type Vertex = Sim3;
-    fn poses_mut(&mut self) -> &mut Vec<Sim3> {
-        &mut self.poses
-    }
-    fn fixed_mut(&mut self) -> &mut Vec<bool> {
-        &mut self.fixed
-    }
-    fn retain_edges(&mut self, n: usize) {
-        self.edges.retain(|e| e.i < n && e.j < n && e.i != e.j);
-    }
-    fn ends(&self) -> Vec<(usize, usize)> {
-        self.edges.iter().map(|e| (e.i, e.j)).collect()
+    fn graph(&mut self) -> &mut Sim3Graph {
+        self
     }
     /// Jacobians by central differences: 7x7 per end, cheap beside the solve.
     fn linearise_edge(
@@ -632,7 +605,7 @@ mod tests {
             edges.push(Sim3Edge {
                 i: k - 1,
                 j: k,
-                s_ij: step,
+                t_ij: step,
                 weight: 1.0,
             });
             scale *= 0.99;
@@ -643,7 +616,7 @@ mod tests {
         edges.push(Sim3Edge {
             i: 0,
             j: n - 1,
-            s_ij: Sim3 {
+            t_ij: Sim3 {
                 scale: 1.0 / scale,
                 rigid: loop_rel,
             },
@@ -700,7 +673,7 @@ mod tests {
             edges: vec![Sim3Edge {
                 i: 0,
                 j: 1,
-                s_ij: m,
+                t_ij: m,
                 weight: 1.0,
             }],
         };

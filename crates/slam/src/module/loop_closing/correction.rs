@@ -10,7 +10,7 @@ use tracing::debug;
 use super::{LoopCloser, LoopEvent, LoopSettings, MapCorrection, Verified};
 use crate::data::{KfId, Map, MpId};
 use crate::optimize::{
-    PoseGraph, PoseGraphEdge, Sim3Edge, Sim3Graph, optimize_pose_graph, optimize_sim3_graph,
+    Graph, GraphEdge, PoseGraphReport, optimize_pose_graph, optimize_sim3_graph,
 };
 use crate::solve::rigid::apply;
 
@@ -483,6 +483,31 @@ struct EssentialEdge {
     corrected: bool,
 }
 
+impl EssentialEdges {
+    /// The graph with each keyframe's starting transform and each edge's measurement, both
+    /// from keyframe ids (`measured(a, b, corrected)`: b seen from a).
+    fn graph<V>(
+        &self,
+        initial: impl Fn(KfId) -> V,
+        measured: impl Fn(KfId, KfId, bool) -> V,
+    ) -> Graph<V> {
+        Graph {
+            poses: self.keyframes.iter().map(|&k| initial(k)).collect(),
+            fixed: self.keyframes.iter().map(|&k| k == self.fixed).collect(),
+            edges: self
+                .pairs
+                .iter()
+                .map(|e| GraphEdge {
+                    i: e.i,
+                    j: e.j,
+                    t_ij: measured(e.ids.0, e.ids.1, e.corrected),
+                    weight: 1.0,
+                })
+                .collect(),
+        }
+    }
+}
+
 /// The essential graph over SE3 (RGB-D, stereo): the optimised pose of every good keyframe.
 fn se3_essential_graph(
     edges: &EssentialEdges,
@@ -490,34 +515,15 @@ fn se3_essential_graph(
     ls: &LoopSettings,
 ) -> BTreeMap<KfId, Se3> {
     let initial = |k: KfId| corrected.get(&k).copied().unwrap_or(before[&k]);
-    let mut g = PoseGraph {
-        poses: edges.keyframes.iter().map(|&k| initial(k)).collect(),
-        fixed: edges.keyframes.iter().map(|&k| k == edges.fixed).collect(),
-        edges: Vec::new(),
-    };
-    for e in &edges.pairs {
-        let (a, b) = e.ids;
-        let t_ij = if e.corrected {
+    let mut g = edges.graph(initial, |a, b, from_corrected| {
+        if from_corrected {
             initial(a) * initial(b).inverse()
         } else {
             before[&a] * before[&b].inverse()
-        };
-        g.edges.push(PoseGraphEdge {
-            i: e.i,
-            j: e.j,
-            t_ij,
-            weight: 1.0,
-        });
-    }
+        }
+    });
     let report = optimize_pose_graph(&mut g, ls.pose_graph_iterations);
-    debug!(
-        keyframes = edges.keyframes.len(),
-        edges = g.edges.len(),
-        before = report.initial_cost,
-        after = report.final_cost,
-        iterations = report.iterations,
-        "essential graph"
-    );
+    log_graph("essential graph", &g, &report);
     edges.keyframes.iter().copied().zip(g.poses).collect()
 }
 
@@ -529,35 +535,30 @@ fn sim3_essential_graph(
     before: &BTreeMap<KfId, Se3>,
     ls: &LoopSettings,
 ) -> BTreeMap<KfId, Sim3> {
-    let mut g = Sim3Graph {
-        poses: edges.keyframes.iter().map(|k| initial[k]).collect(),
-        fixed: edges.keyframes.iter().map(|&k| k == edges.fixed).collect(),
-        edges: Vec::new(),
-    };
-    for e in &edges.pairs {
-        let (a, b) = e.ids;
-        let s_ij = if e.corrected {
-            initial[&a].compose(&initial[&b].inverse())
-        } else {
-            Sim3::from_rigid(before[&a] * before[&b].inverse())
-        };
-        g.edges.push(Sim3Edge {
-            i: e.i,
-            j: e.j,
-            s_ij,
-            weight: 1.0,
-        });
-    }
+    let mut g = edges.graph(
+        |k| initial[&k],
+        |a, b, from_corrected| {
+            if from_corrected {
+                initial[&a].compose(&initial[&b].inverse())
+            } else {
+                Sim3::from_rigid(before[&a] * before[&b].inverse())
+            }
+        },
+    );
     let report = optimize_sim3_graph(&mut g, ls.pose_graph_iterations);
+    log_graph("essential graph (Sim3)", &g, &report);
+    edges.keyframes.iter().copied().zip(g.poses).collect()
+}
+
+fn log_graph<V>(what: &str, g: &Graph<V>, report: &PoseGraphReport) {
     debug!(
-        keyframes = edges.keyframes.len(),
+        keyframes = g.poses.len(),
         edges = g.edges.len(),
         before = report.initial_cost,
         after = report.final_cost,
         iterations = report.iterations,
-        "essential graph (Sim3)"
+        "{what}"
     );
-    edges.keyframes.iter().copied().zip(g.poses).collect()
 }
 
 /// Culled keyframes stay anchors of the frame trajectory: each moves with its nearest good
@@ -567,6 +568,35 @@ pub(super) fn move_culled_keyframes(
     epoch: u32,
     before: &BTreeMap<KfId, Se3>,
     after: &BTreeMap<KfId, Se3>,
+) {
+    move_culled_keyframes_by(m, epoch, before, after, |pose, old, new| {
+        *pose * old.inverse() * new
+    });
+}
+
+/// [`move_culled_keyframes`] for a monocular map corrected in Sim(3): each culled keyframe
+/// keeps its pose relative to its ancestor's similarity (`before` / `after`: the good ones').
+fn move_culled_keyframes_sim3(
+    m: &mut Map,
+    epoch: u32,
+    before: &BTreeMap<KfId, Sim3>,
+    after: &BTreeMap<KfId, Sim3>,
+) {
+    move_culled_keyframes_by(m, epoch, before, after, |pose, old, new| {
+        Sim3::from_rigid(*pose)
+            .compose(&old.inverse())
+            .compose(new)
+            .to_pose()
+    });
+}
+
+/// Each culled keyframe of map `epoch` gets `moved(its pose, ancestor before, ancestor after)`.
+fn move_culled_keyframes_by<V>(
+    m: &mut Map,
+    epoch: u32,
+    before: &BTreeMap<KfId, V>,
+    after: &BTreeMap<KfId, V>,
+    moved: impl Fn(&Se3, &V, &V) -> Se3,
 ) {
     let bad: Vec<KfId> = m
         .keyframes
@@ -579,34 +609,7 @@ pub(super) fn move_culled_keyframes(
             && let (Some(old), Some(new)) = (before.get(&x), after.get(&x))
             && let Some(k) = m.keyframes.get_mut(&b)
         {
-            k.pose_cw = k.pose_cw * old.inverse() * new;
-        }
-    }
-}
-
-/// [`move_culled_keyframes`] for a monocular map corrected in Sim(3): each culled keyframe
-/// keeps its pose relative to its ancestor's similarity (`before` / `after`: the good ones').
-fn move_culled_keyframes_sim3(
-    m: &mut Map,
-    epoch: u32,
-    before: &BTreeMap<KfId, Sim3>,
-    after: &BTreeMap<KfId, Sim3>,
-) {
-    let bad: Vec<KfId> = m
-        .keyframes
-        .values()
-        .filter(|k| k.bad && k.map_epoch == epoch)
-        .map(|k| k.id)
-        .collect();
-    for b in bad {
-        let Some(x) = good_ancestor(m, b, after) else {
-            continue;
-        };
-        if let (Some(old), Some(new)) = (before.get(&x), after.get(&x))
-            && let Some(k) = m.keyframes.get_mut(&b)
-        {
-            let rel = Sim3::from_rigid(k.pose_cw).compose(&old.inverse());
-            k.pose_cw = rel.compose(new).to_pose();
+            k.pose_cw = moved(&k.pose_cw, old, new);
         }
     }
 }
