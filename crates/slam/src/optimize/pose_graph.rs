@@ -127,51 +127,43 @@ pub fn optimize_pose_graph(g: &mut PoseGraph, iterations: usize) -> PoseGraphRep
     levenberg_marquardt::<6, _>(g, iterations)
 }
 
-/// A graph the Levenberg-Marquardt solver optimises, `D` parameters a vertex.
-trait GraphProblem<const D: usize>: Sized {
-    type Vertex: Clone;
-    fn graph(&mut self) -> &mut Graph<Self::Vertex>;
-    /// Residual, Jacobians w.r.t. both ends, and weight of edge `e`.
-    fn linearise_edge(
-        &self,
-        e: usize,
-    ) -> (SVector<f64, D>, SMatrix<f64, D, D>, SMatrix<f64, D, D>, f64);
-    fn cost(&self) -> f64;
+/// A vertex the Levenberg-Marquardt solver moves, `D` parameters: the edge residuals of a
+/// [`Graph`] of them, their Jacobians, and the step.
+trait GraphVertex<const D: usize>: Clone {
+    /// Residual and Jacobians w.r.t. both ends of edge `e`.
+    fn linearise(
+        g: &Graph<Self>,
+        e: &GraphEdge<Self>,
+    ) -> (SVector<f64, D>, SMatrix<f64, D, D>, SMatrix<f64, D, D>);
+    /// Sum of the weighted squared residuals.
+    fn cost(g: &Graph<Self>) -> f64;
     /// The vertex moved by `d` (the tangent step of its left perturbation).
-    fn retract(v: &Self::Vertex, d: &SVector<f64, D>) -> Self::Vertex;
+    fn retract(&self, d: &SVector<f64, D>) -> Self;
 }
 
-impl GraphProblem<6> for PoseGraph {
-    type Vertex = Se3;
-    fn graph(&mut self) -> &mut PoseGraph {
-        self
+impl GraphVertex<6> for Se3 {
+    fn linearise(g: &PoseGraph, e: &PoseGraphEdge) -> (Vector6<f64>, Matrix6<f64>, Matrix6<f64>) {
+        linearise(g, e)
     }
-    fn linearise_edge(&self, e: usize) -> (Vector6<f64>, Matrix6<f64>, Matrix6<f64>, f64) {
-        let e = &self.edges[e];
-        let (r, ji, jj) = linearise(self, e);
-        (r, ji, jj, e.weight)
+    fn cost(g: &PoseGraph) -> f64 {
+        cost(g)
     }
-    fn cost(&self) -> f64 {
-        cost(self)
-    }
-    fn retract(v: &Se3, d: &Vector6<f64>) -> Se3 {
-        retract(v, d)
+    fn retract(&self, d: &Vector6<f64>) -> Se3 {
+        retract(self, d)
     }
 }
 
-fn levenberg_marquardt<const D: usize, G: GraphProblem<D>>(
-    g: &mut G,
+fn levenberg_marquardt<const D: usize, V: GraphVertex<D>>(
+    g: &mut Graph<V>,
     iterations: usize,
 ) -> PoseGraphReport {
-    let graph = g.graph();
-    let n = graph.poses.len();
-    graph.fixed.resize(n, false);
-    if !graph.fixed.iter().any(|&f| f) && n > 0 {
-        graph.fixed[0] = true;
+    let n = g.poses.len();
+    g.fixed.resize(n, false);
+    if !g.fixed.iter().any(|&f| f) && n > 0 {
+        g.fixed[0] = true;
     }
-    let fixed = graph.fixed.clone();
-    graph.edges.retain(|e| e.i < n && e.j < n && e.i != e.j);
-    let ends: Vec<(usize, usize)> = graph.edges.iter().map(|e| (e.i, e.j)).collect();
+    g.edges.retain(|e| e.i < n && e.j < n && e.i != e.j);
+    let fixed = &g.fixed;
     // Free vertices, reordered to keep the Cholesky envelope narrow.
     let free: Vec<usize> = (0..n).filter(|&v| !fixed[v]).collect();
     let mut slot = vec![usize::MAX; n];
@@ -179,8 +171,8 @@ fn levenberg_marquardt<const D: usize, G: GraphProblem<D>>(
         slot[v] = k;
     }
     let mut neighbours: Vec<Vec<usize>> = vec![Vec::new(); free.len()];
-    for &(i, j) in &ends {
-        let (a, b) = (slot[i], slot[j]);
+    for e in &g.edges {
+        let (a, b) = (slot[e.i], slot[e.j]);
         if a != usize::MAX && b != usize::MAX {
             neighbours[a].push(b);
             neighbours[b].push(a);
@@ -213,7 +205,7 @@ fn levenberg_marquardt<const D: usize, G: GraphProblem<D>>(
         (k != usize::MAX).then(|| D * position[k])
     };
 
-    let initial_cost = g.cost();
+    let initial_cost = V::cost(g);
     let mut current = initial_cost;
     let mut lambda = 1e-4;
     let mut done = 0;
@@ -224,9 +216,10 @@ fn levenberg_marquardt<const D: usize, G: GraphProblem<D>>(
         done += 1;
         let mut h = Envelope::new(dim, D, &first_block);
         let mut b = vec![0.0; dim];
-        for (e, &(ei, ej)) in ends.iter().enumerate() {
-            let (r, ji, jj, weight) = g.linearise_edge(e);
-            let blocks = [(index(ei), ji), (index(ej), jj)];
+        for e in &g.edges {
+            let (r, ji, jj) = V::linearise(g, e);
+            let weight = e.weight;
+            let blocks = [(index(e.i), ji), (index(e.j), jj)];
             for (ia, ja) in &blocks {
                 let Some(ia) = *ia else { continue };
                 let g_a = ja.transpose() * r * weight;
@@ -261,21 +254,20 @@ fn levenberg_marquardt<const D: usize, G: GraphProblem<D>>(
                 lambda *= 10.0;
                 continue;
             };
-            let backup = g.graph().poses.clone();
+            let backup = g.poses.clone();
             for &v in &free {
                 let Some(i0) = index(v) else { continue };
                 let d = SVector::<f64, D>::from_fn(|k, _| -step[i0 + k]);
-                let poses = &mut g.graph().poses;
-                poses[v] = G::retract(&poses[v], &d);
+                g.poses[v] = g.poses[v].retract(&d);
             }
-            let c = g.cost();
+            let c = V::cost(g);
             if c < current {
                 current = c;
                 lambda = (lambda / 10.0).max(1e-9);
                 improved = true;
                 break;
             }
-            g.graph().poses = backup;
+            g.poses = backup;
             lambda *= 10.0;
         }
         if !improved || current < 1e-18 {
@@ -311,18 +303,13 @@ fn sim3_residual(e: &Sim3Edge, si: &Sim3, sj: &Sim3) -> SVector<f64, 7> {
     sim3_error(&e.t_ij.inverse().compose(&si.compose(&sj.inverse())))
 }
 
-impl GraphProblem<7> for Sim3Graph {
-    type Vertex = Sim3;
-    fn graph(&mut self) -> &mut Sim3Graph {
-        self
-    }
-    /// Jacobians by central differences: 7x7 per end, cheap beside the solve.
-    fn linearise_edge(
-        &self,
-        e: usize,
-    ) -> (SVector<f64, 7>, SMatrix<f64, 7, 7>, SMatrix<f64, 7, 7>, f64) {
-        let e = &self.edges[e];
-        let (si, sj) = (self.poses[e.i], self.poses[e.j]);
+/// Jacobians by central differences: 7x7 per end, cheap beside the solve (once per loop).
+impl GraphVertex<7> for Sim3 {
+    fn linearise(
+        g: &Sim3Graph,
+        e: &Sim3Edge,
+    ) -> (SVector<f64, 7>, SMatrix<f64, 7, 7>, SMatrix<f64, 7, 7>) {
+        let (si, sj) = (g.poses[e.i], g.poses[e.j]);
         let r = sim3_residual(e, &si, &sj);
         let h = 1e-6;
         let mut ji = SMatrix::<f64, 7, 7>::zeros();
@@ -338,16 +325,16 @@ impl GraphProblem<7> for Sim3Graph {
             ji.set_column(k, &(di / (2.0 * h)));
             jj.set_column(k, &(dj / (2.0 * h)));
         }
-        (r, ji, jj, e.weight)
+        (r, ji, jj)
     }
-    fn cost(&self) -> f64 {
-        self.edges
+    fn cost(g: &Sim3Graph) -> f64 {
+        g.edges
             .iter()
-            .map(|e| e.weight * sim3_residual(e, &self.poses[e.i], &self.poses[e.j]).norm_squared())
+            .map(|e| e.weight * sim3_residual(e, &g.poses[e.i], &g.poses[e.j]).norm_squared())
             .sum()
     }
-    fn retract(v: &Sim3, d: &SVector<f64, 7>) -> Sim3 {
-        sim3_step(d).compose(v)
+    fn retract(&self, d: &SVector<f64, 7>) -> Sim3 {
+        sim3_step(d).compose(self)
     }
 }
 
@@ -677,13 +664,13 @@ mod tests {
                 weight: 1.0,
             }],
         };
-        let (r0, ji, _, _) = g.linearise_edge(0);
+        let (r0, ji, _) = Sim3::linearise(&g, &g.edges[0]);
         for k in 0..7 {
             let mut d = SVector::<f64, 7>::zeros();
             d[k] = 1e-8;
             let mut g2 = g.clone();
-            g2.poses[0] = Sim3Graph::retract(&g2.poses[0], &d);
-            let (r1, _, _, _) = g2.linearise_edge(0);
+            g2.poses[0] = g2.poses[0].retract(&d);
+            let (r1, _, _) = Sim3::linearise(&g2, &g2.edges[0]);
             let fd = (r1 - r0) / 1e-8;
             assert!(
                 (fd - ji.column(k)).norm() < 1e-4 * (1.0 + fd.norm()),

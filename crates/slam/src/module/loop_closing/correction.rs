@@ -98,7 +98,12 @@ impl LoopCloser {
         // Points seen by the group move with the keyframe that moves them first.
         let mut moved_by: BTreeMap<MpId, KfId> = BTreeMap::new();
         for &g in &group {
-            let delta = corrected[&g].inverse() * before[&g];
+            // World of the keyframe before -> corrected world (a similarity's inverse once
+            // per keyframe, not per point).
+            let moved = match similar.get(&g) {
+                Some(s_gw) => Moved::Similar(s_gw.inverse()),
+                None => Moved::Rigid(corrected[&g].inverse() * before[&g]),
+            };
             let mps: Vec<MpId> = m.keyframes[&g]
                 .map_points
                 .iter()
@@ -110,11 +115,11 @@ impl LoopCloser {
                     continue;
                 }
                 if let Some(p) = m.points.get_mut(&mp) {
-                    p.position = match similar.get(&g) {
-                        Some(s_gw) => s_gw
-                            .inverse()
-                            .transform_point(&apply(&before[&g], &p.position)),
-                        None => apply(&delta, &p.position),
+                    p.position = match &moved {
+                        Moved::Similar(s_wg) => {
+                            s_wg.transform_point(&apply(&before[&g], &p.position))
+                        }
+                        Moved::Rigid(delta) => apply(delta, &p.position),
                     };
                     moved_by.insert(mp, g);
                 }
@@ -464,6 +469,13 @@ impl LoopCloser {
         }
         edges
     }
+}
+
+/// How the points a corrected keyframe moves go: camera-to-world of its similarity, or the
+/// rigid move from its old pose to its new one.
+enum Moved {
+    Similar(Sim3),
+    Rigid(Se3),
 }
 
 /// The essential graph's keyframes and edges, before any pose is attached.
