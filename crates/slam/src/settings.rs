@@ -166,12 +166,28 @@ pub struct SlamSettings {
     /// Frames of failed relocalisation after which a new map is started (ORB-SLAM3 Atlas starts a
     /// new map when relocalisation keeps failing; 1 s of frames here).
     pub new_map_after_lost_frames: usize,
+    /// Monocular: keep relocalising in the lost map while a new map waits for its two views
+    /// (ORB-SLAM3 stops at the new map's first frame): a camera back on mapped ground within a
+    /// few frames stays in one map instead of starting a second one from scratch.
+    #[serde(default = "default_true")]
+    pub relocalise_while_initialising: bool,
+    /// Relocalisation tries the keyframes of every map, not only the current one's; a frame
+    /// found in an older map makes that map current again (the one left becomes an older map
+    /// that may merge later). Place recognition's candidates come from every map; the nearest
+    /// keyframes of older maps only with depth or stereo (a new monocular map has a frame of its
+    /// own).
+    #[serde(default = "default_true")]
+    pub relocalise_in_every_map: bool,
     /// Keyframes tried per relocalisation attempt (ORB-SLAM3 uses BoW candidates; we take the most
     /// recent and the closest to the last pose).
     pub reloc_candidates: usize,
     /// Loop closing (ORB-SLAM's, SE3 for RGB-D / stereo).
     #[serde(default)]
     pub loop_closing: crate::module::loop_closing::LoopSettings,
+}
+
+fn default_true() -> bool {
+    true
 }
 
 fn default_mapping_neighbours() -> usize {
@@ -321,6 +337,8 @@ impl SlamSettings {
             local_mapping_thread: false,
             background_nice: 10,
             new_map_after_lost_frames: fps.max(1.0).round() as usize,
+            relocalise_while_initialising: true,
+            relocalise_in_every_map: true,
             reloc_candidates: 20,
             loop_closing: Default::default(),
         }

@@ -404,18 +404,19 @@ impl System {
                     rescale_anchors(&mut self.anchors, &c);
                 }
             }
-            if self.tracker.state == TrackingState::Lost
+            if self.tracker.is_relocalising()
                 && let Some(db) = &self.reloc_db
                 && let Some(v) = db.vocabulary()
             {
                 let bow = v.transform(&frame.descriptors);
                 let epoch = map.epoch;
+                let every_map = self.settings.relocalise_in_every_map;
                 let candidates = db.relocalisation_candidates(
                     &bow,
                     |k| {
                         map.keyframes
                             .get(&k)
-                            .is_some_and(|x| !x.bad && x.map_epoch == epoch)
+                            .is_some_and(|x| !x.bad && (every_map || x.map_epoch == epoch))
                     },
                     |k| {
                         map.keyframes

@@ -263,10 +263,13 @@ impl Map {
         Some(id)
     }
 
-    /// Create a map point at `position` observed by keypoint `idx` of keyframe `kf`.
+    /// Create a map point at `position` observed by keypoint `idx` of keyframe `kf`, in the
+    /// keyframe's map (a keyframe the mapping thread still held when tracking moved to another
+    /// map keeps its points in its own).
     pub fn add_point(&mut self, position: Vec3, kf: KfId, idx: usize) -> Option<MpId> {
         let k = self.keyframes.get_mut(&kf)?;
         let descriptor = *k.descriptors.get(idx)?;
+        let map_epoch = k.map_epoch;
         let id = self.next_mp;
         self.next_mp += 1;
         k.map_points[idx] = Some(id);
@@ -276,7 +279,7 @@ impl Map {
             id,
             MapPoint {
                 id,
-                map_epoch: self.epoch,
+                map_epoch,
                 position,
                 descriptor,
                 normal: Vec3::z(),
@@ -725,6 +728,29 @@ impl Map {
     pub fn start_new_map(&mut self) {
         self.epoch += 1;
         self.origin_kf = None;
+    }
+
+    /// Make the older map `epoch` the current one again (tracking relocalised in it): its
+    /// keyframes and points take the next epoch, so the map left behind becomes an older map,
+    /// one loop closing may merge later, and the current map stays the newest epoch.
+    pub fn reactivate(&mut self, epoch: u32) {
+        if epoch == self.epoch {
+            return;
+        }
+        self.epoch += 1;
+        let current = self.epoch;
+        for k in self.keyframes.values_mut() {
+            if k.map_epoch == epoch {
+                k.map_epoch = current;
+            }
+        }
+        for p in self.points.values_mut() {
+            if p.map_epoch == epoch {
+                p.map_epoch = current;
+            }
+        }
+        let origin = self.current_keyframes().map(|k| k.id).next();
+        self.origin_kf = origin;
     }
 }
 

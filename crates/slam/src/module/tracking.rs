@@ -172,7 +172,11 @@ impl Tracker {
         mapper_queue: usize,
     ) -> TrackOutcome {
         let mut out = TrackOutcome::default();
+        let back_in_lost_map = self.state == TrackingState::NotInitialized
+            && self.new_map_pending
+            && self.relocalise_in_lost_map(&mut frame, map, &mut out);
         let ok = match self.state {
+            _ if back_in_lost_map => true,
             TrackingState::NotInitialized => {
                 let origin = self.last_good_pose.unwrap_or_else(Se3::identity);
                 // Monocular maps start from two keyframes (the reference one comes first).
@@ -229,20 +233,7 @@ impl Tracker {
                     self.local_map_ok(&frame, n)
                 }
             }
-            TrackingState::Lost => {
-                let mut ok = self.relocalise(&mut frame, map);
-                if ok {
-                    let n = self.track_local_map(&mut frame, map);
-                    out.inliers = n;
-                    ok = self.local_map_ok(&frame, n);
-                    if ok {
-                        info!(frame = frame.index, inliers = n, "relocalised");
-                        out.relocalised = true;
-                        self.last_reloc_frame = Some(frame.index);
-                    }
-                }
-                ok
-            }
+            TrackingState::Lost => self.relocalise_and_track_local_map(&mut frame, map, &mut out),
         };
         if ok {
             self.state = TrackingState::Ok;
@@ -311,6 +302,69 @@ impl Tracker {
         out.observations = observations(&frame, &out.matched);
         self.finish_frame(frame, ok);
         out
+    }
+
+    /// Whether the next frame relocalises (and so wants place recognition's candidates): lost,
+    /// or monocular and initialising a new map after the old one was lost, which the camera may
+    /// come back to before the new map has started.
+    pub fn is_relocalising(&self) -> bool {
+        self.state == TrackingState::Lost
+            || (self.state == TrackingState::NotInitialized && self.new_map_pending)
+    }
+
+    fn relocalise_and_track_local_map(
+        &mut self,
+        frame: &mut Frame,
+        map: &mut Map,
+        out: &mut TrackOutcome,
+    ) -> bool {
+        if !self.relocalise(frame, map) {
+            return false;
+        }
+        let lost_map = map.epoch;
+        let found_in = self
+            .reference_kf
+            .and_then(|r| map.keyframes.get(&r))
+            .map_or(lost_map, |k| k.map_epoch);
+        map.reactivate(found_in);
+        let n = self.track_local_map(frame, map);
+        out.inliers = n;
+        let ok = self.local_map_ok(frame, n);
+        if ok {
+            info!(frame = frame.index, inliers = n, "relocalised");
+            if found_in != lost_map {
+                info!(
+                    frame = frame.index,
+                    map = found_in,
+                    epoch = map.epoch,
+                    "relocalised in an older map: it is the current map again"
+                );
+            }
+            out.relocalised = true;
+            self.last_reloc_frame = Some(frame.index);
+        } else if found_in != lost_map {
+            // The map that was lost stays the current one.
+            map.reactivate(lost_map);
+        }
+        ok
+    }
+
+    /// Monocular, a new map pending: the lost map is still the current one until the new map
+    /// starts, so a frame that relocalises in it goes on there and the new map is dropped.
+    fn relocalise_in_lost_map(
+        &mut self,
+        frame: &mut Frame,
+        map: &mut Map,
+        out: &mut TrackOutcome,
+    ) -> bool {
+        if !self.s.relocalise_while_initialising
+            || !self.relocalise_and_track_local_map(frame, map, out)
+        {
+            return false;
+        }
+        self.new_map_pending = false;
+        self.mono_init.reset();
+        true
     }
 
     fn finish_frame(&mut self, mut frame: Frame, ok: bool) {
@@ -925,27 +979,50 @@ impl Tracker {
             return false;
         }
         let last_center = self.last_good_pose.map(|p| p.inverse().translation.vector);
-        let mut cands: Vec<(f64, KfId)> = map
-            .current_keyframes()
-            .map(|k| {
-                let d = last_center.map_or(-(k.id as f64), |c| (k.camera_center() - c).norm());
-                (d, k.id)
-            })
-            .collect();
-        cands.sort_by(|a, b| a.0.total_cmp(&b.0));
-        cands.truncate(self.s.reloc_candidates);
-        let proposed = std::mem::take(&mut self.reloc_candidates);
+        let nearest = |current: bool| {
+            let mut cands: Vec<(f64, KfId)> = map
+                .keyframes
+                .values()
+                .filter(|k| !k.bad && (k.map_epoch == map.epoch) == current)
+                .map(|k| {
+                    let d = last_center.map_or(-(k.id as f64), |c| (k.camera_center() - c).norm());
+                    (d, k.id)
+                })
+                .collect();
+            cands.sort_by(|a, b| a.0.total_cmp(&b.0));
+            cands.truncate(self.s.reloc_candidates);
+            cands.into_iter().map(|(_, k)| k)
+        };
+        // An RGB-D or stereo map starts at the last known pose of the one before, so the older
+        // maps' keyframes near it are candidates too; a monocular map's frame is its own.
+        let every_map = self.s.relocalise_in_every_map;
+        let older = (every_map && !self.s.monocular)
+            .then(|| nearest(false))
+            .into_iter()
+            .flatten();
+        // The current map first: an older map is taken up again only where the current one
+        // does not hold the place.
+        let (proposed, proposed_older): (Vec<KfId>, Vec<KfId>) =
+            std::mem::take(&mut self.reloc_candidates)
+                .into_iter()
+                .partition(|k| {
+                    map.keyframes
+                        .get(k)
+                        .is_some_and(|x| x.map_epoch == map.epoch)
+                });
         let mut tried = BTreeSet::new();
         let order = proposed
             .into_iter()
-            .chain(cands.into_iter().map(|(_, k)| k))
+            .chain(nearest(true))
+            .chain(proposed_older)
+            .chain(older)
             .filter(|k| tried.insert(*k))
             .collect::<Vec<_>>();
         for kid in order {
             let Some(kf) = map
                 .keyframes
                 .get(&kid)
-                .filter(|k| !k.bad && k.map_epoch == map.epoch)
+                .filter(|k| !k.bad && (every_map || k.map_epoch == map.epoch))
             else {
                 continue;
             };
