@@ -80,6 +80,8 @@ pub struct Row {
     pub maps_made: usize,
     /// Older maps merged into the current one.
     pub maps_merged: usize,
+    /// Loops closed within a map (merges not counted).
+    pub loops: usize,
     /// Frames run.
     pub frames: usize,
     /// Ground-truth frames before the first pose.
@@ -277,6 +279,9 @@ fn run_one(
         tracked: s.run.trajectory.len(),
         maps_made: s.run.maps.made,
         maps_merged: s.run.maps.merged,
+        loops: s.run.loops.as_ref().map_or(0, |l| {
+            l.loops.iter().filter(|e| e.merged_map.is_none()).count()
+        }),
         frames: s.run.frames,
         first_tracked,
         map_points: s.run.map_points,
@@ -399,6 +404,7 @@ pub fn run_matrix(o: &MatrixOptions) -> Result<Vec<Row>, BenchError> {
                         tracked: 0,
                         maps_made: 0,
                         maps_merged: 0,
+                        loops: 0,
                         frames: o.frames,
                         first_tracked: None,
                         map_points: 0,
@@ -433,6 +439,7 @@ mod tests {
             tracked: 10,
             maps_made: 1,
             maps_merged: 0,
+            loops: 0,
             frames: 10,
             first_tracked: Some(0),
             map_points,
