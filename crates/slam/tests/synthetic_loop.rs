@@ -22,12 +22,17 @@ fn truth(i: usize) -> Se3 {
 /// As `truth`, a lap every `lap` frames.
 fn truth_on(lap: usize, i: usize) -> Se3 {
     let a = std::f64::consts::TAU * i as f64 / lap as f64;
+    looking_out(a, Vec3::new(a.cos(), 0.0, a.sin()))
+}
+
+/// Camera to world for a camera at `at` looking along angle `a` (radians) round the vertical.
+fn looking_out(a: f64, at: Vec3) -> Se3 {
     let z = Vec3::new(a.cos(), 0.0, a.sin());
     let y = Vec3::new(0.0, 1.0, 0.0);
     let x = y.cross(&z);
     let r = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[x, y, z]));
     Se3::from_parts(
-        nalgebra::Translation3::from(z),
+        nalgebra::Translation3::from(at),
         nalgebra::UnitQuaternion::from_rotation_matrix(&r),
     )
 }
@@ -252,29 +257,16 @@ fn a_monocular_camera_back_on_mapped_ground_before_a_new_map_starts_stays_in_its
     // A slow lap (0.15 degrees a frame), blind for 40 frames: lost for good after 30 of them,
     // so a new map waits for two views when the lens clears, 6 degrees further round, where
     // the walls are still those of the last keyframes.
-    let lap = 2400;
-    let frames = 320;
-    let blind = 200..240;
-    let truth = |i| truth_on(lap, i);
-    let new_map = run_with(
-        truth,
-        frames,
-        false,
-        |i| blind.contains(&i),
-        true,
-        0.3,
-        |s| s.relocalise_while_initialising = false,
-    );
+    let truth = |i| truth_on(2400, i);
+    let blind = |i| (200..240).contains(&i);
+    let run = |on: bool| {
+        run_with(truth, 320, false, blind, true, 0.3, |s| {
+            s.relocalise_while_initialising = on
+        })
+    };
+    let new_map = run(false);
     assert!(new_map.maps >= 2, "a new map after the blind stretch");
-    let kept = run_with(
-        truth,
-        frames,
-        false,
-        |i| blind.contains(&i),
-        true,
-        0.3,
-        |_| {},
-    );
+    let kept = run(true);
     assert_eq!(kept.maps, 1, "every frame in the first map");
     assert!(kept.tracked > new_map.tracked);
     assert!(kept.ate < 0.05, "Sim(3) ATE {}", kept.ate);
@@ -282,18 +274,7 @@ fn a_monocular_camera_back_on_mapped_ground_before_a_new_map_starts_stays_in_its
 
 /// Camera to world for a camera at the room's centre looking along `degrees` round the vertical.
 fn turned(degrees: f64) -> Se3 {
-    let a = degrees.to_radians();
-    let z = Vec3::new(a.cos(), 0.0, a.sin());
-    let y = Vec3::new(0.0, 1.0, 0.0);
-    let r = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[
-        y.cross(&z),
-        y,
-        z,
-    ]));
-    Se3::from_parts(
-        nalgebra::Translation3::identity(),
-        nalgebra::UnitQuaternion::from_rotation_matrix(&r),
-    )
+    looking_out(degrees.to_radians(), Vec3::zeros())
 }
 
 #[test]
