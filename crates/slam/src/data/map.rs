@@ -738,19 +738,24 @@ impl Map {
             return;
         }
         self.epoch += 1;
-        let current = self.epoch;
+        self.relabel_map(epoch, self.epoch);
+        let origin = self.current_keyframes().map(|k| k.id).next();
+        self.origin_kf = origin;
+    }
+
+    /// The keyframes and points of map `from` become map `to`'s (a merge, a map made current
+    /// again).
+    pub fn relabel_map(&mut self, from: u32, to: u32) {
         for k in self.keyframes.values_mut() {
-            if k.map_epoch == epoch {
-                k.map_epoch = current;
+            if k.map_epoch == from {
+                k.map_epoch = to;
             }
         }
         for p in self.points.values_mut() {
-            if p.map_epoch == epoch {
-                p.map_epoch = current;
+            if p.map_epoch == from {
+                p.map_epoch = to;
             }
         }
-        let origin = self.current_keyframes().map(|k| k.id).next();
-        self.origin_kf = origin;
     }
 }
 

@@ -335,17 +335,14 @@ impl LoopCloser {
                 let rot = k.pose_cw.rotation * r.inverse();
                 let trans = s * k.pose_cw.translation.vector - rot * t;
                 k.pose_cw = Se3::from_parts(trans.into(), rot);
-            } else if k.map_epoch == older {
-                k.map_epoch = epoch;
             }
         }
         for p in m.points.values_mut() {
             if p.map_epoch == epoch {
                 p.position = s * (r * p.position) + t;
-            } else if p.map_epoch == older {
-                p.map_epoch = epoch;
             }
         }
+        m.relabel_map(older, epoch);
         m.origin_kf = m
             .keyframes
             .values()
