@@ -207,6 +207,11 @@ pub struct MonoInitSettings {
     pub window_px: f64,
     /// Nearest / second Hamming ratio (ORB-SLAM `ORBmatcher(0.9, true)`).
     pub ratio: f32,
+    /// Keypoints up to this pyramid level are matched, each to keypoints of its own level
+    /// (ORB-SLAM: 0, the finest level only). 2 starts the synthetic rooms' slow cameras at
+    /// frame 0 (level 0 holds a fifth of the keypoints), but it delayed the real bedroom clip's
+    /// map from frame 9 to 40, so it stays 0 (docs/monocular.md).
+    pub max_octave: i32,
     /// Fewer matches than this drop the reference frame (ORB-SLAM: 100).
     pub min_matches: usize,
     /// RANSAC iterations of 8 points for H and F (ORB-SLAM: 200).
@@ -218,7 +223,9 @@ pub struct MonoInitSettings {
     /// Share of the two-view model's inliers that must triangulate (ORB-SLAM: 0.9).
     pub min_triangulated_share: f64,
     /// Rounds of refitting the best RANSAC sample's fundamental matrix to all its inliers, kept
-    /// while its score grows (ORB-SLAM: 0).
+    /// while its score grows (ORB-SLAM: 0). 3 starts slow synthetic cameras earlier, but the
+    /// real bedroom clip as H.264 then chose the fundamental matrix, failed it for 190 frames
+    /// and tracked 27 of 200 (docs/monocular.md), so it stays 0.
     pub refit_rounds: usize,
     /// A two-view map that bundle adjustment leaves with too few points drops the reference
     /// frame (ORB-SLAM: true). False keeps it: a later frame, with more parallax, may pass.
@@ -237,6 +244,16 @@ pub struct MonoInitSettings {
     /// Seconds after the map starts during which frames are still extracted with
     /// `feature_factor` times the features (ORB-SLAM3: `mMaxFrames`, one second of frames).
     pub young_map_seconds: f64,
+    /// Ours: after `young_map_seconds`, frames are still extracted with `feature_factor` times
+    /// the features while the last frame tracked fewer than `thin_map_inliers` map points, up
+    /// to this many seconds after the map starts. A map started from little parallax (a slow
+    /// hand-held camera) has few points, and its keyframes triangulate few more until the
+    /// camera has moved on. 0 (ORB-SLAM's one second only): 5 kept living_turn seed 2's thin
+    /// map (300 of 300 frames against 217), but the real bedroom clip's frames then culled
+    /// twice as many keypoints (docs/monocular.md).
+    pub thin_map_seconds: f64,
+    /// See `thin_map_seconds`.
+    pub thin_map_inliers: usize,
     /// Ours: once the map stands, the frames between its two views (up to this many, the
     /// newest) are tracked in it and get their poses late, so that a recording's trajectory
     /// starts at the map's first keyframe rather than at the frame that had the parallax (0:
@@ -250,6 +267,7 @@ impl Default for MonoInitSettings {
             min_keypoints: 100,
             window_px: 100.0,
             ratio: 0.9,
+            max_octave: 0,
             min_matches: 100,
             ransac_iterations: 200,
             min_parallax_deg: 1.0,
@@ -261,6 +279,8 @@ impl Default for MonoInitSettings {
             min_points_after_ba: 100,
             feature_factor: 5,
             young_map_seconds: 1.0,
+            thin_map_seconds: 0.0,
+            thin_map_inliers: 100,
             backfill_frames: 100,
         }
     }

@@ -341,10 +341,14 @@ impl System {
         if self.tracker.state == TrackingState::NotInitialized {
             return true;
         }
-        let young = (self.settings.fps * self.settings.mono_init.young_map_seconds).round();
-        self.tracker
-            .map_started_at
-            .is_some_and(|start| index < start + young.max(0.0) as usize)
+        self.tracker.map_started_at.is_some_and(|start| {
+            crate::module::initializer::map_is_young(
+                index - start.min(index),
+                self.tracker.last_inliers,
+                self.settings.fps,
+                &self.settings.mono_init,
+            )
+        })
     }
 
     /// Track one frame: its (already filtered) features, their depth, and then the caller's

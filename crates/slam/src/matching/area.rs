@@ -19,19 +19,20 @@ pub fn search_for_initialisation(
     window: f64,
     ratio: f32,
     th_low: u32,
+    max_octave: i32,
 ) -> Vec<Option<usize>> {
     let mut matches12: Vec<Option<usize>> = vec![None; reference.len()];
     let mut matches21: Vec<Option<usize>> = vec![None; cur.len()];
     let mut distance21 = vec![u32::MAX; cur.len()];
     for i1 in 0..reference.len().min(prev_matched.len()) {
-        // Initialisation matches the finest level only: its positions are the most precise.
-        if reference.octaves[i1] > 0 {
+        let octave = reference.octaves[i1] as i32;
+        if octave > max_octave {
             continue;
         }
         let at = prev_matched[i1];
         // A keypoint of `cur` already matched at least as closely is no candidate.
         let best = NearestTwo::of(
-            cur.features_in_area(at.x, at.y, window, 0, 0)
+            cur.features_in_area(at.x, at.y, window, octave, octave)
                 .into_iter()
                 .map(|i2| {
                     (

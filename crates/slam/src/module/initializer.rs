@@ -113,6 +113,7 @@ impl MonoInitializer {
             p.window_px,
             p.ratio,
             s.th_low,
+            p.max_octave,
         );
         let pairs: Vec<(usize, usize)> = matches
             .iter()
@@ -195,6 +196,21 @@ impl MonoInitializer {
             between,
         })
     }
+}
+
+/// Whether a frame `since_start` frames after its monocular map started wants the wider feature
+/// extraction of initialisation: for `young_map_seconds`, and then while the last frame tracked
+/// fewer than `thin_map_inliers` points, up to `thin_map_seconds`. A map started from little
+/// parallax (a slow camera) stays thin until the camera has moved on.
+pub fn map_is_young(
+    since_start: usize,
+    last_inliers: usize,
+    fps: f64,
+    p: &crate::settings::MonoInitSettings,
+) -> bool {
+    let frames = |seconds: f64| (fps * seconds).round().max(0.0) as usize;
+    since_start < frames(p.young_map_seconds)
+        || (since_start < frames(p.thin_map_seconds) && last_inliers < p.thin_map_inliers)
 }
 
 /// Bundle adjustment of the two views (the reference fixed; ORB-SLAM's global BA over the initial
@@ -283,8 +299,20 @@ mod tests {
         descriptors: &[Descriptor],
         s: &SlamSettings,
     ) -> Frame {
+        view_in_levels(index, pose_cw, points, descriptors, s, 1)
+    }
+
+    /// As [`view`], the `k`-th point's keypoint on pyramid level `k % levels`.
+    fn view_in_levels(
+        index: usize,
+        pose_cw: &Se3,
+        points: &[Vec3],
+        descriptors: &[Descriptor],
+        s: &SlamSettings,
+        levels: usize,
+    ) -> Frame {
         let (mut feats, mut descs) = (Vec::new(), Vec::new());
-        for (p, d) in points.iter().zip(descriptors) {
+        for (k, (p, d)) in points.iter().zip(descriptors).enumerate() {
             let Some(uv) = s
                 .camera
                 .project(&(pose_cw * Point3::from(*p)).coords)
@@ -295,7 +323,7 @@ mod tests {
             feats.push(Feature {
                 x: uv.x as f32,
                 y: uv.y as f32,
-                octave: 0,
+                octave: (k % levels) as u8,
                 angle: 0.0,
             });
             descs.push(*d);
@@ -303,11 +331,9 @@ mod tests {
         Frame::new(index, index as f64, &feats, &descs, None, s).unwrap()
     }
 
-    #[test]
-    fn two_views_of_a_scene_make_an_initial_map_at_median_depth_one() {
-        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
-        let s = SlamSettings::monocular(cam, 30.0);
-        let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+    /// 400 random points 3-8 m ahead of the camera and a random descriptor for each.
+    fn scene(seed: u64) -> (Vec<Vec3>, Vec<Descriptor>) {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
         let points: Vec<Vec3> = (0..400)
             .map(|_| {
                 let z = rng.random_range(3.0..8.0);
@@ -321,6 +347,14 @@ mod tests {
         let descriptors: Vec<Descriptor> = (0..points.len())
             .map(|_| std::array::from_fn(|_| rng.random()))
             .collect();
+        (points, descriptors)
+    }
+
+    #[test]
+    fn two_views_of_a_scene_make_an_initial_map_at_median_depth_one() {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let s = SlamSettings::monocular(cam, 30.0);
+        let (points, descriptors) = scene(11);
         let truth21 = Se3::new(Vec3::new(-0.35, 0.02, -0.05), Vec3::new(0.0, 0.04, 0.01));
         let mut init = MonoInitializer::default();
         // Too few keypoints: no reference.
@@ -353,5 +387,46 @@ mod tests {
                 .expect("a scene point");
             assert!((p.position - truth * scale).norm() < 1e-3 * scale * truth.z);
         }
+    }
+
+    #[test]
+    fn keypoints_of_coarser_levels_start_a_map_the_finest_level_alone_cannot() {
+        // A quarter of the keypoints on each of levels 0-3, as a pyramid gives them: level 0
+        // alone has 100 at most, too few matches (ORB-SLAM matches only level 0).
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let (points, descriptors) = scene(12);
+        let truth21 = Se3::new(Vec3::new(-0.35, 0.02, -0.05), Vec3::new(0.0, 0.04, 0.01));
+        let start = |max_octave: i32| {
+            let mut s = SlamSettings::monocular(cam, 30.0);
+            s.mono_init.max_octave = max_octave;
+            let mut init = MonoInitializer::default();
+            let first = view_in_levels(0, &Se3::identity(), &points, &descriptors, &s, 4);
+            assert!(init.add_frame(&first, &s).is_none());
+            let second = view_in_levels(1, &truth21, &points, &descriptors, &s, 4);
+            init.add_frame(&second, &s)
+        };
+        assert!(start(0).is_none());
+        let got = start(2).expect("initialised from levels 0-2");
+        assert!(got.points.len() > 200, "{} points", got.points.len());
+    }
+
+    #[test]
+    fn a_young_map_is_one_second_old_or_thin_for_up_to_five() {
+        let p = crate::settings::MonoInitSettings {
+            thin_map_seconds: 5.0,
+            ..Default::default()
+        };
+        // 30 fps: the first 30 frames whatever tracking finds; then only while it finds fewer
+        // than 100 points, until frame 150.
+        assert!(map_is_young(29, 500, 30.0, &p));
+        assert!(!map_is_young(30, 100, 30.0, &p));
+        assert!(map_is_young(30, 99, 30.0, &p));
+        assert!(map_is_young(149, 0, 30.0, &p));
+        assert!(!map_is_young(150, 0, 30.0, &p));
+        let orb_slam = crate::settings::MonoInitSettings {
+            thin_map_seconds: 0.0,
+            ..p
+        };
+        assert!(!map_is_young(30, 0, 30.0, &orb_slam));
     }
 }

@@ -121,6 +121,8 @@ pub struct Tracker {
     reloc_candidates: Vec<KfId>,
     /// Monocular: the frame the current map was initialised at.
     pub map_started_at: Option<usize>,
+    /// Map points the last frame's pose kept (0 when it was not tracked).
+    pub last_inliers: usize,
 }
 
 impl Tracker {
@@ -144,6 +146,7 @@ impl Tracker {
             localize: false,
             reloc_candidates: Vec::new(),
             map_started_at: None,
+            last_inliers: 0,
         }
     }
 
@@ -165,6 +168,22 @@ impl Tracker {
     /// Track one frame against the map. `mapper_idle` and `mapper_queue` come from local mapping
     /// (keyframe decision).
     pub fn track(
+        &mut self,
+        frame: Frame,
+        map: &mut Map,
+        mapper_idle: bool,
+        mapper_queue: usize,
+    ) -> TrackOutcome {
+        let out = self.track_frame(frame, map, mapper_idle, mapper_queue);
+        self.last_inliers = if out.pose_wc.is_some() {
+            out.inliers
+        } else {
+            0
+        };
+        out
+    }
+
+    fn track_frame(
         &mut self,
         mut frame: Frame,
         map: &mut Map,
