@@ -224,8 +224,8 @@ pub struct MonoInitSettings {
     pub min_triangulated_share: f64,
     /// Rounds of refitting the best RANSAC sample's fundamental matrix to all its inliers, kept
     /// while its score grows (ORB-SLAM: 0). 3 starts slow synthetic cameras earlier, but the
-    /// real bedroom clip as H.264 then chose the fundamental matrix, failed it for 190 frames
-    /// and tracked 27 of 200 (docs/monocular.md), so it stays 0.
+    /// real bedroom clip as H.264 then found no two views before frame 190 and tracked 27 of
+    /// 200 (docs/monocular.md), so it stays 0.
     pub refit_rounds: usize,
     /// A two-view map that bundle adjustment leaves with too few points drops the reference
     /// frame (ORB-SLAM: true). False keeps it: a later frame, with more parallax, may pass.
