@@ -343,7 +343,7 @@ impl System {
         }
         self.tracker.map_started_at.is_some_and(|start| {
             crate::module::initializer::map_is_young(
-                index - start.min(index),
+                index.saturating_sub(start),
                 self.tracker.last_inliers,
                 self.settings.fps,
                 &self.settings.mono_init,

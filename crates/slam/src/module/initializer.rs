@@ -12,6 +12,7 @@ use crate::SlamSettings;
 use crate::data::Frame;
 use crate::matching::area::search_for_initialisation;
 use crate::optimize::{BaObservation, BaProblem, local_bundle_adjustment};
+use crate::settings::MonoInitSettings;
 use crate::solve::two_view::{TwoViewModel, TwoViewParams, reconstruct};
 
 /// A point of the initial map and the keypoints that see it.
@@ -206,7 +207,7 @@ pub fn map_is_young(
     since_start: usize,
     last_inliers: usize,
     fps: f64,
-    p: &crate::settings::MonoInitSettings,
+    p: &MonoInitSettings,
 ) -> bool {
     let frames = |seconds: f64| (fps * seconds).round().max(0.0) as usize;
     since_start < frames(p.young_map_seconds)
@@ -412,7 +413,7 @@ mod tests {
 
     #[test]
     fn a_young_map_is_one_second_old_or_thin_for_up_to_five() {
-        let p = crate::settings::MonoInitSettings {
+        let p = MonoInitSettings {
             thin_map_seconds: 5.0,
             ..Default::default()
         };
@@ -423,7 +424,7 @@ mod tests {
         assert!(map_is_young(30, 99, 30.0, &p));
         assert!(map_is_young(149, 0, 30.0, &p));
         assert!(!map_is_young(150, 0, 30.0, &p));
-        let orb_slam = crate::settings::MonoInitSettings {
+        let orb_slam = MonoInitSettings {
             thin_map_seconds: 0.0,
             ..p
         };
