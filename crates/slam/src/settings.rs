@@ -178,6 +178,12 @@ pub struct SlamSettings {
     /// own).
     #[serde(default = "default_true")]
     pub relocalise_in_every_map: bool,
+    /// A fresh run relocalises by place recognition too: the loop closer's keyframe database
+    /// (every map's keyframes, once its vocabulary is trained) proposes candidates before the
+    /// nearest keyframes are tried. A monocular run has no other way into an older map. Off:
+    /// only a loaded map's database proposes.
+    #[serde(default = "default_true")]
+    pub relocalise_with_loop_database: bool,
     /// Keyframes tried per relocalisation attempt (ORB-SLAM3 uses BoW candidates; we take the most
     /// recent and the closest to the last pose).
     pub reloc_candidates: usize,
@@ -359,6 +365,7 @@ impl SlamSettings {
             new_map_after_lost_frames: fps.max(1.0).round() as usize,
             relocalise_while_initialising: true,
             relocalise_in_every_map: true,
+            relocalise_with_loop_database: true,
             reloc_candidates: 20,
             loop_closing: Default::default(),
         }

@@ -136,6 +136,9 @@ pub struct System {
     /// A map was loaded: bags of words of its keyframes (and of the new ones), for
     /// relocalising by place recognition.
     reloc_db: Option<KeyFrameDatabase>,
+    /// The loop closer's keyframe database (`slam.relocalise_with_loop_database`): place
+    /// recognition for relocalising in a fresh run, every map's keyframes.
+    loop_db: Option<Arc<Mutex<KeyFrameDatabase>>>,
     /// Localisation only: the loaded map is never changed.
     localize: bool,
     /// Loop edges of a loaded map (the loop closer holds them too when it runs).
@@ -240,6 +243,10 @@ impl System {
             }
             c
         });
+        let loop_db = closer
+            .as_ref()
+            .filter(|_| settings.relocalise_with_loop_database)
+            .map(|c| c.database());
         let mut looping = Looping::Off;
         let mapping = if settings.local_mapping_thread {
             // Local mapping hands each keyframe to the loop-closing thread when both run.
@@ -292,6 +299,7 @@ impl System {
             unsettled: VecDeque::new(),
             keyframes_inserted: 0,
             reloc_db,
+            loop_db,
             localize,
             loaded_loop_edges,
         }
@@ -314,8 +322,7 @@ impl System {
         };
         let vocabulary = closer
             .and_then(|c| c.vocabulary())
-            .or_else(|| self.reloc_db.as_ref().and_then(|d| d.vocabulary()))
-            .cloned();
+            .or_else(|| self.reloc_db.as_ref().and_then(|d| d.vocabulary()).cloned());
         let mut loop_edges = self.loaded_loop_edges.clone();
         if let Some(c) = closer {
             loop_edges.extend(c.loop_edges().iter().copied());
@@ -408,8 +415,14 @@ impl System {
                     rescale_anchors(&mut self.anchors, &c);
                 }
             }
+            // A loaded map's database, else the loop closer's (without waiting for it: a
+            // frame that finds it busy goes without place recognition).
+            let loop_db = match (&self.reloc_db, &self.loop_db) {
+                (None, Some(shared)) if self.tracker.is_relocalising() => shared.try_lock().ok(),
+                _ => None,
+            };
             if self.tracker.is_relocalising()
-                && let Some(db) = &self.reloc_db
+                && let Some(db) = self.reloc_db.as_ref().or(loop_db.as_deref())
                 && let Some(v) = db.vocabulary()
             {
                 let bow = v.transform(&frame.descriptors);
@@ -436,6 +449,7 @@ impl System {
                 self.tracker
                     .set_relocalisation_candidates(candidates.into_iter().map(|c| c.0).collect());
             }
+            drop(loop_db);
             let mut outcome = self.tracker.track(frame, &mut map, idle, queued);
             if let Some(db) = self.reloc_db.as_mut() {
                 for kf in [outcome.first_keyframe, outcome.new_keyframe]

@@ -151,7 +151,7 @@ fn run_with(
         .sum();
     let ate = (sse / est.len() as f64).sqrt();
     eprintln!(
-        "loop closing {loop_closing}: {} of {frames} tracked, ATE {ate:.4} m, loops {loops:?}",
+        "loop closing {loop_closing}: {} of {frames} tracked in {maps} maps, ATE {ate:.4} m, loops {loops:?}",
         est.len()
     );
     Outcome {
@@ -306,4 +306,38 @@ fn relocalisation_finds_an_older_map_and_makes_it_current_again() {
     assert_eq!(current_only.maps, 3, "a third map after the second cover");
     assert_eq!(every_map.maps, 2, "back in the first map");
     assert!(every_map.tracked > current_only.tracked);
+}
+
+#[test]
+fn a_lost_monocular_map_relocalises_in_an_older_one_by_place_recognition() {
+    // A monocular lap of 450 frames: the first map sees 0-120 degrees; the lens is covered long
+    // enough (50 frames) for a second map, which starts at 180 degrees; covered again briefly
+    // and the camera is back at 30 degrees, which only the first map has seen. The nearest
+    // keyframes of an older monocular map mean nothing (its frame and scale are its own): only
+    // place recognition, the loop closer's database, finds the first map.
+    let lap = 450;
+    let angle_frame = |i: usize| match i {
+        0..200 => i,
+        200..340 => i + 25,
+        _ => i - 265,
+    };
+    let blind = |i: usize| (150..200).contains(&i) || (330..340).contains(&i);
+    let run = |on: bool| {
+        run_with(
+            |i| truth_on(lap, angle_frame(i)),
+            420,
+            true,
+            blind,
+            true,
+            0.3,
+            |s| s.relocalise_with_loop_database = on,
+        )
+    };
+    let without = run(false);
+    let with = run(true);
+    assert_eq!(without.maps, 3, "a third map after the second cover");
+    assert_eq!(with.maps, 2, "back in the first map");
+    // Every frame seen but the second map's first few, against 30 lost and a new start.
+    assert!(with.tracked >= 350, "{} tracked", with.tracked);
+    assert!(with.tracked > without.tracked + 20);
 }

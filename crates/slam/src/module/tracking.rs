@@ -1020,7 +1020,10 @@ impl Tracker {
             .into_iter()
             .flatten();
         // The current map first: an older map is taken up again only where the current one
-        // does not hold the place.
+        // does not hold the place. Within it, with a last known pose, the keyframes nearest it
+        // before place recognition's: a camera lost a moment ago is most often still there, and
+        // the newest keyframes hold the map as it has drifted to (ORB-SLAM3 asks place
+        // recognition alone). Without one (a loaded map) they mean nothing.
         let (proposed, proposed_older): (Vec<KfId>, Vec<KfId>) =
             std::mem::take(&mut self.reloc_candidates)
                 .into_iter()
@@ -1029,10 +1032,15 @@ impl Tracker {
                         .get(k)
                         .is_some_and(|x| x.map_epoch == map.epoch)
                 });
+        let (first, second): (Vec<KfId>, Vec<KfId>) = if last_center.is_some() {
+            (nearest(true).collect(), proposed)
+        } else {
+            (proposed, nearest(true).collect())
+        };
         let mut tried = BTreeSet::new();
-        let order = proposed
+        let order = first
             .into_iter()
-            .chain(nearest(true))
+            .chain(second)
             .chain(proposed_older)
             .chain(older)
             .filter(|k| tried.insert(*k))

@@ -5,7 +5,7 @@ use std::collections::BTreeSet;
 
 use tracing::debug;
 
-use super::LoopCloser;
+use super::{LoopCloser, lock};
 use crate::data::{KfId, Map};
 
 impl LoopCloser {
@@ -28,10 +28,11 @@ impl LoopCloser {
         let connected: BTreeSet<KfId> = k.connections.keys().copied().collect();
         // (Only neighbours already in the database: a missing one would score 0 and lower
         // the bar to nothing.)
+        let db = lock(&self.db);
         let min_score = connected
             .iter()
-            .filter(|&&c| self.db.bow(c).is_some())
-            .map(|&c| self.db.score(kf, c))
+            .filter(|&&c| db.bow(c).is_some())
+            .map(|&c| db.score(kf, c))
             .fold(1.0f32, f32::min);
         let mut excluded = connected.clone();
         excluded.insert(kf);
@@ -40,7 +41,7 @@ impl LoopCloser {
         // Monocular: within the map only with `monocular_loops` (corrected in Sim(3)).
         let older = ls.merge_maps;
         let same = !self.s.monocular || ls.monocular_loops;
-        let candidates = self.db.loop_candidates(
+        let candidates = db.loop_candidates(
             kf,
             &excluded,
             min_score,
@@ -56,6 +57,7 @@ impl LoopCloser {
                     .map_or(Vec::new(), |x| x.best_covisibles(10))
             },
         );
+        drop(db);
         if candidates.is_empty() {
             self.groups.clear();
             return None;

@@ -15,7 +15,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::mpsc::Receiver;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
 
 use stillpoint_geometry::Se3;
@@ -283,7 +283,9 @@ impl LoopSettings {
 /// Loop-closing state: the keyframe database, the consistent groups, the loop edges.
 pub struct LoopCloser {
     s: SlamSettings,
-    db: KeyFrameDatabase,
+    /// Shared with tracking, which asks it for relocalisation candidates without waiting
+    /// (`try_lock`: a frame that finds it busy, training, goes without).
+    db: Arc<Mutex<KeyFrameDatabase>>,
     /// Covisibility groups of the last keyframe's candidates and how many consecutive
     /// keyframes each has been consistent for.
     groups: Vec<(BTreeSet<KfId>, usize)>,
@@ -302,7 +304,7 @@ impl LoopCloser {
             scales: s.scale_factors(),
             inv_sigma2: s.inv_level_sigma2(),
             s,
-            db: KeyFrameDatabase::new(),
+            db: Arc::new(Mutex::new(KeyFrameDatabase::new())),
             groups: Vec::new(),
             last_loop_kf: None,
             pending_merge: None,
@@ -314,7 +316,7 @@ impl LoopCloser {
     /// With a vocabulary given by the user (a DBoW2 file): no online training.
     pub fn with_vocabulary(s: SlamSettings, v: Vocabulary) -> Self {
         let mut c = Self::new(s);
-        c.db = KeyFrameDatabase::with_vocabulary(v);
+        c.db = Arc::new(Mutex::new(KeyFrameDatabase::with_vocabulary(v)));
         c
     }
 
@@ -322,15 +324,23 @@ impl LoopCloser {
     /// (once there is a vocabulary; an online one is trained at the next keyframe) and its loop
     /// edges into the essential graph.
     pub fn resume(&mut self, map: &Map, loop_edges: &BTreeSet<(KfId, KfId)>) {
+        let mut db = lock(&self.db);
         for k in map.keyframes.values().filter(|k| !k.bad) {
-            self.db.add(k.id, &k.descriptors);
+            db.add(k.id, &k.descriptors);
         }
+        drop(db);
         self.loop_edges.extend(loop_edges.iter().copied());
     }
 
     /// The place-recognition vocabulary, once trained or given.
-    pub fn vocabulary(&self) -> Option<&Vocabulary> {
-        self.db.vocabulary()
+    pub fn vocabulary(&self) -> Option<Vocabulary> {
+        lock(&self.db).vocabulary().cloned()
+    }
+
+    /// The keyframe database, every map's keyframes once local mapping finished them: tracking
+    /// asks it for relocalisation candidates (in a fresh run there is no other).
+    pub fn database(&self) -> Arc<Mutex<KeyFrameDatabase>> {
+        self.db.clone()
     }
 
     /// What it did so far.
@@ -379,7 +389,7 @@ impl LoopCloser {
             let n = searched().count();
             // Only keyframes local mapping has finished (ids up to this one): newer ones have
             // no covisibility yet, so they would not be excluded as neighbours of `kf`.
-            self.db.needs_training(n, &p).then(|| {
+            lock(&self.db).needs_training(n, &p).then(|| {
                 searched()
                     .filter(|k| k.id <= kf)
                     .map(|k| (k.id, k.descriptors.clone()))
@@ -390,10 +400,10 @@ impl LoopCloser {
             let t0 = Instant::now();
             let refs: Vec<(KfId, &[crate::Descriptor])> =
                 docs.iter().map(|(k, d)| (*k, d.as_slice())).collect();
-            self.db.train(&refs, &p);
+            lock(&self.db).train(&refs, &p);
             let ms = stillpoint_core::ms_since(t0);
             self.stats.training_ms.push(ms);
-            self.stats.vocabulary_words = self.db.vocabulary().map_or(0, |v| v.words());
+            self.stats.vocabulary_words = lock(&self.db).vocabulary().map_or(0, |v| v.words());
             info!(
                 keyframes = docs.len(),
                 words = self.stats.vocabulary_words,
@@ -410,7 +420,7 @@ impl LoopCloser {
                 self.groups.clear();
                 return None;
             };
-            self.db.add(kf, &k.descriptors);
+            lock(&self.db).add(kf, &k.descriptors);
             // A merge waiting for confirmation is checked in this keyframe first.
             self.confirm_pending_merge(&m, kf).or_else(|| {
                 self.detect(&m, kf)
@@ -461,6 +471,12 @@ impl LoopCloser {
         self.stats.loops.push(event);
         Some(correction)
     }
+}
+
+/// The keyframe database, whatever a panicking holder left in it (it stays consistent: every
+/// change is one insertion or one training).
+pub(super) fn lock(db: &Mutex<KeyFrameDatabase>) -> MutexGuard<'_, KeyFrameDatabase> {
+    db.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Loop closing in its own thread: keyframes arrive from local mapping's thread through a
