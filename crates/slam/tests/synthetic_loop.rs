@@ -312,7 +312,7 @@ fn relocalisation_finds_an_older_map_and_makes_it_current_again() {
 fn a_lost_monocular_map_relocalises_in_an_older_one_by_place_recognition() {
     // A monocular lap of 450 frames: the first map sees 0-120 degrees; the lens is covered long
     // enough (50 frames) for a second map, which starts at 180 degrees; covered again briefly
-    // and the camera is back at 30 degrees, which only the first map has seen. The nearest
+    // and the camera is back at 60 degrees, which only the first map has seen. The nearest
     // keyframes of an older monocular map mean nothing (its frame and scale are its own): only
     // place recognition, the loop closer's database, finds the first map.
     let lap = 450;
