@@ -417,11 +417,11 @@ impl System {
             }
             // A loaded map's database, else the loop closer's (without waiting for it: a
             // frame that finds it busy goes without place recognition).
-            let loop_db = match (&self.reloc_db, &self.loop_db) {
-                (None, Some(shared)) if self.tracker.is_relocalising() => shared.try_lock().ok(),
-                _ => None,
-            };
-            if self.tracker.is_relocalising()
+            let relocalising = self.tracker.is_relocalising();
+            let loop_db = (relocalising && self.reloc_db.is_none())
+                .then(|| self.loop_db.as_ref()?.try_lock().ok())
+                .flatten();
+            if relocalising
                 && let Some(db) = self.reloc_db.as_ref().or(loop_db.as_deref())
                 && let Some(v) = db.vocabulary()
             {

@@ -163,6 +163,23 @@ fn run_with(
     }
 }
 
+/// `run_with` twice, keypoints off by up to 0.3 px: with a setting off, then on (`set`).
+fn off_and_on(
+    truth: impl Fn(usize) -> Se3,
+    frames: usize,
+    loop_closing: bool,
+    blind: impl Fn(usize) -> bool,
+    mono: bool,
+    set: impl Fn(&mut SlamSettings, bool),
+) -> (Outcome, Outcome) {
+    let run = |on: bool| {
+        run_with(&truth, frames, loop_closing, &blind, mono, 0.3, |s| {
+            set(s, on)
+        })
+    };
+    (run(false), run(true))
+}
+
 #[test]
 fn the_loop_is_closed_at_the_revisit_and_the_error_drops() {
     let frames = LAP + LAP / 3;
@@ -259,14 +276,10 @@ fn a_monocular_camera_back_on_mapped_ground_before_a_new_map_starts_stays_in_its
     // the walls are still those of the last keyframes.
     let truth = |i| truth_on(2400, i);
     let blind = |i| (200..240).contains(&i);
-    let run = |on: bool| {
-        run_with(truth, 320, false, blind, true, 0.3, |s| {
-            s.relocalise_while_initialising = on
-        })
-    };
-    let new_map = run(false);
+    let (new_map, kept) = off_and_on(truth, 320, false, blind, true, |s, on| {
+        s.relocalise_while_initialising = on
+    });
     assert!(new_map.maps >= 2, "a new map after the blind stretch");
-    let kept = run(true);
     assert_eq!(kept.maps, 1, "every frame in the first map");
     assert!(kept.tracked > new_map.tracked);
     assert!(kept.ate < 0.05, "Sim(3) ATE {}", kept.ate);
@@ -290,19 +303,14 @@ fn relocalisation_finds_an_older_map_and_makes_it_current_again() {
         _ => 60.0 + 0.7 * (i - 215) as f64,
     };
     let blind = |i: usize| (100..140).contains(&i) || (200..215).contains(&i);
-    let run = |every_map: bool| {
-        run_with(
-            |i| turned(view(i)),
-            260,
-            false,
-            blind,
-            false,
-            0.3,
-            |s| s.relocalise_in_every_map = every_map,
-        )
-    };
-    let current_only = run(false);
-    let every_map = run(true);
+    let (current_only, every_map) = off_and_on(
+        |i| turned(view(i)),
+        260,
+        false,
+        blind,
+        false,
+        |s, on| s.relocalise_in_every_map = on,
+    );
     assert_eq!(current_only.maps, 3, "a third map after the second cover");
     assert_eq!(every_map.maps, 2, "back in the first map");
     assert!(every_map.tracked > current_only.tracked);
@@ -322,19 +330,14 @@ fn a_lost_monocular_map_relocalises_in_an_older_one_by_place_recognition() {
         _ => i - 265,
     };
     let blind = |i: usize| (150..200).contains(&i) || (330..340).contains(&i);
-    let run = |on: bool| {
-        run_with(
-            |i| truth_on(lap, angle_frame(i)),
-            420,
-            true,
-            blind,
-            true,
-            0.3,
-            |s| s.relocalise_with_loop_database = on,
-        )
-    };
-    let without = run(false);
-    let with = run(true);
+    let (without, with) = off_and_on(
+        |i| truth_on(lap, angle_frame(i)),
+        420,
+        true,
+        blind,
+        true,
+        |s, on| s.relocalise_with_loop_database = on,
+    );
     assert_eq!(without.maps, 3, "a third map after the second cover");
     assert_eq!(with.maps, 2, "back in the first map");
     // Every frame seen but the second map's first few, against 30 lost and a new start.
