@@ -640,6 +640,11 @@ impl LocalMapper {
         };
         let close = self.s.close_depth() as f32;
         let th_obs = 3;
+        let max_gap_s = if self.s.monocular {
+            self.s.kf_cull_max_gap_s_monocular
+        } else {
+            self.s.kf_cull_max_gap_s
+        };
         let candidates: Vec<KfId> = k.connections.keys().copied().collect();
         for c in candidates {
             if Some(c) == m.origin_kf {
@@ -679,12 +684,35 @@ impl LocalMapper {
                     }
                 }
             }
-            if n_mps > 0 && redundant as f64 > self.s.kf_redundancy * n_mps as f64 {
+            if n_mps > 0
+                && redundant as f64 > self.s.kf_redundancy * n_mps as f64
+                && !leaves_gap(m, c, max_gap_s)
+            {
                 debug!(keyframe = c, "redundant keyframe culled");
                 m.set_bad_keyframe(c, self.s.covisibility_min_shared);
             }
         }
     }
+}
+
+/// Whether culling keyframe `c` would leave more than `max_gap_s` seconds between the good
+/// keyframes of its map just before and just after it in time (`max_gap_s` 0: never).
+fn leaves_gap(m: &Map, c: KfId, max_gap_s: f64) -> bool {
+    let Some(ck) = m.keyframes.get(&c).filter(|_| max_gap_s > 0.0) else {
+        return false;
+    };
+    let (mut before, mut after) = (f64::NEG_INFINITY, f64::INFINITY);
+    for k in m.keyframes.values() {
+        if k.bad || k.id == c || k.map_epoch != ck.map_epoch {
+            continue;
+        }
+        if k.timestamp < ck.timestamp {
+            before = before.max(k.timestamp);
+        } else {
+            after = after.min(k.timestamp);
+        }
+    }
+    before.is_finite() && after.is_finite() && after - before > max_gap_s
 }
 
 /// A point of [`LocalMapper::fusion_matches`]: (point, keypoint of the target, the
@@ -845,7 +873,7 @@ impl Drop for MapperThread {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{Descriptor, Feature, Frame};
+    use crate::{Descriptor, Feature, Frame, KeypointDepth};
     use stillpoint_geometry::{PinholeCamera, Se3};
 
     #[test]
@@ -917,5 +945,82 @@ mod tests {
             }
         }
         assert_eq!(mapper.recent_points.len(), 30);
+    }
+
+    /// Six keyframes 0.1 s apart that all see the same points: each is redundant with the
+    /// others, and culling them one after the other leaves the origin and the two newest.
+    /// With `kf_cull_max_gap_s` (stereo / RGB-D) or `kf_cull_max_gap_s_monocular` no two good
+    /// keyframes end up further apart than that.
+    #[test]
+    fn keyframe_culling_leaves_no_gap_longer_than_the_limit() {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let points: Vec<Vec3> = (0..40)
+            .map(|i| Vec3::new((i % 8) as f64 * 0.2 - 0.7, (i / 8) as f64 * 0.2 - 0.4, 2.0))
+            .collect();
+        let depths = vec![2.0f32; points.len()];
+        let survivors = |monocular: bool, max_gap_s: f64| {
+            let mut s = if monocular {
+                SlamSettings::monocular(cam, 30.0)
+            } else {
+                SlamSettings::rgbd(cam, 40.0, 30.0)
+            };
+            s.kf_cull_max_gap_s = if monocular { 0.0 } else { max_gap_s };
+            s.kf_cull_max_gap_s_monocular = if monocular { max_gap_s } else { 0.0 };
+            let feats: Vec<Feature> = points
+                .iter()
+                .map(|p| {
+                    let uv = cam.project_undistorted(p).unwrap();
+                    Feature {
+                        x: uv.x as f32,
+                        y: uv.y as f32,
+                        octave: 0,
+                        angle: 0.0,
+                    }
+                })
+                .collect();
+            let descriptors = vec![[0u8; 32]; points.len()];
+            let depth = if monocular {
+                KeypointDepth::None
+            } else {
+                KeypointDepth::PerKeypoint(&depths)
+            };
+            let mut map = Map::new();
+            let kfs: Vec<KfId> = (0..6)
+                .map(|i| {
+                    let t = i as f64 * 0.1;
+                    let mut f =
+                        Frame::new_with_mask(i, t, &feats, &descriptors, depth, &s, &[]).unwrap();
+                    f.pose_cw = Some(Se3::identity());
+                    map.add_keyframe(&f).unwrap()
+                })
+                .collect();
+            for (i, p) in points.iter().enumerate() {
+                let mp = map.add_point(*p, kfs[0], i).unwrap();
+                for k in &kfs[1..] {
+                    map.add_observation(mp, *k, i);
+                }
+            }
+            for k in &kfs {
+                map.update_connections(*k, 15);
+            }
+            LocalMapper::new(s).cull_keyframes(&mut map, kfs[5]);
+            map.keyframes
+                .values()
+                .filter(|k| !k.bad)
+                .map(|k| k.timestamp)
+                .collect::<Vec<f64>>()
+        };
+        let longest_gap = |t: &[f64]| t.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
+        for monocular in [true, false] {
+            let unlimited = survivors(monocular, 0.0);
+            assert_eq!(unlimited.len(), 3, "{unlimited:?}");
+            assert!(
+                (longest_gap(&unlimited) - 0.4).abs() < 1e-9,
+                "{unlimited:?}"
+            );
+            let limited = survivors(monocular, 0.25);
+            assert!(longest_gap(&limited) <= 0.25, "{limited:?}");
+            assert!(limited.len() < 6, "nothing culled: {limited:?}");
+        }
     }
 }
