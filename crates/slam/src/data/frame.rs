@@ -23,6 +23,19 @@ pub struct Feature {
     pub angle: f32,
 }
 
+#[cfg(test)]
+impl Feature {
+    /// A level-0 feature at a projected pixel, orientation 0: what the unit tests observe.
+    pub(crate) fn at(px: nalgebra::Vector2<f64>) -> Self {
+        Self {
+            x: px.x as f32,
+            y: px.y as f32,
+            octave: 0,
+            angle: 0.0,
+        }
+    }
+}
+
 impl From<&stillpoint_features::KeyPoint> for Feature {
     fn from(k: &stillpoint_features::KeyPoint) -> Self {
         Self {

@@ -834,15 +834,7 @@ mod tests {
         let s = SlamSettings::rgbd(cam, 40.0, 30.0);
         let feats: Vec<Feature> = positions
             .iter()
-            .map(|p| {
-                let px = cam.project(p).unwrap();
-                Feature {
-                    x: px.x as f32,
-                    y: px.y as f32,
-                    octave: 0,
-                    angle: 0.0,
-                }
-            })
+            .map(|p| Feature::at(cam.project(p).unwrap()))
             .collect();
         let descs = vec![[7u8; 32]; feats.len()];
         let mut f = Frame::new(index, 0.0, &feats, &descs, None, &s).unwrap();

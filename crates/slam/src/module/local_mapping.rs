@@ -903,15 +903,10 @@ mod tests {
             let feats: Vec<Feature> = points
                 .iter()
                 .map(|p| {
-                    let uv = cam
-                        .project_undistorted(&(pose * nalgebra::Point3::from(*p)).coords)
-                        .unwrap();
-                    Feature {
-                        x: uv.x as f32,
-                        y: uv.y as f32,
-                        octave: 0,
-                        angle: 0.0,
-                    }
+                    Feature::at(
+                        cam.project_undistorted(&(pose * nalgebra::Point3::from(*p)).coords)
+                            .unwrap(),
+                    )
                 })
                 .collect();
             let mut f =
@@ -968,15 +963,7 @@ mod tests {
             s.kf_cull_max_gap_s_monocular = if monocular { max_gap_s } else { 0.0 };
             let feats: Vec<Feature> = points
                 .iter()
-                .map(|p| {
-                    let uv = cam.project_undistorted(p).unwrap();
-                    Feature {
-                        x: uv.x as f32,
-                        y: uv.y as f32,
-                        octave: 0,
-                        angle: 0.0,
-                    }
-                })
+                .map(|p| Feature::at(cam.project_undistorted(p).unwrap()))
                 .collect();
             let descriptors = vec![[0u8; 32]; points.len()];
             let depth = if monocular {
