@@ -159,9 +159,9 @@ pub struct SlamSettings {
     /// and culling one after the other left none for 3.7 s. Measurements: docs/results.md.
     #[serde(default = "default_kf_cull_max_gap_s")]
     pub kf_cull_max_gap_s: f64,
-    /// ... the same for a monocular map (default 0 = no limit): with 0.5 s the monocular Sim(3)
-    /// loop test closed its loop 8 frames earlier on a similarity 8 degrees off, and ended at
-    /// 3.6 cm instead of 0.3 (loop verification's weakness, not looked into yet).
+    /// ... the same for a monocular map (default 0 = no limit). With 0.5 s the keyframes kept
+    /// close together in time gave new points too short a baseline on a harder monocular loop,
+    /// and tracking was lost there.
     #[serde(default)]
     pub kf_cull_max_gap_s_monocular: f64,
     /// Local BA iterations before and after outlier removal (ORB-SLAM3: 5 + 10).

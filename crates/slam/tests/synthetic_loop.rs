@@ -270,6 +270,43 @@ fn a_monocular_loop_is_closed_in_sim3_and_the_error_drops() {
 }
 
 #[test]
+fn a_monocular_loop_waits_for_points_placed_over_enough_parallax() {
+    // The lap's first keyframes kept 8 cm apart (no keyframe culled leaving a gap over 0.5 s):
+    // the points they alone see are placed by that short baseline, all wrong alike. Placed on
+    // them, the loop turns the keyframe by 9 degrees where it drifted by half of one; waiting
+    // for a keyframe that sees points triangulated over 5 degrees closes it right.
+    let frames = LAP + LAP / 3;
+    let run = |min_parallax_deg: f64| {
+        run_with(
+            truth,
+            frames,
+            true,
+            |_| false,
+            true,
+            1.0,
+            |s| {
+                s.kf_cull_max_gap_s_monocular = 0.5;
+                s.loop_closing.min_parallax_deg_monocular = min_parallax_deg;
+            },
+        )
+    };
+    let (any, placed) = (run(0.0), run(5.0));
+    let (&(first, _), &(later, _)) = (any.loops.first().unwrap(), placed.loops.first().unwrap());
+    assert!(later > first, "loops {:?} -> {:?}", any.loops, placed.loops);
+    assert!(
+        any.ate > 0.02,
+        "the loop on short-baseline points: {}",
+        any.ate
+    );
+    assert!(
+        placed.ate < 0.005,
+        "Sim(3) ATE {} -> {}",
+        any.ate,
+        placed.ate
+    );
+}
+
+#[test]
 fn a_monocular_camera_back_on_mapped_ground_before_a_new_map_starts_stays_in_its_map() {
     // A slow lap (0.15 degrees a frame), blind for 40 frames: lost for good after 30 of them,
     // so a new map waits for two views when the lens clears, 6 degrees further round, where

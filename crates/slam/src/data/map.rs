@@ -717,6 +717,24 @@ impl Map {
         None
     }
 
+    /// The widest angle (degrees) between the rays from two of the keyframes that observe map
+    /// point `mp` to it: its triangulation's parallax, which bounds how well its depth is known.
+    pub fn point_parallax_deg(&self, mp: MpId) -> Option<f64> {
+        let p = self.points.get(&mp)?;
+        let rays: Vec<Vec3> = p
+            .observations
+            .keys()
+            .filter_map(|k| self.keyframes.get(k))
+            .filter_map(|k| (p.position - k.camera_center()).try_normalize(1e-12))
+            .collect();
+        let widest = rays
+            .iter()
+            .enumerate()
+            .flat_map(|(i, a)| rays[i + 1..].iter().map(move |b| a.angle(b)))
+            .fold(0.0, f64::max);
+        Some(widest.to_degrees())
+    }
+
     /// Good keyframes of the current map.
     pub fn current_keyframes(&self) -> impl Iterator<Item = &KeyFrame> {
         self.keyframes
@@ -798,6 +816,28 @@ mod tests {
         let mut f = Frame::new(0, 0.0, &feats, &descs, None, &s).unwrap();
         f.pose_cw = Some(Se3::identity());
         f
+    }
+
+    #[test]
+    fn a_points_parallax_is_the_widest_angle_between_its_observing_keyframes() {
+        let f = row_frame();
+        let mut map = Map::new();
+        let k0 = map.add_keyframe(&f).unwrap();
+        let k1 = map.add_keyframe(&f).unwrap();
+        let k2 = map.add_keyframe(&f).unwrap();
+        // Cameras at x = 0, 1 and -1 m; the point 1 m in front of the first: 45 degrees from
+        // each side camera, 90 between those two.
+        for (k, x) in [(k1, 1.0), (k2, -1.0)] {
+            let pose_wc = Se3::from_parts(Vec3::new(x, 0.0, 0.0).into(), Default::default());
+            map.keyframes.get_mut(&k).unwrap().pose_cw = pose_wc.inverse();
+        }
+        let mp = map.add_point(Vec3::new(0.0, 0.0, 1.0), k0, 0).unwrap();
+        assert_eq!(map.point_parallax_deg(mp), Some(0.0), "one observation");
+        map.add_observation(mp, k1, 0);
+        assert!((map.point_parallax_deg(mp).unwrap() - 45.0).abs() < 1e-9);
+        map.add_observation(mp, k2, 0);
+        assert!((map.point_parallax_deg(mp).unwrap() - 90.0).abs() < 1e-9);
+        assert_eq!(map.point_parallax_deg(mp + 1), None);
     }
 
     #[test]

@@ -74,6 +74,14 @@ pub struct LoopSettings {
     /// Matches with the loop keyframe's covisible group, after projecting its points, needed
     /// to accept the loop (ORB-SLAM: 40).
     pub min_loop_matches: usize,
+    /// Ours, monocular: of the matches a loop or merge is placed on, this many
+    /// ([`Self::min_refined_inliers`]) must be points triangulated over at least this much
+    /// parallax (degrees; 0: no test). A monocular point seen only from keyframes a few
+    /// centimetres apart has its depth set by their small relative pose, and a cluster of such
+    /// points all err alike: a lap's first keyframes, 8 cm apart, put the loop 9 degrees and
+    /// 18 cm from a camera that had drifted half a degree. The next keyframe along the revisit
+    /// sees better-placed points.
+    pub min_parallax_deg_monocular: f64,
     /// Ours, for a loop within one map: the correction it asks of the current keyframe may move
     /// it by at most this share of the path the keyframes travelled since the loop keyframe
     /// (plus `max_correction_floor_m`). A place that verifies yet asks to undo the whole path
@@ -143,6 +151,7 @@ impl Default for LoopSettings {
             max_correction_floor_m: 0.5,
             max_correction_deg: 0.0,
             min_loop_matches: 40,
+            min_parallax_deg_monocular: 5.0,
             guided_radius: 7.5,
             projection_radius: 10.0,
             fuse_radius: 4.0,

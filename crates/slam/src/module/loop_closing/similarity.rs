@@ -266,6 +266,25 @@ impl LoopCloser {
         } else {
             (t_cl, scale)
         };
+        if self.s.monocular && ls.min_parallax_deg_monocular > 0.0 {
+            let well_placed = out
+                .values()
+                .filter(|&&mp| {
+                    m.point_parallax_deg(mp)
+                        .is_some_and(|deg| deg >= ls.min_parallax_deg_monocular)
+                })
+                .count();
+            if well_placed < ls.min_refined_inliers {
+                debug!(
+                    keyframe = cur.id,
+                    candidate = l.id,
+                    well_placed,
+                    matches = out.len(),
+                    "loop rejected: its points were triangulated over too little parallax"
+                );
+                return None;
+            }
+        }
         let loop_matches = out.len();
         if loop_matches < ls.min_loop_matches {
             debug!(
