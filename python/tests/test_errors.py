@@ -121,9 +121,12 @@ def test_a_finished_slam_takes_no_frames():
 
 
 def test_ctrl_c_interrupts_a_long_call(tmp_path):
+    # The child takes Ctrl-C as a terminal gives it: a shell's background job (a CI run
+    # started with `&`) passes SIGINT on ignored, and Python then installs no handler for it.
     child = subprocess.Popen(
         [sys.executable, "-c", (
-            "import stillpoint, sys\n"
+            "import signal, stillpoint, sys\n"
+            "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
             "try:\n"
             "    print('started', flush=True)\n"
             f"    stillpoint.synth('walking_xyz', {str(tmp_path / 'seq')!r}, frames=100000)\n"
