@@ -610,6 +610,7 @@ fn point_from(r: MapPointRecord, next_mp: MpId) -> Result<MapPoint, String> {
         map_epoch: r.map_epoch,
         position: Vec3::from(r.position),
         descriptor: r.descriptor,
+        descriptor_of: 0,
         normal: Vec3::from(r.normal),
         min_distance: r.min_distance,
         max_distance: r.max_distance,

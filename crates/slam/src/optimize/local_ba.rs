@@ -5,7 +5,7 @@
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Matrix6x3, Vector3, Vector6};
 use stillpoint_geometry::{Se3, Vec3};
 
-use super::{dpc_dpose, huber_weight, project_with_jacobian, retract};
+use super::{dpc_dpose, huber_weight, project_stereo, project_with_jacobian, retract};
 use crate::SlamSettings;
 
 /// One observation of point `point` by camera `camera`.
@@ -72,6 +72,20 @@ fn linearise(p: &BaProblem, o: &BaObservation, s: &SlamSettings) -> Option<Linea
     })
 }
 
+/// The weighted squared error of one observation and whether it has the right coordinate,
+/// exactly as [`linearise`] computes them, without the Jacobians a step's cost does not need.
+fn chi2_of(p: &BaProblem, o: &BaObservation, s: &SlamSettings) -> Option<(f64, bool)> {
+    let pc = (p.poses[o.camera] * nalgebra::Point3::from(p.points[o.point])).coords;
+    let pred = project_stereo(&s.camera, s.bf, &pc)?;
+    let rows = if o.u_right.is_some() { 3 } else { 2 };
+    let e = Vector3::new(
+        o.u - pred.x,
+        o.v - pred.y,
+        o.u_right.map_or(0.0, |ur| ur - pred.z),
+    );
+    Some((e.rows(0, rows).norm_squared() * o.inv_sigma2, rows == 3))
+}
+
 fn robust_cost(chi2: f64, delta: f64, robust: bool) -> f64 {
     if !robust || chi2 <= delta * delta {
         chi2
@@ -86,15 +100,10 @@ fn total_cost(p: &BaProblem, active: &[bool], s: &SlamSettings, robust: bool) ->
         if !a {
             continue;
         }
-        match linearise(p, o, s) {
-            Some(l) => {
-                let d = if l.rows == 3 {
-                    s.chi2_stereo
-                } else {
-                    s.chi2_mono
-                }
-                .sqrt();
-                c += robust_cost(l.chi2, d, robust);
+        match chi2_of(p, o, s) {
+            Some((chi2, stereo)) => {
+                let d = if stereo { s.chi2_stereo } else { s.chi2_mono }.sqrt();
+                c += robust_cost(chi2, d, robust);
             }
             None => c += 1e6,
         }
@@ -117,12 +126,28 @@ fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &S
             .collect()
     };
     let n_free = free.iter().flatten().count();
-    let mut by_point: Vec<Vec<usize>> = vec![Vec::new(); p.points.len()];
+    // Per point, its active observations by free cameras as (observation, camera).
+    let mut by_point: Vec<Vec<(usize, usize)>> = vec![Vec::new(); p.points.len()];
+    let mut observed = vec![false; p.points.len()];
     for (i, o) in p.observations.iter().enumerate() {
         if active[i] {
-            by_point[o.point].push(i);
+            observed[o.point] = true;
+            if let Some(c) = free[o.camera] {
+                by_point[o.point].push((i, c));
+            }
         }
     }
+    // ... and the same in camera order for the reduced system. A camera sees a point once, so
+    // each block still gets its terms point by point in the same order, and the loop over a
+    // point's pairs can stop at the diagonal.
+    let by_point_by_camera: Vec<Vec<(usize, usize)>> = by_point
+        .iter()
+        .map(|obs| {
+            let mut obs = obs.clone();
+            obs.sort_by_key(|&(_, c)| c);
+            obs
+        })
+        .collect();
     let mut lambda = 1e-4;
     let mut cost = total_cost(p, active, s, robust);
     for _ in 0..iterations {
@@ -174,18 +199,14 @@ fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &S
             sm.fixed_view_mut::<6, 6>(6 * c, 6 * c).copy_from(&d);
             rhs.fixed_rows_mut::<6>(6 * c).copy_from(&bc[c]);
         }
-        for (pt, obs) in by_point.iter().enumerate() {
+        for (pt, obs) in by_point_by_camera.iter().enumerate() {
             let vi = &v_inv[pt];
-            for &a in obs {
-                let Some(ca) = free[p.observations[a].camera] else {
-                    continue;
-                };
+            for (k, &(a, ca)) in obs.iter().enumerate() {
                 let wv = w[a] * vi;
                 rhs.fixed_rows_mut::<6>(6 * ca).add_assign(&(-wv * bp[pt]));
-                for &b in obs {
-                    let Some(cb) = free[p.observations[b].camera] else {
-                        continue;
-                    };
+                // The Cholesky factorisation and its solve read only the lower triangle (and
+                // the diagonal blocks): the blocks above it would be half the work, never read.
+                for &(b, cb) in &obs[..=k] {
                     let blk = wv * w[b].transpose();
                     let mut view = sm.fixed_view_mut::<6, 6>(6 * ca, 6 * cb);
                     view -= blk;
@@ -216,15 +237,13 @@ fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &S
             }
         }
         for (pt, obs) in by_point.iter().enumerate() {
-            if obs.is_empty() {
+            if !observed[pt] {
                 continue;
             }
             let mut r = bp[pt];
-            for &a in obs {
-                if let Some(ca) = free[p.observations[a].camera] {
-                    let d: Vector6<f64> = dc.fixed_rows::<6>(6 * ca).into();
-                    r -= w[a].transpose() * d;
-                }
+            for &(a, ca) in obs {
+                let d: Vector6<f64> = dc.fixed_rows::<6>(6 * ca).into();
+                r -= w[a].transpose() * d;
             }
             p.points[pt] += v_inv[pt] * r;
         }
@@ -258,14 +277,8 @@ pub fn local_bundle_adjustment(p: &mut BaProblem, s: &SlamSettings) -> Vec<bool>
     let mut active = vec![true; n];
     lm(p, &active, s.ba_iterations[0], true, s);
     let classify = |p: &BaProblem, o: &BaObservation| {
-        linearise(p, o, s).is_none_or(|l| {
-            l.chi2
-                > if l.rows == 3 {
-                    s.chi2_stereo
-                } else {
-                    s.chi2_mono
-                }
-        })
+        chi2_of(p, o, s)
+            .is_none_or(|(chi2, stereo)| chi2 > if stereo { s.chi2_stereo } else { s.chi2_mono })
     };
     for (i, o) in p.observations.iter().enumerate() {
         active[i] = !classify(p, o);

@@ -23,14 +23,9 @@ fn project_with_jacobian(
     bf: f64,
     pc: &Vec3,
 ) -> Option<(Vector3<f64>, Matrix3<f64>)> {
-    if pc.z.is_nan() || pc.z <= 1e-6 {
-        return None;
-    }
+    let pred = project_stereo(cam, bf, pc)?;
     let iz = 1.0 / pc.z;
     let iz2 = iz * iz;
-    let u = cam.fx * pc.x * iz + cam.cx;
-    let v = cam.fy * pc.y * iz + cam.cy;
-    let ur = u - bf * iz;
     let j = Matrix3::new(
         cam.fx * iz,
         0.0,
@@ -42,7 +37,20 @@ fn project_with_jacobian(
         0.0,
         -cam.fx * pc.x * iz2 + bf * iz2,
     );
-    Some((Vector3::new(u, v, ur), j))
+    Some((pred, j))
+}
+
+/// The prediction alone (u, v, u_r) of [`project_with_jacobian`], with the same arithmetic, for
+/// the cost of a step, which needs no Jacobian.
+fn project_stereo(cam: &PinholeCamera, bf: f64, pc: &Vec3) -> Option<Vector3<f64>> {
+    if pc.z.is_nan() || pc.z <= 1e-6 {
+        return None;
+    }
+    let iz = 1.0 / pc.z;
+    let u = cam.fx * pc.x * iz + cam.cx;
+    let v = cam.fy * pc.y * iz + cam.cy;
+    let ur = u - bf * iz;
+    Some(Vector3::new(u, v, ur))
 }
 
 /// Huber weight for a squared error `chi2` with threshold `delta` (on the square root).

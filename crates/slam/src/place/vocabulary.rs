@@ -125,15 +125,34 @@ impl Rng {
 /// Bitwise majority of descriptors (DBoW2 `FORB::meanValue`: a bit is set when at least half
 /// the descriptors set it).
 fn majority(descs: &[Descriptor], members: &[u32]) -> Descriptor {
+    // Each byte's 8 bits spread to the 8 bytes of a u64 (bit i to byte i), so one add counts
+    // them all; a byte lane holds up to 255, so the lanes go into `counts` every 255 members.
+    const SPREAD: [u64; 256] = {
+        let mut t = [0u64; 256];
+        let mut v = 0;
+        while v < 256 {
+            let mut bit = 0;
+            while bit < 8 {
+                if v >> bit & 1 == 1 {
+                    t[v] |= 1 << (8 * bit);
+                }
+                bit += 1;
+            }
+            v += 1;
+        }
+        t
+    };
     let mut counts = [0u32; 256];
-    for &m in members {
-        let d = &descs[m as usize];
-        for (b, byte) in d.iter().enumerate() {
-            let mut v = *byte;
-            let c = &mut counts[b * 8..b * 8 + 8];
-            for slot in c.iter_mut() {
-                *slot += (v & 1) as u32;
-                v >>= 1;
+    for chunk in members.chunks(255) {
+        let mut lanes = [0u64; 32];
+        for &m in chunk {
+            for (lane, byte) in lanes.iter_mut().zip(&descs[m as usize]) {
+                *lane += SPREAD[*byte as usize];
+            }
+        }
+        for (b, lane) in lanes.iter().enumerate() {
+            for bit in 0..8 {
+                counts[b * 8 + bit] += (lane >> (8 * bit) & 0xff) as u32;
             }
         }
     }
@@ -520,6 +539,28 @@ fn kmedians(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn majority_sets_the_bits_at_least_half_the_members_set() {
+        let descs = random_descriptors(700, 5);
+        for n in [1usize, 2, 3, 254, 255, 256, 511, 700] {
+            // Every other descriptor, so members are not simply 0..n.
+            let members: Vec<u32> = (0..n as u32).map(|i| (i * 2) % 700).collect();
+            let got = majority(&descs, &members);
+            for bit in 0..256 {
+                let set = members
+                    .iter()
+                    .filter(|&&m| descs[m as usize][bit / 8] >> (bit % 8) & 1 == 1)
+                    .count();
+                let want = 2 * set >= n;
+                assert_eq!(
+                    got[bit / 8] >> (bit % 8) & 1 == 1,
+                    want,
+                    "{n} members, bit {bit}"
+                );
+            }
+        }
+    }
 
     /// `n` random descriptors from a seed.
     fn random_descriptors(n: usize, seed: u64) -> Vec<Descriptor> {
