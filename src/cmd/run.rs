@@ -280,6 +280,8 @@ pub fn summary_json(scored: &ScoredRun) -> serde_json::Value {
             "trans_rmse": r.translation.rmse, "trans_std": r.translation.std,
             "rot_rmse_deg": r.rotation_deg.rmse})),
         "timing": timing,
+        "wall_s": s.wall_s,
+        "frames_per_second": (s.wall_s > 0.0).then(|| s.frames as f64 / s.wall_s),
         "moving_keypoints_kept_per_frame": scored.moving_kept_stats().map(|(m, med, p90)| {
             serde_json::json!({"mean": m, "median": med, "p90": p90})
         }),
@@ -337,6 +339,14 @@ pub fn print_summary(scored: &ScoredRun) {
         s.new_maps,
         s.detector
     );
+    if s.wall_s > 0.0 {
+        println!(
+            "{} frames in {:.1} s ({:.1} frames a second)",
+            s.frames,
+            s.wall_s,
+            s.frames as f64 / s.wall_s
+        );
+    }
     if s.maps.made > 1 {
         let frames: Vec<String> = s
             .maps

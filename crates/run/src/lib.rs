@@ -182,6 +182,9 @@ pub struct RunSummary {
     pub keyframe_trajectory: Trajectory,
     /// stage name -> per-frame (or per-keyframe) times in ms.
     pub timings: Vec<(&'static str, Vec<f64>)>,
+    /// Seconds from the first frame read to the outputs written (the detector's model and a
+    /// map file are opened before).
+    pub wall_s: f64,
     /// What detected: name, backend and input size (`yolox-tract 640x480`), or `off`.
     pub detector: String,
     /// Loop closing's statistics (`None` when it is off).

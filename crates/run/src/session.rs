@@ -167,6 +167,7 @@ pub fn run_source(
     let n = frames_to_run(o, seq.len())?;
     let _lock = o.out.as_deref().map(lock_output).transpose()?;
     let mut outputs = Outputs::open(o, &tree, &slam, truth)?;
+    let started = std::time::Instant::now();
     let mut feed = Feed::start(o, seq.as_ref(), n, &tree)?;
     let mut map_files = MapFilesReport::default();
     let mut pipeline = match loaded {
@@ -274,6 +275,7 @@ pub fn run_source(
         trajectory: fin.trajectory,
         keyframe_trajectory: fin.keyframe_trajectory,
         timings,
+        wall_s: started.elapsed().as_secs_f64(),
         detector,
         loops: fin.loops,
         realtime: tally.realtime,
