@@ -100,6 +100,11 @@ fn an_rgbd_file_run_with_the_front_end_on_a_busy_machine_is_the_sequential_run()
     let summary = same_as_sequential_under_load(&seq, &["--detector", "gt"]);
     assert_eq!(summary["sensor"], "rgbd", "{summary}");
     assert_eq!(summary["tracked"], 90, "{summary}");
+    // The speed a user compares with the footage's frame rate: frames over the run's wall time.
+    let wall_s = summary["wall_s"].as_f64().unwrap();
+    let per_second = summary["frames_per_second"].as_f64().unwrap();
+    assert!(wall_s > 0.0, "{summary}");
+    assert!((per_second * wall_s - 90.0).abs() < 1e-6, "{summary}");
     // The mapping thread is still there for whoever asks for it (a camera, `--realtime`).
     let (_, threaded) = run(
         &seq,
