@@ -137,9 +137,9 @@ fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &S
             }
         }
     }
-    // ... and the same in camera order for the reduced system. A camera sees a point once, so
-    // each block still gets its terms point by point in the same order, and the loop over a
-    // point's pairs can stop at the diagonal.
+    // ... and the same in camera order for the reduced system, so that the loop over a point's
+    // pairs can stop at the diagonal. A camera sees a point once, so each block still gets its
+    // terms point by point in the same order.
     let by_point_by_camera: Vec<Vec<(usize, usize)>> = by_point
         .iter()
         .map(|obs| {
@@ -201,12 +201,14 @@ fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &S
         }
         for (pt, obs) in by_point_by_camera.iter().enumerate() {
             let vi = &v_inv[pt];
-            for (k, &(a, ca)) in obs.iter().enumerate() {
+            for &(a, ca) in obs {
                 let wv = w[a] * vi;
                 rhs.fixed_rows_mut::<6>(6 * ca).add_assign(&(-wv * bp[pt]));
                 // The Cholesky factorisation and its solve read only the lower triangle (and
                 // the diagonal blocks): the blocks above it would be half the work, never read.
-                for &(b, cb) in &obs[..=k] {
+                // (Up to the last of camera `ca`'s: were a point seen twice by one camera, both
+                // pairs would count.)
+                for &(b, cb) in obs.iter().take_while(|&&(_, cb)| cb <= ca) {
                     let blk = wv * w[b].transpose();
                     let mut view = sm.fixed_view_mut::<6, 6>(6 * ca, 6 * cb);
                     view -= blk;
