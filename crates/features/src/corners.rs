@@ -48,20 +48,17 @@ impl Default for CornerParams {
     }
 }
 
-/// Per-pixel buffers of [`corner_response`], kept per thread by [`good_features_to_track`]:
-/// eight f32 images of a 640x480 frame are 9.8 MB, whose fresh pages cost about as much as the
-/// arithmetic. Every buffer is fully written before it is read, so reuse changes no result.
+/// Buffers of [`corner_response`], kept per thread by [`good_features_to_track`]: the response
+/// (one f32 image, 1.2 MB at 640x480, whose fresh pages cost about as much as the arithmetic)
+/// and `block` rows of each gradient product's horizontal box sums. Every buffer is written
+/// before it is read, so reuse changes no result.
 #[derive(Default)]
 struct ResponseScratch {
-    xx: Vec<f32>,
-    xy: Vec<f32>,
-    yy: Vec<f32>,
-    /// Horizontal box sums (one product at a time).
-    tmp: Vec<f32>,
-    /// Box sums of xx, xy, yy.
-    sums: [Vec<f32>; 3],
-    /// The response.
     resp: Vec<f32>,
+    /// Horizontal box sums of xx, xy, yy for `block` rows, row `r` in slot `r % block`.
+    rings: [Vec<f32>; 3],
+    /// The image row each ring slot holds (`usize::MAX`: none yet).
+    ring_rows: Vec<usize>,
 }
 
 /// `v` with `n` elements, reusing its buffer (new ones come zeroed from the allocator).
@@ -79,12 +76,24 @@ simd_fn! {
 fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32, s: &mut ResponseScratch) {
     let (w, h) = (img.width, img.height);
     let scale = 1.0 / (4.0 * block as f32 * 255.0);
-    let xx = sized(&mut s.xx, w * h);
-    let xy = sized(&mut s.xy, w * h);
-    let yy = sized(&mut s.yy, w * h);
+    let half = (block / 2) as isize;
+    let ResponseScratch {
+        resp,
+        rings,
+        ring_rows,
+    } = s;
+    let resp = sized(resp, w * h);
+    let [rxx, rxy, ryy] = rings;
+    let (rxx, rxy, ryy) = (sized(rxx, block * w), sized(rxy, block * w), sized(ryy, block * w));
+    ring_rows.clear();
+    ring_rows.resize(block, usize::MAX);
     let mut sm = vec![0i16; w + 2]; // [1 2 1] vertical smoothing, for dx
     let mut df = vec![0i16; w + 2]; // vertical difference, for dy
-    for y in 0..h {
+    let mut products = [vec![0f32; w], vec![0f32; w], vec![0f32; w]];
+    let mut pad = vec![0f32; w + block];
+    let mut sums = [vec![0f32; w], vec![0f32; w], vec![0f32; w]];
+    // Row `y`'s Sobel products, each box-summed along the row (reflect-101) into `slot`.
+    let mut fill_row = |y: usize, slot: usize, rings: [&mut [f32]; 3]| {
         let up = img.row(reflect101(y as isize - 1, h));
         let mid = img.row(y);
         let down = img.row(reflect101(y as isize + 1, h));
@@ -100,30 +109,22 @@ fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32, s: &mut Resp
         df[0] = df[l];
         sm[w + 1] = sm[r];
         df[w + 1] = df[r];
-        let o = y * w;
-        let (oxx, oxy, oyy) = (&mut xx[o..o + w], &mut xy[o..o + w], &mut yy[o..o + w]);
+        let [pxx, pxy, pyy] = &mut products;
         for x in 0..w {
             let gx = (sm[x + 2] - sm[x]) as f32 * scale;
             let gy = (df[x] + 2 * df[x + 1] + df[x + 2]) as f32 * scale;
-            oxx[x] = gx * gx;
-            oxy[x] = gx * gy;
-            oyy[x] = gy * gy;
+            pxx[x] = gx * gx;
+            pxy[x] = gx * gy;
+            pyy[x] = gy * gy;
         }
-    }
-    // unnormalised box sum over block x block
-    let half = (block / 2) as isize;
-    let tmp = sized(&mut s.tmp, w * h);
-    let mut pad = vec![0f32; w + block];
-    let mut box_sum = |src: &[f32], tmp: &mut [f32], dst: &mut [f32]| {
-        for y in 0..h {
-            let row = &src[y * w..(y + 1) * w];
+        for (row, ring) in products.iter().zip(rings) {
             // reflect-101 only on the `half` border samples; the middle is a copy
             let hb = half as usize;
             pad[hb..hb + w].copy_from_slice(row);
             for i in (0..hb).chain(hb + w..w + block) {
                 pad[i] = row[reflect101(i as isize - half, w)];
             }
-            let out = &mut tmp[y * w..(y + 1) * w];
+            let out = &mut ring[slot * w..(slot + 1) * w];
             out.copy_from_slice(&pad[..w]);
             // shifted whole-row adds (vectorised), not a small sum per pixel
             for d in 1..block {
@@ -132,32 +133,39 @@ fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32, s: &mut Resp
                 }
             }
         }
-        for y in 0..h {
-            let out = &mut dst[y * w..(y + 1) * w];
-            let first = &tmp[reflect101(y as isize - half, h) * w..][..w];
-            out.copy_from_slice(first);
+    };
+    // Unnormalised box sums over block x block, a row at a time: the rows output row `y` adds
+    // (reflect-101) lie within `block` consecutive rows, so `r % block` never collides.
+    for y in 0..h {
+        let rows = |dy: isize| reflect101(y as isize + dy - half, h);
+        for dy in 0..block as isize {
+            let r = rows(dy);
+            let slot = r % block;
+            if ring_rows[slot] != r {
+                fill_row(r, slot, [&mut *rxx, &mut *rxy, &mut *ryy]);
+                ring_rows[slot] = r;
+            }
+        }
+        for (sum, ring) in sums.iter_mut().zip([&*rxx, &*rxy, &*ryy]) {
+            sum.copy_from_slice(&ring[(rows(0) % block) * w..][..w]);
             for dy in 1..block as isize {
-                let r = &tmp[reflect101(y as isize + dy - half, h) * w..][..w];
-                for (o, v) in out.iter_mut().zip(r) {
+                let r = &ring[(rows(dy) % block) * w..][..w];
+                for (o, v) in sum.iter_mut().zip(r) {
                     *o += v;
                 }
             }
         }
-    };
-    let [sa, sb, sc] = &mut s.sums;
-    let (sa, sb, sc) = (sized(sa, w * h), sized(sb, w * h), sized(sc, w * h));
-    box_sum(xx, tmp, sa);
-    box_sum(xy, tmp, sb);
-    box_sum(yy, tmp, sc);
-    let resp = sized(&mut s.resp, w * h);
-    for i in 0..w * h {
-        let (a, b, c) = (sa[i], sb[i], sc[i]);
-        resp[i] = if harris {
-            a * c - b * b - k * (a + c) * (a + c)
-        } else {
-            let (a, c) = (a * 0.5, c * 0.5);
-            (a + c) - ((a - c) * (a - c) + b * b).sqrt()
-        };
+        let [sa, sb, sc] = &sums;
+        let out = &mut resp[y * w..(y + 1) * w];
+        for x in 0..w {
+            let (a, b, c) = (sa[x], sb[x], sc[x]);
+            out[x] = if harris {
+                a * c - b * b - k * (a + c) * (a + c)
+            } else {
+                let (a, c) = (a * 0.5, c * 0.5);
+                (a + c) - ((a - c) * (a - c) + b * b).sqrt()
+            };
+        }
     }
 }
 }
@@ -165,8 +173,8 @@ fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32, s: &mut Resp
 /// Strongest corners of `img` (OpenCV `goodFeaturesToTrack`: response above
 /// `quality_level` x max, 3x3 local maxima, strongest first, `min_distance` apart, at most
 /// `max_corners`), refined to sub-pixel accuracy with [`corner_sub_pix`]. Blank, tiny or
-/// malformed images give no corners. The per-pixel response buffers (32 bytes per pixel) are
-/// kept per thread and reused by the next call.
+/// malformed images give no corners. The response buffer (4 bytes per pixel) is kept per
+/// thread and reused by the next call.
 pub fn good_features_to_track(img: &Gray8, p: &CornerParams) -> Vec<[f32; 2]> {
     if !valid(img) || img.width < 3 || img.height < 3 || p.max_corners == 0 {
         return Vec::new();
@@ -540,6 +548,78 @@ fn bilinear8_u8(r0: &[u8], r1: &[u8], c: usize, wts: [f32; 4]) -> [f32; 8] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The response the row-at-a-time box sums must reproduce bit for bit: whole product images,
+    /// summed along each row and then down each column in the same order.
+    fn response_by_whole_images(img: &Gray8, block: usize, harris: bool, k: f32) -> Vec<f32> {
+        let (w, h) = (img.width, img.height);
+        let scale = 1.0 / (4.0 * block as f32 * 255.0);
+        let px = |x: isize, y: isize| img.data[reflect101(y, h) * w + reflect101(x, w)] as i16;
+        let half = (block / 2) as isize;
+        let mut prods = vec![[0f32; 3]; w * h];
+        for y in 0..h as isize {
+            for x in 0..w as isize {
+                let sm = |x| px(x, y - 1) + 2 * px(x, y) + px(x, y + 1);
+                let df = |x| px(x, y + 1) - px(x, y - 1);
+                let gx = (sm(x + 1) - sm(x - 1)) as f32 * scale;
+                let gy = (df(x - 1) + 2 * df(x) + df(x + 1)) as f32 * scale;
+                prods[y as usize * w + x as usize] = [gx * gx, gx * gy, gy * gy];
+            }
+        }
+        let mut rows = vec![[0f32; 3]; w * h];
+        for y in 0..h {
+            for x in 0..w as isize {
+                let mut acc = prods[y * w + reflect101(x - half, w)];
+                for d in 1..block as isize {
+                    let p = prods[y * w + reflect101(x + d - half, w)];
+                    (0..3).for_each(|c| acc[c] += p[c]);
+                }
+                rows[y * w + x as usize] = acc;
+            }
+        }
+        (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, (i / w) as isize);
+                let mut acc = rows[reflect101(y - half, h) * w + x];
+                for d in 1..block as isize {
+                    let p = rows[reflect101(y + d - half, h) * w + x];
+                    (0..3).for_each(|c| acc[c] += p[c]);
+                }
+                let [a, b, c] = acc;
+                if harris {
+                    a * c - b * b - k * (a + c) * (a + c)
+                } else {
+                    let (a, c) = (a * 0.5, c * 0.5);
+                    (a + c) - ((a - c) * (a - c) + b * b).sqrt()
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn row_at_a_time_box_sums_equal_whole_image_ones_bit_for_bit() {
+        for (w, h) in [(37, 29), (5, 3), (3, 7)] {
+            let mut img = Gray8::new(w, h, 0);
+            for y in 0..h {
+                for x in 0..w {
+                    img.set(x, y, ((x * 73 + y * 151 + x * y * 7) % 251) as u8);
+                }
+            }
+            for block in 1..=6 {
+                for harris in [true, false] {
+                    let mut s = ResponseScratch::default();
+                    corner_response(&img, block, harris, 0.04, &mut s);
+                    let want = response_by_whole_images(&img, block, harris, 0.04);
+                    let same = s
+                        .resp
+                        .iter()
+                        .zip(&want)
+                        .all(|(a, b)| a.to_bits() == b.to_bits());
+                    assert!(same, "{w}x{h} block {block} harris {harris}");
+                }
+            }
+        }
+    }
 
     #[test]
     fn hoisted_border_taps_match_sample_clamped() {
