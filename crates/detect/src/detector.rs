@@ -117,7 +117,7 @@ impl Detector for YoloxDetector {
         }
         let (h, w) = self.backend.input_size();
         let lb = yolox::letterbox(input.rgb, h, w, self.pad_value);
-        let (shape, values) = self.backend.run(&lb.tensor)?;
+        let (shape, values) = self.backend.run(lb.tensor)?;
         yolox::decode(
             &values,
             &shape,

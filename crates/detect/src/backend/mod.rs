@@ -18,8 +18,9 @@ pub trait InferenceBackend: Send {
     /// Network input size (height, width), fixed at load time.
     fn input_size(&self) -> (usize, usize);
     /// Run the model on a `[1, 3, height, width]` tensor; returns the first output's shape and
-    /// values.
-    fn run(&mut self, input: &[f32]) -> Result<(Vec<usize>, Vec<f32>), DetectError>;
+    /// values. The input is the backend's, to drop once it has its own copy (3.7 MB at 640x480
+    /// that would otherwise stay through the inference).
+    fn run(&mut self, input: Vec<f32>) -> Result<(Vec<usize>, Vec<f32>), DetectError>;
 }
 
 /// Pick the input size: the model's declared `[1, 3, H, W]` when H and W are fixed, else

@@ -122,7 +122,7 @@ impl InferenceBackend for OrtBackend {
     fn input_size(&self) -> (usize, usize) {
         self.input_size
     }
-    fn run(&mut self, input: &[f32]) -> Result<(Vec<usize>, Vec<f32>), DetectError> {
+    fn run(&mut self, input: Vec<f32>) -> Result<(Vec<usize>, Vec<f32>), DetectError> {
         let (h, w) = self.input_size;
         let path = self.path.display().to_string();
         let fail = |e: ort::Error| DetectError::Inference {
@@ -131,7 +131,8 @@ impl InferenceBackend for OrtBackend {
         };
         let session = &mut self.session;
         guard::guarded(&self.path, "ort", "running it on a frame", || {
-            let tensor = TensorRef::from_array_view(([1usize, 3, h, w], input)).map_err(fail)?;
+            let tensor =
+                TensorRef::from_array_view(([1usize, 3, h, w], input.as_slice())).map_err(fail)?;
             let outputs = session.run(ort::inputs![tensor]).map_err(fail)?;
             let (shape, values) = outputs[0].try_extract_tensor::<f32>().map_err(fail)?;
             let dims = shape.iter().map(|&d| d.max(0) as usize).collect();

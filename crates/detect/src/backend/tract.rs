@@ -158,7 +158,7 @@ impl InferenceBackend for TractBackend {
     fn input_size(&self) -> (usize, usize) {
         self.input_size
     }
-    fn run(&mut self, input: &[f32]) -> Result<(Vec<usize>, Vec<f32>), DetectError> {
+    fn run(&mut self, input: Vec<f32>) -> Result<(Vec<usize>, Vec<f32>), DetectError> {
         let (h, w) = self.input_size;
         let path = self.path.display().to_string();
         if self.broken {
@@ -172,8 +172,10 @@ impl InferenceBackend for TractBackend {
             msg: format!("{path}: {e:#}"),
         };
         let state = &mut self.state;
-        let result = guard::guarded(&self.path, "tract", "running it on a frame", || {
-            let tensor = Tensor::from_shape(&[1, 3, h, w], input).map_err(fail)?;
+        let result = guard::guarded(&self.path, "tract", "running it on a frame", move || {
+            // tract copies the input into its own aligned tensor: ours goes before the run
+            let tensor = Tensor::from_shape(&[1, 3, h, w], &input).map_err(fail)?;
+            drop(input);
             let outputs = state.run(tvec!(tensor.into())).map_err(fail)?;
             let out = outputs[0].to_plain_array_view::<f32>().map_err(fail)?;
             Ok((out.shape().to_vec(), out.iter().copied().collect()))
