@@ -7,6 +7,11 @@ use tracing_subscriber::prelude::*;
 
 mod cmd;
 
+/// Large buffers mapped and reused, not left as holes in the heap (see the type).
+#[cfg(target_os = "linux")]
+#[global_allocator]
+static ALLOCATOR: stillpoint_core::alloc::LargeBlockCache = stillpoint_core::alloc::LargeBlockCache;
+
 #[derive(Parser)]
 #[command(
     name = "stillpoint",

@@ -1,12 +1,15 @@
 //! stillpoint-core: what every layer of stillpoint shares, one definition each: a frame as
 //! the system receives it ([`Frame`]), what a sequence's images are ([`Sensor`], [`Settings`]:
 //! the camera, frame rate, depth factor and the ORB extractor's sizes, [`OrbParams`]), summary
-//! statistics of per-frame numbers ([`stats`]), a stage's time ([`ms_since`]) and a background
-//! thread's priority ([`lower_this_thread_priority`]). Readers (`stillpoint-datasets`) sit above
+//! statistics of per-frame numbers ([`stats`]), a stage's time ([`ms_since`]), a background
+//! thread's priority ([`lower_this_thread_priority`]) and the program's allocator (`alloc`,
+//! Linux). Readers (`stillpoint-datasets`) sit above
 //! it; the system (`stillpoint-pipeline`) takes its frames and settings from here.
 
 #![deny(missing_docs)]
 
+#[cfg(target_os = "linux")]
+pub mod alloc;
 mod frame;
 mod orb;
 mod sensor;
