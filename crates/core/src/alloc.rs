@@ -1,15 +1,14 @@
 //! [`LargeBlockCache`]: a global allocator for a program that frees and asks again for the
 //! same large buffers frame after frame (Linux).
 //!
-//! Why: YOLOX on tract allocates ~140 tensors and ~80 packing buffers (128 KiB to 5 MiB) on
-//! every inference and frees them, and tracking does the same with image pyramids and bundle
-//! adjustment's matrices. glibc serves such blocks from its heaps once its mmap threshold has
-//! risen past them, and the holes they leave between long-lived map data stay resident: a
-//! 300-frame RGB-D file run with YOLOX peaked at ~135 MB for ~60 MB of live data. Sending the
-//! blocks to `mmap` instead (a fixed `M_MMAP_THRESHOLD`) brought the peak to ~87 MB but cost
-//! 6-9 s of page faults a run. Here too a large block is its own mapping, but a freed one
-//! waits in a small cache of the freeing thread for the next request: the sizes repeat from
-//! frame to frame, so the pages stay faulted in, and nothing else fragments around them.
+//! Why: YOLOX's tensors and packing buffers, tracking's image pyramids and bundle adjustment's
+//! matrices (128 KiB to a few MiB) are allocated and freed on every frame. glibc serves such
+//! blocks from its heaps once its mmap threshold has risen past them, and the holes they leave
+//! between long-lived map data stay resident; mapping each one afresh instead costs a page
+//! fault per page. Here a large block is its own mapping, and a freed one waits in a small
+//! cache of the freeing thread for the next request: the sizes repeat from frame to frame, so
+//! the pages stay faulted in and nothing else fragments around them. Measurements:
+//! docs/realtime.md.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::Mutex;
@@ -17,8 +16,8 @@ use std::sync::Mutex;
 /// Blocks of at least this many bytes get their own mapping (glibc's initial mmap threshold).
 pub const LARGE_BLOCK_BYTES: usize = 128 * 1024;
 /// The most bytes freed blocks may hold in a thread's cache; beyond it the longest-cached are
-/// unmapped. 16 MiB: on that RGB-D run 99-100 MB peak and 0.9 s of page faults; 24 MiB: 101 MB
-/// and 0.4 s (glibc's own: 0.4 s); 8 MiB: 87 MB and 3 s.
+/// unmapped. More keeps more pages resident, less faults more of them in again (the trade is
+/// measured in docs/realtime.md).
 pub const CACHE_BYTES: usize = 16 << 20;
 const PAGE: usize = 4096;
 /// Slots in the cache (a fixed array: the allocator must not allocate under its own lock).
