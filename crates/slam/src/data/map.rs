@@ -451,28 +451,30 @@ impl Map {
         let Some(k) = self.keyframes.get(&kf) else {
             return;
         };
-        let mut counts: BTreeMap<KfId, usize> = BTreeMap::new();
+        // The keyframes seeing each point, sorted and counted in runs: a run's keyframe set is
+        // rebuilt for every neighbour of each culled keyframe, and a map per observation cost
+        // more than the points themselves.
+        let mut seen_with: Vec<KfId> = Vec::with_capacity(8 * k.map_points.len());
         for mp in k.map_points.iter().flatten() {
             if let Some(p) = self.points.get(mp) {
                 if p.bad {
                     continue;
                 }
-                for &other in p.observations.keys() {
-                    if other != kf {
-                        *counts.entry(other).or_default() += 1;
-                    }
-                }
+                seen_with.extend(p.observations.keys().filter(|&&other| other != kf));
             }
         }
-        counts.retain(|o, _| self.keyframes.get(o).is_some_and(|k| !k.bad));
-        let best = counts
-            .iter()
-            .max_by_key(|(_, w)| **w)
-            .map(|(k, w)| (*k, *w));
+        seen_with.sort_unstable();
+        let counts: Vec<(KfId, usize)> = seen_with
+            .chunk_by(|a, b| a == b)
+            .map(|run| (run[0], run.len()))
+            .filter(|(o, _)| self.keyframes.get(o).is_some_and(|k| !k.bad))
+            .collect();
+        // In id order, the last of equal weights, as a map's `max_by_key` gave.
+        let best = counts.iter().max_by_key(|(_, w)| *w).copied();
         let mut edges: BTreeMap<KfId, usize> = counts
             .iter()
-            .filter(|(_, w)| **w >= min_shared)
-            .map(|(k, w)| (*k, *w))
+            .filter(|(_, w)| *w >= min_shared)
+            .copied()
             .collect();
         if edges.is_empty()
             && let Some((b, w)) = best
@@ -876,6 +878,49 @@ mod tests {
         map.add_observation(mp, k2, 0);
         assert!((map.point_parallax_deg(mp).unwrap() - 90.0).abs() < 1e-9);
         assert_eq!(map.point_parallax_deg(mp + 1), None);
+    }
+
+    #[test]
+    fn edges_count_shared_good_points_with_good_keyframes_and_ties_go_to_the_larger_id() {
+        let f = row_frame();
+        let mut map = Map::new();
+        let _origin = map.add_keyframe(&f).unwrap();
+        let others: Vec<KfId> = (0..4).map(|_| map.add_keyframe(&f).unwrap()).collect();
+        let subject = map.add_keyframe(&f).unwrap();
+        // Points the subject shares: 5 with others[0], 5 with others[1], 2 with others[2], 5
+        // with others[3] (made bad below), and one bad point with others[2].
+        let shares = [(0, 5), (1, 5), (2, 2), (3, 5), (2, 1)];
+        let mut idx = 0;
+        let mut next_of = [0usize; 4];
+        for (n, &(o, count)) in shares.iter().enumerate() {
+            for _ in 0..count {
+                let mp = map
+                    .add_point(Vec3::new(idx as f64, 0.0, 3.0), subject, idx)
+                    .unwrap();
+                map.add_observation(mp, others[o], next_of[o]);
+                next_of[o] += 1;
+                idx += 1;
+                if n == 4 {
+                    map.points.get_mut(&mp).unwrap().bad = true;
+                }
+            }
+        }
+        map.keyframes.get_mut(&others[3]).unwrap().bad = true;
+        map.update_connections(subject, 3);
+        let edges = |m: &Map, k: KfId| m.keyframes[&k].connections.clone();
+        assert_eq!(
+            edges(&map, subject),
+            BTreeMap::from([(others[0], 5), (others[1], 5)])
+        );
+        assert_eq!(edges(&map, others[0]).get(&subject), Some(&5));
+        assert_eq!(edges(&map, others[2]).get(&subject), None);
+        // Of the two strongest (5 each), the later keyframe becomes the parent.
+        assert_eq!(map.keyframes[&subject].parent, Some(others[1]));
+        // None reaches 6: the strongest alone stays an edge, and the old edge's other side
+        // loses it.
+        map.update_connections(subject, 6);
+        assert_eq!(edges(&map, subject), BTreeMap::from([(others[1], 5)]));
+        assert_eq!(edges(&map, others[0]).get(&subject), None);
     }
 
     #[test]
