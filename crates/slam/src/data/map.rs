@@ -451,9 +451,9 @@ impl Map {
         let Some(k) = self.keyframes.get(&kf) else {
             return;
         };
-        // The keyframes seeing each point, sorted and counted in runs: a run's keyframe set is
-        // rebuilt for every neighbour of each culled keyframe, and a map per observation cost
-        // more than the points themselves.
+        // Counted by sorting the ids of the keyframes that see each point: culling a keyframe
+        // recounts every neighbour's edges, and a map entry per observation cost more than
+        // reading the points.
         let mut seen_with: Vec<KfId> = Vec::with_capacity(8 * k.map_points.len());
         for mp in k.map_points.iter().flatten() {
             if let Some(p) = self.points.get(mp) {
