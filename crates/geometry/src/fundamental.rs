@@ -453,7 +453,7 @@ fn enforce_rank2(f: &Mat3) -> Option<Mat3> {
 }
 
 /// Fill `out` with distinct indices in `0..n` (n >= out.len()).
-fn draw_distinct(rng: &mut SplitMix64, n: usize, out: &mut [usize]) {
+pub(crate) fn draw_distinct(rng: &mut SplitMix64, n: usize, out: &mut [usize]) {
     let mut k = 0;
     while k < out.len() {
         let candidate = (rng.next() % n as u64) as usize;
@@ -469,7 +469,7 @@ fn draw_distinct(rng: &mut SplitMix64, n: usize, out: &mut [usize]) {
 pub(crate) struct SplitMix64(pub(crate) u64);
 
 impl SplitMix64 {
-    fn next(&mut self) -> u64 {
+    pub(crate) fn next(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);

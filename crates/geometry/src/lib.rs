@@ -12,6 +12,7 @@ pub mod camera;
 pub mod epipolar;
 pub mod fundamental;
 pub mod homography;
+pub mod plane;
 pub mod pose;
 pub mod rectify;
 
