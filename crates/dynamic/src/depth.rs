@@ -29,6 +29,10 @@
 //! - static-neighbour rule: a keypoint with a tracked point that moved with the static world
 //!   within [`DepthParams::static_radius_px`] at its depth, and no moving one, is kept (the
 //!   floor at a walker's feet, the desk at his hip);
+//! - support-plane rule: a keypoint on the plane the object stands on ([`support_plane`], fitted
+//!   by RANSAC to the depth beside the bottom of its box, given a camera) is kept, whatever
+//!   its band (the floor at a walker's feet, lying in his band, was most of what the culling
+//!   took of the static world);
 //! - a keypoint without depth, or in a dynamic box whose depth could not be estimated (too few
 //!   valid samples), is judged by the paper's rule (culled unless a static box holds it).
 //!
@@ -36,11 +40,12 @@
 //! option of [`crate::cull_with`]). Measurements: docs/measurements.md.
 
 use crate::cull::cull_with;
-use crate::judge::{BoxState, Verdict};
+use crate::judge::{BoxPart, BoxState, Verdict};
 use crate::motion_consistency::TrackedPoint;
 use crate::settings::{CullParams, DepthParams, DynamicSettings};
 use serde::Serialize;
-use stillpoint_geometry::{BBox, PinholeCamera};
+use stillpoint_geometry::plane::{Plane, ransac_plane};
+use stillpoint_geometry::{BBox, PinholeCamera, Vec3};
 use stillpoint_image::DepthMetres;
 
 /// COCO's person class.
@@ -63,6 +68,9 @@ pub struct ObjectDepth {
     pub outliers_with_depth: usize,
     /// Of those, the ones inside the band.
     pub outliers_in_band: usize,
+    /// The plane the object stands on, seen beside the bottom of its box (the floor at a
+    /// walker's feet): it shares his depth, not his motion. `None` where none was found.
+    pub support: Option<SupportPlane>,
 }
 
 impl ObjectDepth {
@@ -70,6 +78,146 @@ impl ObjectDepth {
     pub fn holds(&self, depth: f32) -> bool {
         depth >= self.near && depth <= self.far
     }
+
+    /// True when pixel (`x`, `y`) at `depth` lies on the plane the object stands on.
+    pub fn on_support(&self, x: f32, y: f32, depth: f32) -> bool {
+        self.support.is_some_and(|s| s.holds(x, y, depth))
+    }
+}
+
+/// The plane a mover stands on (the floor at a walker's feet, the road under a car), in pixel
+/// form: a pixel (`u`, `v`) at depth `z` lies `|z (a u + b v + c) + d|` metres from it (the
+/// camera's intrinsics folded in). It holds pixels at or below `from_row`, the top of the
+/// strip it was fitted beside, within `max(tolerance_m, tolerance_relative z)`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct SupportPlane {
+    /// Coefficient of `u`.
+    pub a: f32,
+    /// Coefficient of `v`.
+    pub b: f32,
+    /// Constant inside the bracket.
+    pub c: f32,
+    /// The plane's offset, metres.
+    pub d: f32,
+    /// The first image row it holds pixels on.
+    pub from_row: f32,
+    /// Distance within which a pixel is on it, metres ...
+    pub tolerance_m: f32,
+    /// ... or this share of the pixel's depth, if more.
+    pub tolerance_relative: f32,
+}
+
+impl SupportPlane {
+    /// The plane `plane` (camera coordinates) seen through `camera`.
+    pub fn new(plane: &Plane, camera: &PinholeCamera, from_row: f32, p: &DepthParams) -> Self {
+        let n = plane.normal;
+        let (a, b) = (n.x / camera.fx, n.y / camera.fy);
+        Self {
+            a: a as f32,
+            b: b as f32,
+            c: (n.z - a * camera.cx - b * camera.cy) as f32,
+            d: plane.offset as f32,
+            from_row,
+            tolerance_m: p.support_tolerance_m,
+            tolerance_relative: p.support_tolerance_relative,
+        }
+    }
+
+    /// Distance of pixel (`u`, `v`) at depth `z` from the plane, metres.
+    pub fn distance(&self, u: f32, v: f32, z: f32) -> f32 {
+        (z * (self.a * u + self.b * v + self.c) + self.d).abs()
+    }
+
+    /// True when pixel (`u`, `v`) at depth `z` is on the plane, at or below its first row.
+    pub fn holds(&self, u: f32, v: f32, z: f32) -> bool {
+        v >= self.from_row
+            && z > 0.0
+            && self.distance(u, v, z) <= self.tolerance_m.max(self.tolerance_relative * z)
+    }
+}
+
+/// The plane most of the depth beside the bottom of `bbox` lies on: samples (every
+/// [`DepthParams::sample_step_px`]) in the rows from `legs` x its height above its bottom to [`DepthParams::support_below_fraction`] below it, across
+/// [`DepthParams::support_side_fraction`] of its width on each side, outside the box and the
+/// boxes of `movers`, fitted by RANSAC ([`ransac_plane`]). `None` with fewer than
+/// [`DepthParams::support_min_samples`] samples, when the plane holds less than
+/// [`DepthParams::support_min_share`] of them, when it faces the camera (the cosine between
+/// its normal and the ray to the box's bottom above [`DepthParams::support_max_facing`]), or
+/// when it holds more of `object_points` (the object's moving points, pixels and depth) than
+/// [`DepthParams::support_max_object_share`] of them and [`DepthParams::support_feet_points`]:
+/// a plane through the object is not what it stands on.
+pub fn support_plane(
+    bbox: &BBox,
+    legs: f32,
+    movers: &[BBox],
+    object_points: &[DepthPoint],
+    depth: &DepthMetres,
+    camera: &PinholeCamera,
+    p: &DepthParams,
+) -> Option<SupportPlane> {
+    if !p.support_plane || depth.is_empty() {
+        return None;
+    }
+    let (w, h) = (bbox.width(), bbox.height());
+    let (cols, rows) = (depth.width as f32 - 1.0, depth.height as f32 - 1.0);
+    let from_row = (bbox.y2 - legs * h).max(0.0);
+    let y_range = (from_row, (bbox.y2 + p.support_below_fraction * h).min(rows));
+    let x_range = (
+        (bbox.x1 - p.support_side_fraction * w).max(0.0),
+        (bbox.x2 + p.support_side_fraction * w).min(cols),
+    );
+    if !(w > 0.0 && h > 0.0 && y_range.0 <= y_range.1 && x_range.0 <= x_range.1) {
+        return None;
+    }
+    let step = p.sample_step_px.max(1);
+    let lift = |u: f32, v: f32, z: f32| {
+        let z = z as f64;
+        Vec3::new(
+            (u as f64 - camera.cx) / camera.fx * z,
+            (v as f64 - camera.cy) / camera.fy * z,
+            z,
+        )
+    };
+    let mut samples = Vec::new();
+    for y in (y_range.0.ceil() as usize..=y_range.1 as usize).step_by(step) {
+        for x in (x_range.0.ceil() as usize..=x_range.1 as usize).step_by(step) {
+            let (u, v) = (x as f32, y as f32);
+            let inside = |b: &BBox| u >= b.x1 && u <= b.x2 && v >= b.y1 && v <= b.y2;
+            let z = depth.get(x, y);
+            if valid(z, p) && !inside(bbox) && !movers.iter().any(inside) {
+                samples.push(lift(u, v, z));
+            }
+        }
+    }
+    if samples.len() < p.support_min_samples.max(3) {
+        return None;
+    }
+    let tolerance =
+        |x: &Vec3| (p.support_tolerance_m as f64).max(p.support_tolerance_relative as f64 * x.z);
+    let (plane, inliers) = ransac_plane(&samples, &tolerance, p.support_iterations, 0x5eed)?;
+    if (inliers as f32) < p.support_min_share * samples.len() as f32 {
+        return None;
+    }
+    // A floor is seen at a grazing angle; a plane facing the camera at the object's depth
+    // (a cabinet's front beside a walker) would cut through him.
+    let centre = (bbox.x1 + bbox.x2) / 2.0;
+    let ray = Vec3::new(
+        (centre as f64 - camera.cx) / camera.fx,
+        (bbox.y2.min(rows) as f64 - camera.cy) / camera.fy,
+        1.0,
+    )
+    .normalize();
+    if plane.normal.dot(&ray).abs() > p.support_max_facing as f64 {
+        return None;
+    }
+    let support = SupportPlane::new(&plane, camera, from_row, p);
+    let on_plane = object_points
+        .iter()
+        .filter(|&&(at, z)| support.holds(at[0], at[1], z))
+        .count();
+    let allowed =
+        (p.support_max_object_share * object_points.len() as f32).max(p.support_feet_points as f32);
+    (on_plane as f32 <= allowed).then_some(support)
 }
 
 /// The band [near, far] around `depth`.
@@ -204,6 +352,7 @@ pub fn object_depth(
         central_share: central_in as f32 / central.len() as f32,
         outliers_with_depth: outliers.len(),
         outliers_in_band: in_band(&outliers, metres),
+        support: None,
     })
 }
 
@@ -264,6 +413,38 @@ pub fn estimate_object_depths(
             None
         };
     }
+    let Some(camera) = camera.filter(|_| p.support_plane) else {
+        return;
+    };
+    let movers: Vec<BBox> = states
+        .iter()
+        .filter(|s| s.is_dynamic())
+        .map(|s| s.bbox)
+        .collect();
+    for s in states.iter_mut() {
+        // Only a box whose bottom is the object's stands on anything.
+        let Some(o) = s.depth.as_mut().filter(|_| s.part != BoxPart::SeatedTop) else {
+            continue;
+        };
+        let moving: Vec<DepthPoint> = tracked
+            .iter()
+            .filter(|t| t.outlier && s.bbox.contains_strict(t.cur[0], t.cur[1]))
+            .map(|t| {
+                (
+                    t.cur,
+                    depth_near(depth, t.cur, p.keypoint_window_px, p.min_valid_m),
+                )
+            })
+            .filter(|&(_, z)| o.holds(z))
+            .collect();
+        // A seated person's bottom part is their legs: all of it is near the floor.
+        let legs = if s.part == BoxPart::SeatedBottom {
+            1.0
+        } else {
+            p.support_height_fraction
+        };
+        o.support = support_plane(&s.bbox, legs, &movers, &moving, depth, camera, p);
+    }
 }
 
 /// The farthest a person can be whose box (or NHBC part) is as tall as `state`'s: no one is
@@ -311,7 +492,7 @@ pub struct DepthCullInput<'a> {
 /// use stillpoint_dynamic::{BoxPart, BoxState, CullParams, DepthParams, Rule, Verdict};
 /// use stillpoint_geometry::BBox;
 /// let person_depth = ObjectDepth { metres: 2.0, near: 1.6, far: 2.4, samples: 100,
-///     central_share: 0.8, outliers_with_depth: 5, outliers_in_band: 5 };
+///     central_share: 0.8, outliers_with_depth: 5, outliers_in_band: 5, support: None };
 /// let person = BoxState { bbox: BBox::new(0.0, 0.0, 100.0, 300.0), class_id: 0, detection: 0,
 ///     part: BoxPart::Whole, rule: Rule::Nhbc, verdict: Verdict::Dynamic, tracked: 9, outliers: 5,
 ///     depth: Some(person_depth) };
@@ -419,7 +600,7 @@ pub fn cull_with_depth(input: &DepthCullInput, cull: &CullParams, p: &DepthParam
                             d >= near && d <= far && dx * dx + dy * dy <= radius * radius
                         })
                     };
-                    o.holds(d) || near_outlier()
+                    !o.on_support(x, y, d) && (o.holds(d) || near_outlier())
                 }
                 _ => !protected(),
             })
@@ -594,6 +775,100 @@ mod tests {
         off.depth.static_radius_px = 0.0;
         let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &off);
         assert_eq!(removed, vec![true, true, true, true]);
+    }
+
+    /// A wall at 5 m, level floor 0.8 m below the camera, and a walker 1.8 m tall at 2.5 m
+    /// standing on it (columns 290..350, rows 32..420) seen through `camera`; with `cabinets`,
+    /// fronts at his depth fill the rows of his legs beside him.
+    fn walker_on_a_floor(camera: &PinholeCamera, cabinets: bool) -> DepthMetres {
+        let mut depth = DepthMetres::new(640, 480, 5.0);
+        for y in 0..480 {
+            for x in 0..640 {
+                let below = y as f32 - camera.cy as f32;
+                let floor = if below > 0.0 {
+                    0.8 * camera.fy as f32 / below
+                } else {
+                    5.0
+                };
+                let walker = (290..350).contains(&x) && (32..420).contains(&y);
+                let cabinet = cabinets && (250..470).contains(&y);
+                depth.set(
+                    x,
+                    y,
+                    if walker || cabinet {
+                        2.5
+                    } else {
+                        floor.min(5.0)
+                    },
+                );
+            }
+        }
+        depth
+    }
+
+    #[test]
+    fn the_floor_a_walker_stands_on_is_kept_and_he_is_not() {
+        let camera = PinholeCamera::new(535.4, 539.2, 320.1, 247.6, 640, 480);
+        let depth = walker_on_a_floor(&camera, false);
+        let person = det(PERSON, 280.0, 30.0, 360.0, 421.0);
+        let tracked = [
+            pt(320.0, 150.0, true),
+            pt(300.0, 300.0, true),
+            pt(330.0, 400.0, true),
+        ];
+        let mut s = settings();
+        s.world.camera = Some(camera);
+        let keypoints = [
+            [284.0, 410.0], // floor in his box beside his feet, in his band (2.66 m): kept
+            [300.0, 400.0], // his shin, 9 cm above the floor: culled
+            [320.0, 200.0], // his chest: culled
+        ];
+        let mut states = judge_boxes(&[person], &tracked, &s.judge);
+        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &s);
+        assert_eq!(removed, vec![false, true, true]);
+        let support = states[0].depth.and_then(|o| o.support).expect("the floor");
+        assert!(support.distance(284.0, 410.0, depth.get(284, 410)) < 0.005);
+        // Without the plane the floor there goes with him.
+        s.depth.support_plane = false;
+        let mut states = judge_boxes(&[person], &tracked, &s.judge);
+        let removed = cull_frame(&keypoints, &mut states, &tracked, Some(&depth), &s);
+        assert_eq!(removed, vec![true, true, true]);
+    }
+
+    #[test]
+    fn a_plane_through_the_walker_is_not_what_he_stands_on() {
+        // Cabinet fronts beside him at his depth are the largest plane there, but they hold
+        // his moving points too.
+        let camera = PinholeCamera::new(535.4, 539.2, 320.1, 247.6, 640, 480);
+        let depth = walker_on_a_floor(&camera, true);
+        let person = det(PERSON, 280.0, 30.0, 360.0, 421.0);
+        let tracked = [
+            pt(320.0, 300.0, true),
+            pt(300.0, 350.0, true),
+            pt(330.0, 400.0, true),
+            pt(310.0, 320.0, true),
+            pt(315.0, 380.0, true),
+        ];
+        let mut s = settings();
+        s.world.camera = Some(camera);
+        let knee = |s: &DynamicSettings| {
+            let mut states = judge_boxes(&[person], &tracked, &s.judge);
+            let removed = cull_frame(&[[310.0, 380.0]], &mut states, &tracked, Some(&depth), s);
+            (
+                removed[0],
+                states[0].depth.expect("his depth").support.is_some(),
+            )
+        };
+        // It faces the camera, and it holds all five of his moving points.
+        assert_eq!(knee(&s), (true, false), "his knee culled, no plane");
+        s.depth.support_max_facing = 1.0;
+        assert_eq!(knee(&s), (true, false));
+        s.depth.support_max_facing = 0.8;
+        s.depth.support_max_object_share = 1.0;
+        assert_eq!(knee(&s), (true, false));
+        // Taken whatever it holds of him and however it faces the camera, it keeps his knee.
+        s.depth.support_max_facing = 1.0;
+        assert_eq!(knee(&s), (false, true));
     }
 
     #[test]

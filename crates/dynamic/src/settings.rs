@@ -295,6 +295,37 @@ pub struct DepthParams {
     /// A keypoint's depth is the nearest valid depth within this many pixels of it (ours: 1, a
     /// 3x3 window): a keypoint on a silhouette describes a patch that is partly the mover.
     pub keypoint_window_px: usize,
+    /// Keep what lies on the plane a mover stands on (ours, on; [`crate::depth::support_plane`]):
+    /// the floor at a walker's feet is in his depth band but does not move. Measurements:
+    /// docs/measurements.md.
+    pub support_plane: bool,
+    /// The plane is fitted in the rows from this share of the box's height above its bottom
+    /// (ours: 0.35, a walker's legs) ...
+    pub support_height_fraction: f32,
+    /// ... to this share below it (ours: 0.1) ...
+    pub support_below_fraction: f32,
+    /// ... across this share of the box's width on each side of it (ours: 0.5).
+    pub support_side_fraction: f32,
+    /// Fewest depth samples there to fit a plane (ours: 30).
+    pub support_min_samples: usize,
+    /// Planes drawn (ours: 64).
+    pub support_iterations: usize,
+    /// A point is on the plane within this many metres (ours: 0.03, Kinect noise at 2-3 m) ...
+    pub support_tolerance_m: f32,
+    /// ... or this share of its depth, if more (ours: 0.015).
+    pub support_tolerance_relative: f32,
+    /// The plane must hold at least this share of the samples (ours: 0.4) ...
+    pub support_min_share: f32,
+    /// ... face the camera no more than this: the cosine between its normal and the ray to the
+    /// box's bottom (ours: 0.8; a floor 2-3 m away seen from 0.8-1.5 m up is 0.3-0.6, a
+    /// cabinet's front facing the camera near 1) ...
+    pub support_max_facing: f32,
+    /// ... and hold at most this share of the object's moving points at its depth (ours:
+    /// 0.25) ...
+    pub support_max_object_share: f32,
+    /// ... or this many of them if more (ours: 3, a walker's feet stand on it): a plane
+    /// through the object is not what it stands on.
+    pub support_feet_points: usize,
 }
 
 impl Default for DepthParams {
@@ -317,6 +348,18 @@ impl Default for DepthParams {
             static_depth_m: 0.1,
             min_valid_m: 0.05,
             keypoint_window_px: 1,
+            support_plane: true,
+            support_height_fraction: 0.35,
+            support_below_fraction: 0.1,
+            support_side_fraction: 0.5,
+            support_min_samples: 30,
+            support_iterations: 64,
+            support_tolerance_m: 0.03,
+            support_tolerance_relative: 0.015,
+            support_min_share: 0.4,
+            support_max_facing: 0.8,
+            support_max_object_share: 0.25,
+            support_feet_points: 3,
         }
     }
 }

@@ -79,9 +79,10 @@ fn mover_mask(
         for y in y1..y2 {
             for x in x1..x2 {
                 let on_mover = match (object, depth) {
-                    (Some(o), Some(z)) => z
-                        .get_checked(x as isize, y as isize)
-                        .is_some_and(|v| o.holds(v) || (up_to_far && v > 0.0 && v <= o.far)),
+                    (Some(o), Some(z)) => z.get_checked(x as isize, y as isize).is_some_and(|v| {
+                        (o.holds(v) || (up_to_far && v > 0.0 && v <= o.far))
+                            && !o.on_support(x as f32, y as f32, v)
+                    }),
                     _ => true,
                 };
                 if on_mover {
