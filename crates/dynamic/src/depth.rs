@@ -137,7 +137,8 @@ impl SupportPlane {
 }
 
 /// The plane most of the depth beside the bottom of `bbox` lies on: samples (every
-/// [`DepthParams::sample_step_px`]) in the rows from `legs` x its height above its bottom to [`DepthParams::support_below_fraction`] below it, across
+/// [`DepthParams::sample_step_px`]) in the rows from `legs` x its height above its bottom to
+/// [`DepthParams::support_below_fraction`] below it, across
 /// [`DepthParams::support_side_fraction`] of its width on each side, outside the box and the
 /// boxes of `movers`, fitted by RANSAC ([`ransac_plane`]). `None` with fewer than
 /// [`DepthParams::support_min_samples`] samples, when the plane holds less than

@@ -299,8 +299,8 @@ pub struct DepthParams {
     /// the floor at a walker's feet is in his depth band but does not move. Measurements:
     /// docs/measurements.md.
     pub support_plane: bool,
-    /// The plane is fitted in the rows from this share of the box's height above its bottom
-    /// (ours: 0.35, a walker's legs) ...
+    /// The plane is fitted in the rows from this share of a whole box's height above its
+    /// bottom (ours: 0.35, a walker's legs; a seated-split box's bottom part, all of it) ...
     pub support_height_fraction: f32,
     /// ... to this share below it (ours: 0.1) ...
     pub support_below_fraction: f32,
