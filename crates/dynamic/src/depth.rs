@@ -45,7 +45,7 @@ use crate::motion_consistency::TrackedPoint;
 use crate::settings::{CullParams, DepthParams, DynamicSettings};
 use serde::Serialize;
 use stillpoint_geometry::plane::{Plane, ransac_plane};
-use stillpoint_geometry::{BBox, PinholeCamera, Vec3};
+use stillpoint_geometry::{BBox, PinholeCamera, Vec2, Vec3};
 use stillpoint_image::DepthMetres;
 
 /// COCO's person class.
@@ -171,14 +171,7 @@ pub fn support_plane(
         return None;
     }
     let step = p.sample_step_px.max(1);
-    let lift = |u: f32, v: f32, z: f32| {
-        let z = z as f64;
-        Vec3::new(
-            (u as f64 - camera.cx) / camera.fx * z,
-            (v as f64 - camera.cy) / camera.fy * z,
-            z,
-        )
-    };
+    let pixel = |u: f32, v: f32| Vec2::new(u as f64, v as f64);
     let mut samples = Vec::new();
     for y in (y_range.0.ceil() as usize..=y_range.1 as usize).step_by(step) {
         for x in (x_range.0.ceil() as usize..=x_range.1 as usize).step_by(step) {
@@ -186,7 +179,7 @@ pub fn support_plane(
             let inside = |b: &BBox| u >= b.x1 && u <= b.x2 && v >= b.y1 && v <= b.y2;
             let z = depth.get(x, y);
             if valid(z, p) && !inside(bbox) && !movers.iter().any(inside) {
-                samples.push(lift(u, v, z));
+                samples.push(camera.unproject(&pixel(u, v), z as f64));
             }
         }
     }
@@ -201,13 +194,8 @@ pub fn support_plane(
     }
     // A floor is seen at a grazing angle; a plane facing the camera at the object's depth
     // (a cabinet's front beside a walker) would cut through him.
-    let centre = (bbox.x1 + bbox.x2) / 2.0;
-    let ray = Vec3::new(
-        (centre as f64 - camera.cx) / camera.fx,
-        (bbox.y2.min(rows) as f64 - camera.cy) / camera.fy,
-        1.0,
-    )
-    .normalize();
+    let bottom = pixel((bbox.x1 + bbox.x2) / 2.0, bbox.y2.min(rows));
+    let ray = camera.unproject(&bottom, 1.0).normalize();
     if plane.normal.dot(&ray).abs() > p.support_max_facing as f64 {
         return None;
     }

@@ -110,10 +110,13 @@ pub fn ransac_plane(
         .filter(|p| plane.distance(p) <= tolerance(p))
         .copied()
         .collect();
-    let refined = Plane::least_squares(&on)
-        .filter(|r| inliers(r) >= on.len())
-        .unwrap_or(plane);
-    Some((refined, inliers(&refined)))
+    // The refit stands only if it loses none of the points it was fitted to.
+    let refit = Plane::least_squares(&on).map(|r| (r, inliers(&r)));
+    Some(
+        refit
+            .filter(|&(_, n)| n >= on.len())
+            .unwrap_or((plane, on.len())),
+    )
 }
 
 #[cfg(test)]
