@@ -67,6 +67,7 @@ fn real_walkers_are_culled_and_the_office_is_kept() {
                 rgb: Some(&rgb),
                 depth: None,
                 previous: None,
+                own_boxes: false,
             },
             &kps,
         );

@@ -29,6 +29,9 @@ pub(crate) struct BackgroundDetector {
     schedule: Option<(usize, usize)>,
     /// On a schedule: the frame with the detector, whose boxes are still to be taken.
     pending: Option<usize>,
+    /// On a schedule: the frame with the detector because it needs its own boxes
+    /// ([`BackgroundDetector::detect_own`]); it waits for them.
+    own: Option<usize>,
     /// The newest finished boxes, already carried to frame `at`, and the frame they were
     /// detected on.
     latest: Option<CarriedDetections>,
@@ -82,9 +85,28 @@ impl BackgroundDetector {
                 (every, settings.background_detect_lag_frames.clamp(1, every))
             }),
             pending: None,
+            own: None,
             latest: None,
             tracks: std::collections::VecDeque::new(),
         })
+    }
+
+    /// On a schedule of frames: hand the thread `frame` now, after taking the detection it
+    /// holds, so that [`BackgroundDetector::boxes_for`] gives the frame its own boxes (a
+    /// monocular map starting, `FrameInput::own_boxes`). Called before the motion check, which
+    /// then runs beside the detector as inline.
+    pub(crate) fn detect_own(&mut self, frame: &FrameInput) {
+        if self.schedule.is_none() {
+            return;
+        }
+        if self.busy {
+            self.pending = None;
+            self.wait_for_detection(frame.index);
+        }
+        self.send(frame);
+        if self.busy {
+            self.own = Some(frame.index);
+        }
     }
 
     /// Boxes for frame `index` (whose corner tracks are `tracks`): collect what the thread has
@@ -97,6 +119,13 @@ impl BackgroundDetector {
         self.tracks.push_back((frame.index, tracks.to_vec()));
         while self.tracks.len() > MAX_DETECTION_AGE + 1 {
             self.tracks.pop_front();
+        }
+        if self.own.take().is_some_and(|own| own == frame.index) {
+            self.wait_for_detection(frame.index);
+            return match &self.latest {
+                Some(l) if l.detected == frame.index => l.boxes.clone(),
+                _ => Vec::new(),
+            };
         }
         match (self.schedule, self.pending) {
             // On a schedule the boxes are taken at a fixed frame, never as they happen to come.

@@ -38,6 +38,10 @@ pub struct FrameInput<'a> {
     pub depth: Option<&'a DepthMetres>,
     /// The frame fed before this one and the pose tracking gave it; `None` on the first frame.
     pub previous: Option<PreviousPose>,
+    /// The frame needs boxes detected on itself, not carried from an earlier frame: a
+    /// monocular map is starting (`slam::System::wants_initial_features`). A detector working
+    /// in the background on a schedule of frames detects this one and the frame waits for it.
+    pub own_boxes: bool,
 }
 
 /// The pose tracking gave a frame: a front-end that judges motion against the static world

@@ -30,6 +30,7 @@
 //!     rgb: None,
 //!     depth: None,
 //!     previous: None,
+//!     own_boxes: false,
 //! };
 //! front.measure(&input);
 //! let out = front.judge(&input, &[[10.0, 10.0], [30.0, 20.0]]);

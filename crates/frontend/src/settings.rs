@@ -102,9 +102,14 @@ pub struct FrontEndSettings {
     /// On an RGB-D or stereo recording, a detector that infers (YOLOX) runs in the background
     /// on the schedule of frames below, not inline: a file run 2.1x faster at the same
     /// accuracy, and the same trajectory however busy the machine is (docs/realtime.md).
-    /// Monocular keeps it inline (a monocular start needs each frame's own boxes). A live run
-    /// (camera, ROS 2, `--realtime`) hands it frames by `background_detect_interval_s` instead.
+    /// A live run (camera, ROS 2, `--realtime`) hands it frames by
+    /// `background_detect_interval_s` instead.
     pub detect_recordings_on_schedule: bool,
+    /// On a monocular recording too, but only once its map stands: until then, and while the
+    /// map is young, each frame waits for its own boxes (`FrameInput::own_boxes`), since a
+    /// monocular start judged on carried boxes started late or not at all (docs/monocular.md).
+    /// Off: monocular recordings run the detector inline on every frame.
+    pub detect_monocular_recordings_on_schedule: bool,
     /// With the detector in the background on a recording: hand it frame 0 and every this many
     /// frames after it (0: by `background_detect_interval_s` and when it is idle, as live).
     pub background_detect_every_frames: usize,
@@ -136,6 +141,7 @@ impl Default for FrontEndSettings {
             background_detect_nice: 10,
             background_detect_at_side_edge: true,
             detect_recordings_on_schedule: true,
+            detect_monocular_recordings_on_schedule: true,
             background_detect_every_frames: 3,
             background_detect_lag_frames: 2,
         }

@@ -48,6 +48,7 @@ fn input_of<'a>(
         rgb: Some(&f.rgb),
         depth: Some(&f.depth),
         previous,
+        own_boxes: false,
     }
 }
 
@@ -196,6 +197,7 @@ fn the_background_detector_takes_one_frame_per_interval() {
             rgb: None,
             depth: None,
             previous: None,
+            own_boxes: false,
         };
         front.judge(&input, &[]);
     }
@@ -256,6 +258,7 @@ fn the_background_detector_on_a_schedule_takes_every_nth_frame() {
             rgb: None,
             depth: None,
             previous: None,
+            own_boxes: false,
         };
         let judged = front.judge(&input, &[]);
         objects.push(judged.objects.tracked.first().map(|o| o.bbox.x1));
@@ -268,6 +271,75 @@ fn the_background_detector_on_a_schedule_takes_every_nth_frame() {
         let n = if i < 5 { 1 } else { (i - 2) / 3 + 1 };
         assert_eq!(*x1, Some(20.0 + n as f32), "frame {i}: {objects:?}");
     }
+}
+
+/// On a schedule of frames, a frame that needs its own boxes (a monocular map starting) is
+/// detected and waits for them, whatever was with the detector; once no frame asks, the
+/// schedule goes on from there.
+#[test]
+fn a_frame_that_needs_its_own_boxes_waits_for_them_on_a_schedule() {
+    use std::sync::{Arc, Mutex};
+    struct ByFrame(Arc<Mutex<Vec<usize>>>);
+    impl Detector for ByFrame {
+        fn detect(&mut self, input: &DetectInput) -> Result<Vec<Detection>, DetectError> {
+            self.0.lock().unwrap().push(input.index);
+            // A box whose left edge names the frame detected.
+            Ok(vec![Detection {
+                bbox: stillpoint_geometry::BBox::new(20.0 + input.index as f32, 10.0, 80.0, 50.0),
+                class_id: 56, // a chair: judged, never culled on its own
+                score: 0.9,
+            }])
+        }
+        fn name(&self) -> &str {
+            "by frame"
+        }
+    }
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let settings = FrontEndSettings {
+        detector_in_background: true,
+        background_detect_every_frames: 3,
+        background_detect_lag_frames: 2,
+        ..Default::default()
+    };
+    let mut front = DynamicFrontEnd::new(Box::new(ByFrame(Arc::clone(&seen))), settings)
+        .detect_in_background()
+        .unwrap();
+    let gray = Gray8::new(96, 64, 0);
+    let own = 10..17;
+    let mut detected_on = Vec::new();
+    for i in 0..30 {
+        let input = FrameInput {
+            index: i,
+            timestamp: i as f64 / 30.0,
+            gray: &gray,
+            rgb: None,
+            depth: None,
+            previous: None,
+            own_boxes: own.contains(&i),
+        };
+        let judged = front.judge(&input, &[]);
+        let x1 = judged.objects.tracked.first().map(|o| o.bbox.x1);
+        detected_on.push(x1.map(|x| (x - 20.0).round() as usize));
+    }
+    drop(front);
+    for (i, d) in detected_on.iter().enumerate() {
+        let d = d.unwrap_or_else(|| panic!("frame {i} has no box: {detected_on:?}"));
+        if own.contains(&i) {
+            assert_eq!(d, i, "frame {i}: {detected_on:?}");
+        } else {
+            // Carried from a detection at most `every + lag - 1` frames old, never a later one.
+            assert!(d <= i && i - d <= 4, "frame {i}: {detected_on:?}");
+        }
+    }
+    // The schedule before and after, each frame asking for its own in between; frame 9's
+    // detection was taken when frame 10 asked.
+    let seen = seen.lock().unwrap().clone();
+    let expected: Vec<usize> = [0, 3, 6, 9]
+        .into_iter()
+        .chain(own.clone())
+        .chain((18..30).step_by(3))
+        .collect();
+    assert_eq!(seen, expected);
 }
 
 /// Live, with a person in view, a detector that falls behind is waited for once the frame it
@@ -318,6 +390,7 @@ fn a_live_detector_that_falls_behind_is_waited_for() {
             rgb: None,
             depth: None,
             previous: None,
+            own_boxes: false,
         };
         let judged = front.judge(&input, &[]);
         let detected = judged.objects.tracked.first().map(|o| o.bbox.x1 - 20.0);
@@ -375,6 +448,7 @@ fn gray_only_frames_still_reach_the_detector() {
             rgb: None,
             depth: None,
             previous: None,
+            own_boxes: false,
         };
         // The first frame too: people start moving.
         let out = front.judge(&input, &kps);

@@ -365,8 +365,10 @@ impl Pipeline {
         let t0 = Instant::now();
         let mut excluded = self.skip_next.mask(depth_image, w, h).map(Arc::new);
         self.orb.set_exclusion_mask(excluded.clone());
+        // A monocular map starting: more corners, and the detector's boxes of this very frame.
+        let map_starting = self.system.wants_initial_features(frame.index);
         let left_orb = match self.orb_init.as_mut() {
-            Some(o) if self.system.wants_initial_features(frame.index) => {
+            Some(o) if map_starting => {
                 // The map's first frames take every corner (the mask is not the init's).
                 excluded = None;
                 o
@@ -381,6 +383,7 @@ impl Pipeline {
             rgb: frame.rgb.as_ref(),
             depth: depth_image,
             previous: self.previous.take(),
+            own_boxes: map_starting,
         };
         let front_end = &mut self.front_end;
         // Left and right images in parallel, as ORB-SLAM does, and beside them the front-end's

@@ -388,14 +388,15 @@ fn open_front_end(
     if live {
         settings.background_detect_every_frames = 0;
     }
-    // A recording's YOLOX works beside tracking on a schedule of frames with depth or stereo.
-    // Ground-truth boxes cost nothing, and a monocular start needs each frame's own boxes
-    // (carried ones cost living_turn seed 3 half its frames): both stay inline.
+    // A recording's YOLOX works beside tracking on a schedule of frames; monocular once its
+    // map stands (a monocular start waits for each frame's own boxes: carried ones cost
+    // living_turn seed 3 half its frames). Ground-truth boxes cost nothing: they stay inline.
     let on_schedule = !live
         && settings.detect_recordings_on_schedule
         && settings.background_detect_every_frames > 0
         && name == "yolox"
-        && seq.settings().sensor != stillpoint_datasets::Sensor::Mono;
+        && (seq.settings().sensor != stillpoint_datasets::Sensor::Mono
+            || settings.detect_monocular_recordings_on_schedule);
     let in_background = settings.detector_in_background || o.realtime || on_schedule;
     let front = DynamicFrontEnd::new(detector, settings);
     let front = if in_background {

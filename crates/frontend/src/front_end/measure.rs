@@ -52,6 +52,11 @@ impl DynamicFrontEnd {
             ));
             return Measurement(Measured::First);
         };
+        if frame.own_boxes
+            && let Some(bg) = self.background.as_mut()
+        {
+            bg.detect_own(frame);
+        }
         let detector = &mut self.detector;
         let geometry = &self.settings.dynamic.geometry;
         let background = self.background.is_some();
