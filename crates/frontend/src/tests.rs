@@ -214,53 +214,71 @@ fn the_background_detector_takes_one_frame_per_interval() {
     }
 }
 
-/// On a schedule of frames the background detector takes exactly every n-th frame, and the boxes
-/// of frame k reach frame k + lag, whatever the detector's speed: a recording's run is the same
-/// on a busy machine.
-#[test]
-fn the_background_detector_on_a_schedule_takes_every_nth_frame() {
-    use std::sync::{Arc, Mutex};
-    struct Marking(Arc<Mutex<Vec<usize>>>);
-    impl Detector for Marking {
-        fn detect(&mut self, _: &DetectInput) -> Result<Vec<Detection>, DetectError> {
-            let mut seen = self.0.lock().unwrap();
-            let n = seen.len() + 1;
-            seen.push(n);
-            // A box whose left edge names the detection, far from the image's side edges.
-            Ok(vec![Detection {
-                bbox: stillpoint_geometry::BBox::new(20.0 + n as f32, 10.0, 60.0, 50.0),
-                class_id: 56, // a chair: judged, never culled on its own
-                score: 0.9,
-            }])
-        }
-        fn name(&self) -> &str {
-            "marking"
-        }
+/// A detector that finds one chair (judged, never culled on its own) far from the image's side
+/// edges, its left edge at 20 + its mark: the function of the frame and of the number of
+/// detections before it. The marks are kept, in order.
+struct MarkedChair(
+    std::sync::Arc<std::sync::Mutex<Vec<usize>>>,
+    fn(&DetectInput, usize) -> usize,
+);
+
+impl Detector for MarkedChair {
+    fn detect(&mut self, input: &DetectInput) -> Result<Vec<Detection>, DetectError> {
+        let mut marks = self.0.lock().unwrap();
+        let mark = (self.1)(input, marks.len());
+        marks.push(mark);
+        Ok(vec![Detection {
+            bbox: stillpoint_geometry::BBox::new(20.0 + mark as f32, 10.0, 80.0, 50.0),
+            class_id: 56,
+            score: 0.9,
+        }])
     }
-    let seen = Arc::new(Mutex::new(Vec::new()));
+    fn name(&self) -> &str {
+        "marked chair"
+    }
+}
+
+/// A front-end whose detector works in the background on a recording's schedule of frames:
+/// every third frame, its boxes taken two frames later.
+fn on_a_schedule(detector: impl Detector + 'static) -> DynamicFrontEnd {
     let settings = FrontEndSettings {
         detector_in_background: true,
         background_detect_every_frames: 3,
         background_detect_lag_frames: 2,
         ..Default::default()
     };
-    let mut front = DynamicFrontEnd::new(Box::new(Marking(Arc::clone(&seen))), settings)
+    DynamicFrontEnd::new(Box::new(detector), settings)
         .detect_in_background()
-        .unwrap();
+        .unwrap()
+}
+
+/// Frame `index` of a 30 Hz sequence of `gray` images, without colour, depth or pose.
+fn plain_frame(index: usize, gray: &Gray8, own_boxes: bool) -> FrameInput<'_> {
+    FrameInput {
+        index,
+        timestamp: index as f64 / 30.0,
+        gray,
+        rgb: None,
+        depth: None,
+        previous: None,
+        own_boxes,
+    }
+}
+
+/// On a schedule of frames the background detector takes exactly every n-th frame, and the boxes
+/// of frame k reach frame k + lag, whatever the detector's speed: a recording's run is the same
+/// on a busy machine.
+#[test]
+fn the_background_detector_on_a_schedule_takes_every_nth_frame() {
+    use std::sync::{Arc, Mutex};
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    // The n-th detection (1-based) is marked n.
+    let mut front = on_a_schedule(MarkedChair(Arc::clone(&seen), |_, before| before + 1));
     let gray = Gray8::new(96, 64, 0);
     let mut objects = Vec::new();
     // The last frame takes the boxes of frame 39, the last one handed over.
     for i in 0..42 {
-        let input = FrameInput {
-            index: i,
-            timestamp: i as f64 / 30.0,
-            gray: &gray,
-            rgb: None,
-            depth: None,
-            previous: None,
-            own_boxes: false,
-        };
-        let judged = front.judge(&input, &[]);
+        let judged = front.judge(&plain_frame(i, &gray, false), &[]);
         objects.push(judged.objects.tracked.first().map(|o| o.bbox.x1));
     }
     drop(front);
@@ -279,45 +297,14 @@ fn the_background_detector_on_a_schedule_takes_every_nth_frame() {
 #[test]
 fn a_frame_that_needs_its_own_boxes_waits_for_them_on_a_schedule() {
     use std::sync::{Arc, Mutex};
-    struct ByFrame(Arc<Mutex<Vec<usize>>>);
-    impl Detector for ByFrame {
-        fn detect(&mut self, input: &DetectInput) -> Result<Vec<Detection>, DetectError> {
-            self.0.lock().unwrap().push(input.index);
-            // A box whose left edge names the frame detected.
-            Ok(vec![Detection {
-                bbox: stillpoint_geometry::BBox::new(20.0 + input.index as f32, 10.0, 80.0, 50.0),
-                class_id: 56, // a chair: judged, never culled on its own
-                score: 0.9,
-            }])
-        }
-        fn name(&self) -> &str {
-            "by frame"
-        }
-    }
     let seen = Arc::new(Mutex::new(Vec::new()));
-    let settings = FrontEndSettings {
-        detector_in_background: true,
-        background_detect_every_frames: 3,
-        background_detect_lag_frames: 2,
-        ..Default::default()
-    };
-    let mut front = DynamicFrontEnd::new(Box::new(ByFrame(Arc::clone(&seen))), settings)
-        .detect_in_background()
-        .unwrap();
+    // A detection is marked with the frame it was made on.
+    let mut front = on_a_schedule(MarkedChair(Arc::clone(&seen), |input, _| input.index));
     let gray = Gray8::new(96, 64, 0);
     let own = 10..17;
     let mut detected_on = Vec::new();
     for i in 0..30 {
-        let input = FrameInput {
-            index: i,
-            timestamp: i as f64 / 30.0,
-            gray: &gray,
-            rgb: None,
-            depth: None,
-            previous: None,
-            own_boxes: own.contains(&i),
-        };
-        let judged = front.judge(&input, &[]);
+        let judged = front.judge(&plain_frame(i, &gray, own.contains(&i)), &[]);
         let x1 = judged.objects.tracked.first().map(|o| o.bbox.x1);
         detected_on.push(x1.map(|x| (x - 20.0).round() as usize));
     }
