@@ -62,12 +62,16 @@ const MAX_DETECTION_AGE: usize = 15;
 
 impl BackgroundDetector {
     /// `detector` on a thread of its own, `settings.background_detect_nice` steps below the
-    /// caller's priority.
+    /// caller's priority (`background_detect_nice_on_schedule` on a schedule of frames).
     pub(crate) fn spawn(
         detector: Box<dyn Detector>,
         settings: &FrontEndSettings,
     ) -> Result<Self, DetectError> {
-        let nice = settings.background_detect_nice;
+        let nice = if settings.background_detect_every_frames > 0 {
+            settings.background_detect_nice_on_schedule
+        } else {
+            settings.background_detect_nice
+        };
         let thread = DetectorThread::spawn(move || {
             stillpoint_core::lower_this_thread_priority(nice);
             Ok(detector)

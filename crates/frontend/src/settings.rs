@@ -92,8 +92,14 @@ pub struct FrontEndSettings {
     /// wait and drop them (docs/realtime.md).
     pub background_detect_max_wait_s: f64,
     /// Nice steps (Linux) the background detector runs below tracking, as local mapping does
-    /// (`slam.background_nice`): its boxes may come a little later, a frame may not.
+    /// (`slam.background_nice`): its boxes may come a little later, a frame may not. Live
+    /// runs; on a schedule of frames `background_detect_nice_on_schedule` instead.
     pub background_detect_nice: i32,
+    /// As `background_detect_nice`, on a recording's schedule of frames
+    /// (`background_detect_every_frames`), where frames wait for the detector's boxes: 0, at
+    /// tracking's priority (at 10 a busy machine starved it, and the frames waiting with it:
+    /// docs/realtime.md).
+    pub background_detect_nice_on_schedule: i32,
     /// Ours, with the detector in the background: while a box touches the image's left or right
     /// edge (someone coming into view, or leaving it), the detector takes each frame it is idle
     /// for, not one every `background_detect_interval_s`: the part still coming in has no box
@@ -139,6 +145,7 @@ impl Default for FrontEndSettings {
             background_detect_interval_s: 0.1,
             background_detect_max_wait_s: 0.5,
             background_detect_nice: 10,
+            background_detect_nice_on_schedule: 0,
             background_detect_at_side_edge: true,
             detect_recordings_on_schedule: true,
             detect_monocular_recordings_on_schedule: true,
