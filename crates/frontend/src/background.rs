@@ -126,10 +126,7 @@ impl BackgroundDetector {
         }
         if self.own.take().is_some_and(|own| own == frame.index) {
             self.wait_for_detection(frame.index);
-            return match &self.latest {
-                Some(l) if l.detected == frame.index => l.boxes.clone(),
-                _ => Vec::new(),
-            };
+            return self.boxes_detected_on(frame.index);
         }
         match (self.schedule, self.pending) {
             // On a schedule the boxes are taken at a fixed frame, never as they happen to come.
@@ -246,20 +243,18 @@ impl BackgroundDetector {
     /// The first frame: wait for its boxes.
     pub(crate) fn boxes_of_first(&mut self, frame: &FrameInput) -> Vec<Detection> {
         self.send(frame);
-        let boxes = match self.thread.recv() {
-            Ok((_, Ok(b))) => b,
-            Ok((_, Err(e))) | Err(e) => {
-                tracing::warn!("frame {}: detector failed: {e}", frame.index);
-                Vec::new()
-            }
-        };
-        self.busy = false;
-        self.latest = Some(CarriedDetections {
-            detected: frame.index,
-            at: frame.index,
-            boxes: boxes.clone(),
-        });
-        boxes
+        if self.busy {
+            self.wait_for_detection(frame.index);
+        }
+        self.boxes_detected_on(frame.index)
+    }
+
+    /// The newest boxes when they were detected on frame `index` itself, else none.
+    fn boxes_detected_on(&self, index: usize) -> Vec<Detection> {
+        match &self.latest {
+            Some(l) if l.detected == index => l.boxes.clone(),
+            _ => Vec::new(),
+        }
     }
 }
 
