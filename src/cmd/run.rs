@@ -84,8 +84,9 @@ pub struct Args {
     /// Turn the dynamic front-end off (the ORB-SLAM3-like baseline).
     #[arg(long)]
     pub no_dynamic: bool,
-    /// Run local mapping inline after each keyframe (deterministic) instead of in its own thread:
-    /// `--set slam.local_mapping_thread=false` (already so for a recording unless `--realtime`).
+    /// Everything on one thread, frame after frame: local mapping inline after each keyframe
+    /// (already so for a recording unless `--realtime`) and each frame read when its turn comes:
+    /// `--set slam.local_mapping_thread=false --set read.ahead_frames=0`.
     #[arg(long)]
     pub sequential: bool,
     /// Cull exactly as the paper's algorithm 3 (static boxes protect their keypoints): without
@@ -443,6 +444,7 @@ pub fn print_culled_row(s: &RunSummary) {
 fn shorthands(args: &Args) -> impl Iterator<Item = String> + use<> {
     [
         (args.sequential, "slam.local_mapping_thread=false"),
+        (args.sequential, "read.ahead_frames=0"),
         (args.no_loop_closing, "slam.loop_closing.enabled=false"),
     ]
     .into_iter()
@@ -563,6 +565,7 @@ mod tests {
             sets,
             [
                 "slam.local_mapping_thread=false",
+                "read.ahead_frames=0",
                 "slam.loop_closing.enabled=false",
                 "slam.local_mapping_thread=true",
             ]

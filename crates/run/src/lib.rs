@@ -29,6 +29,7 @@
 
 mod output;
 pub mod overlay;
+mod read_ahead;
 pub mod record;
 mod replay;
 mod session;
@@ -39,7 +40,8 @@ pub use output::{keyframe_path, other_map_path};
 pub use replay::RealtimeReport;
 pub use session::{Event, run_sequence, run_source, run_with, settings_layers};
 pub use settings::{
-    Layered, RealtimeSettings, RecordImage, RecordSettings, Ros2Settings, SettingsTree,
+    Layered, ReadSettings, RealtimeSettings, RecordImage, RecordSettings, Ros2Settings,
+    SettingsTree,
 };
 pub use sink::{Ended, MovingPixels, Sink, Tracked};
 pub use stillpoint_pipeline::MapsReport;

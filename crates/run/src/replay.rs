@@ -133,7 +133,7 @@ fn preload(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use std::sync::Arc;
     use std::sync::atomic::{AtomicUsize, Ordering};
@@ -141,10 +141,12 @@ mod tests {
     use stillpoint_geometry::PinholeCamera;
     use stillpoint_image::Gray8;
 
-    /// Frames of 8x8 gray at 1 kHz, counting the reads.
+    /// Frames of 8x8 gray at 1 kHz, counting the reads; from `ends_at` on, the source has
+    /// ended (a video's last sample, a camera unplugged).
     struct Tiny {
         settings: Settings,
         n: usize,
+        ends_at: usize,
         reads: Arc<AtomicUsize>,
     }
 
@@ -157,6 +159,13 @@ mod tests {
         }
         fn frame(&self, i: usize) -> Result<Frame, DatasetError> {
             self.reads.fetch_add(1, Ordering::SeqCst);
+            if i >= self.ends_at {
+                return Err(DatasetError::Ended {
+                    path: "tiny".into(),
+                    at: format!("frame {i}"),
+                    msg: "unplugged".into(),
+                });
+            }
             Ok(Frame {
                 index: i,
                 timestamp: i as f64 / 1000.0,
@@ -180,12 +189,18 @@ mod tests {
         }
     }
 
-    fn tiny(n: usize) -> (Box<dyn Sequence>, Arc<AtomicUsize>) {
+    pub(crate) fn tiny(n: usize) -> (Box<dyn Sequence>, Arc<AtomicUsize>) {
+        tiny_ending(n, n)
+    }
+
+    /// [`tiny`], ended from frame `ends_at` on.
+    pub(crate) fn tiny_ending(n: usize, ends_at: usize) -> (Box<dyn Sequence>, Arc<AtomicUsize>) {
         let camera = PinholeCamera::new(8.0, 8.0, 4.0, 4.0, 8, 8);
         let reads = Arc::new(AtomicUsize::new(0));
         let seq = Tiny {
             settings: Settings::with_camera(Sensor::Mono, camera),
             n,
+            ends_at,
             reads: Arc::clone(&reads),
         };
         (Box::new(seq), reads)

@@ -15,6 +15,7 @@ use stillpoint_slam::map_file::MapFile;
 use stillpoint_slam::place::Vocabulary;
 
 use crate::output::lock_output;
+use crate::read_ahead::ReadAhead;
 use crate::replay::{Arrival, RealtimeReport, ReplayCamera};
 use crate::sink::{
     DenseCloud, Ended, MapCloud, MovingPixels, Overlays, Recording, SavedMap, Sink, Tracked,
@@ -168,7 +169,14 @@ pub fn run_source(
     let _lock = o.out.as_deref().map(lock_output).transpose()?;
     let mut outputs = Outputs::open(o, &tree, &slam, truth)?;
     let started = std::time::Instant::now();
-    let mut feed = Feed::start(o, seq.as_ref(), n, &tree)?;
+    // A recording's frames decoded ahead of the pipeline; a camera's are taken as they come.
+    let ahead = if live || o.realtime {
+        0
+    } else {
+        tree.read.ahead_frames
+    };
+    let (reader, seq) = ReadAhead::start(seq, n, ahead);
+    let mut feed = Feed::start(o, seq.as_ref(), n, &tree, reader)?;
     let mut map_files = MapFilesReport::default();
     let mut pipeline = match loaded {
         Some((path, file, report)) => {
@@ -185,7 +193,12 @@ pub fn run_source(
     };
     let mut tally = Tally::new(n, feed.is_replay());
     let mut ended = None;
+    let mut asked = Instant::now();
     while let Some((i, loaded, arrival)) = feed.next(o) {
+        if !feed.is_replay() {
+            // A replay's frames wait for the camera's clock, not for the reader.
+            tally.reading_ms.push(ms_since(asked));
+        }
         progress(Event::Next {
             index: i,
             frames: n,
@@ -199,6 +212,7 @@ pub fn run_source(
             }
             Err(e) => {
                 tracing::warn!("frame {i}: skipped: {e}");
+                asked = Instant::now();
                 continue;
             }
         };
@@ -227,6 +241,8 @@ pub fn run_source(
             result: &r,
             keyframes,
         });
+        feed.done_with(frame);
+        asked = Instant::now();
     }
     progress(Event::Finishing);
     let fin = pipeline.finish().map_err(|source| RunError::Pipeline {
@@ -481,9 +497,12 @@ impl<'a> Outputs<'a> {
     }
 }
 
-/// The frames of a run: read in order, or replayed at their timestamps as a live camera
-/// delivers them (`realtime`), dropping what arrives while the run is busy.
+/// The frames of a run: read in order (decoded ahead on a thread of their own, or inline), or
+/// replayed at their timestamps as a live camera delivers them (`realtime`), dropping what
+/// arrives while the run is busy.
 enum Feed<'a> {
+    /// Decoded ahead on their own thread (`read.ahead_frames`).
+    Ahead(ReadAhead),
     InOrder {
         seq: &'a dyn Sequence,
         next: usize,
@@ -498,8 +517,11 @@ impl<'a> Feed<'a> {
         seq: &'a dyn Sequence,
         n: usize,
         tree: &SettingsTree,
+        reader: Option<ReadAhead>,
     ) -> Result<Self, RunError> {
-        Ok(if o.realtime {
+        Ok(if let Some(reader) = reader {
+            Feed::Ahead(reader)
+        } else if o.realtime {
             let preload = tree.realtime.preload_mib.saturating_mul(1024 * 1024);
             let rate = Some(tree.realtime.rate_hz).filter(|r| r.is_finite() && *r > 0.0);
             Feed::Replay(ReplayCamera::start(open_sequence(o)?, n, preload, rate))
@@ -516,11 +538,19 @@ impl<'a> Feed<'a> {
         }
         match self {
             Feed::Replay(camera) => camera.next(),
+            Feed::Ahead(reader) => reader.next(),
             Feed::InOrder { seq, next, n } if *next < *n => {
                 *next += 1;
                 Some((*next - 1, seq.frame(*next - 1), Instant::now()))
             }
             Feed::InOrder { .. } => None,
+        }
+    }
+
+    /// A frame the run is done with: a reader frees it on its own thread.
+    fn done_with(&self, frame: Frame) {
+        if let Feed::Ahead(reader) = self {
+            reader.done_with(frame);
         }
     }
 
@@ -532,7 +562,7 @@ impl<'a> Feed<'a> {
     fn dropped(&self) -> usize {
         match self {
             Feed::Replay(camera) => camera.dropped,
-            Feed::InOrder { .. } => 0,
+            Feed::Ahead(_) | Feed::InOrder { .. } => 0,
         }
     }
 }
@@ -541,6 +571,8 @@ impl<'a> Feed<'a> {
 struct Tally {
     culled: Vec<usize>,
     times: Vec<FrameTimings>,
+    /// Per frame read in order: how long the run waited for it (decoding, unless read ahead).
+    reading_ms: Vec<f64>,
     tracked: usize,
     relocalisations: usize,
     new_maps: usize,
@@ -559,6 +591,7 @@ impl Tally {
         Self {
             culled: Vec::with_capacity(n.min(1 << 16)),
             times: Vec::with_capacity(n.min(1 << 16)),
+            reading_ms: Vec::with_capacity(n.min(1 << 16)),
             tracked: 0,
             relocalisations: 0,
             new_maps: 0,
@@ -629,6 +662,9 @@ impl Tally {
     fn stage_times(&self, detector: bool, mapping_thread: bool) -> Vec<(&'static str, Vec<f64>)> {
         let pick = |f: fn(&FrameTimings) -> f64| self.times.iter().map(f).collect::<Vec<f64>>();
         let mut timings = vec![];
+        if !self.reading_ms.is_empty() {
+            timings.push(("reading", self.reading_ms.clone()));
+        }
         if detector {
             timings.push(("semantic", pick(|t| t.semantic_ms)));
             timings.push(("geometry", pick(|t| t.geometry_ms)));

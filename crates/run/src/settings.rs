@@ -1,5 +1,5 @@
 //! One settings tree for a whole run: the system's settings (`slam`, `orb`, `stereo`,
-//! `front_end`) and the run's own tables (`detect`, `dense`, `record`, `realtime`), read from a
+//! `front_end`) and the run's own tables (`detect`, `dense`, `record`, `realtime`, `read`), read from a
 //! stillpoint TOML file over the defaults and overridden with `section.key=value` on the command
 //! line ([`stillpoint_pipeline::settings::layered`]). Each value remembers where it came from, so
 //! `stillpoint settings` can show it.
@@ -57,6 +57,9 @@ pub struct SettingsTree {
     /// The replay at camera rate (`run --realtime`).
     #[serde(default)]
     pub realtime: RealtimeSettings,
+    /// How a recording's frames are read (`run` without `--realtime`).
+    #[serde(default)]
+    pub read: ReadSettings,
     /// The ROS 2 node (`stillpoint ros2`): topics, frames, quality of service.
     #[serde(default)]
     pub ros2: Ros2Settings,
@@ -159,6 +162,23 @@ impl Default for RealtimeSettings {
     }
 }
 
+/// How a recording's frames are read in order (`[read]` in the settings tree).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReadSettings {
+    /// Frames decoded ahead on a thread of their own while the pipeline works on the one
+    /// before (0: each frame read on the pipeline's thread when its turn comes). Decoding a
+    /// 640x480 RGB-D frame's two PNGs takes ~4 ms, which the pipeline's thread then waits for;
+    /// the frames and so the trajectory are the same either way.
+    pub ahead_frames: usize,
+}
+
+impl Default for ReadSettings {
+    fn default() -> Self {
+        Self { ahead_frames: 2 }
+    }
+}
+
 /// What `run --record` puts in its MCAP file (`[record]` in the settings tree).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -218,6 +238,7 @@ impl SettingsTree {
             dense: Default::default(),
             record: Default::default(),
             realtime: Default::default(),
+            read: Default::default(),
             ros2: Default::default(),
         }
     }
