@@ -407,12 +407,15 @@ fn open_front_end(
     // A recording's YOLOX works beside tracking on a schedule of frames; monocular once its
     // map stands (a monocular start waits for each frame's own boxes: carried ones cost
     // living_turn seed 3 half its frames). Ground-truth boxes cost nothing: they stay inline.
+    let monocular = seq.settings().sensor == stillpoint_datasets::Sensor::Mono;
     let on_schedule = !live
         && settings.detect_recordings_on_schedule
         && settings.background_detect_every_frames > 0
         && name == "yolox"
-        && (seq.settings().sensor != stillpoint_datasets::Sensor::Mono
-            || settings.detect_monocular_recordings_on_schedule);
+        && (!monocular || settings.detect_monocular_recordings_on_schedule);
+    if monocular {
+        settings.background_detect_lag_frames = settings.background_detect_lag_frames_monocular;
+    }
     let in_background = settings.detector_in_background || o.realtime || on_schedule;
     let front = DynamicFrontEnd::new(detector, settings);
     let front = if in_background {
