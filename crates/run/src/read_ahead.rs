@@ -65,8 +65,9 @@ pub(crate) struct ReadAhead {
 
 impl ReadAhead {
     /// Start reading `seq`'s first `n` frames on a thread; the sequence comes back shared with
-    /// that thread, for everything else the run asks of it. `None` (with the sequence as it
-    /// was) when `ahead` is 0 or the thread cannot be started: the run then reads inline.
+    /// that thread, for everything else the run asks of it. `None` when `ahead` is 0 (the
+    /// sequence as it was) or the thread cannot be started (the sequence shared, with no one):
+    /// the run then reads inline.
     pub(crate) fn start(
         seq: Box<dyn Sequence>,
         n: usize,
