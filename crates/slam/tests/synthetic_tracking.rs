@@ -42,9 +42,21 @@ fn truth(i: usize) -> Se3 {
 }
 
 fn run(frames: usize, blank: impl Fn(usize) -> bool) -> (f64, usize, bool) {
+    let (rmse, tracked, new_map, _) = run_with(frames, blank, |_| {});
+    (rmse, tracked, new_map)
+}
+
+/// As `run`, with the settings changed by `tune`; also returns the frames that made keyframes.
+fn run_with(
+    frames: usize,
+    blank: impl Fn(usize) -> bool,
+    tune: impl Fn(&mut SlamSettings),
+) -> (f64, usize, bool, Vec<usize>) {
     let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
     let mut s = SlamSettings::rgbd(cam, 40.0, 30.0);
     s.local_mapping_thread = false;
+    tune(&mut s);
+    let mut keyframes = Vec::new();
     let sc = scene(3, 4000);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(9);
     let mut sys = System::new(s);
@@ -62,6 +74,9 @@ fn run(frames: usize, blank: impl Fn(usize) -> bool) -> (f64, usize, bool) {
             .track(TrackInput::new(i, i as f64 / 30.0, &f, &d).with_depth(Some(&depth)))
             .unwrap();
         any_new_map |= r.new_map;
+        if r.new_keyframe {
+            keyframes.push(i);
+        }
         if let Some(p) = r.pose_wc {
             // The map starts at the identity: compare against the truth relative to frame 0.
             let rel = origin.inverse() * gt;
@@ -77,7 +92,29 @@ fn run(frames: usize, blank: impl Fn(usize) -> bool) -> (f64, usize, bool) {
     sys.shutdown().unwrap();
     let rmse = (sse / n.max(1) as f64).sqrt();
     eprintln!("tracked {n}/{frames} frames, ATE RMSE {rmse:.5} m, new map {any_new_map}");
-    (rmse, n, any_new_map)
+    (rmse, n, any_new_map, keyframes)
+}
+
+#[test]
+fn the_close_points_rule_waits_its_gap_between_keyframes() {
+    // The close-points rule set to fire on every frame (any untracked close keypoint, however
+    // many are tracked): a keyframe a frame without a gap, one every third frame with a gap of 3.
+    let tune = |gap: usize| {
+        move |s: &mut SlamSettings| {
+            s.kf_close_tracked_max = usize::MAX;
+            s.kf_close_untracked_min = 0;
+            s.kf_close_min_gap_frames = gap;
+        }
+    };
+    let (rmse0, tracked0, _, kfs0) = run_with(60, |_| false, tune(0));
+    let (rmse3, tracked3, _, kfs3) = run_with(60, |_| false, tune(3));
+    eprintln!("keyframes made: {kfs0:?} / {kfs3:?}");
+    assert_eq!((tracked0, tracked3), (60, 60));
+    let gaps = |kfs: &[usize]| kfs.windows(2).map(|w| w[1] - w[0]).collect::<Vec<_>>();
+    assert!(gaps(&kfs0).contains(&1), "{kfs0:?}");
+    assert!(gaps(&kfs3).iter().all(|&g| g >= 3), "{kfs3:?}");
+    assert!(kfs3.len() > 10, "{kfs3:?}");
+    assert!(rmse0 < 0.005 && rmse3 < 0.005, "ATE RMSE {rmse0} / {rmse3}");
 }
 
 #[test]
