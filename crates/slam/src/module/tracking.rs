@@ -930,9 +930,10 @@ impl Tracker {
                 }
             }
         }
+        let gap = self.s.kf_close_min_gap_frames;
         let need_close = tracked_close < self.s.kf_close_tracked_max
             && untracked_close > self.s.kf_close_untracked_min
-            && frame.index >= self.last_kf_frame + self.s.kf_close_min_gap_frames;
+            && frame.index >= self.last_kf_frame.saturating_add(gap);
         let th_ref = if n_kfs < 2 { 0.4 } else { self.s.kf_ref_ratio };
         let c1a = frame.index >= self.last_kf_frame + max_frames;
         let c1b = mapper_idle;
