@@ -1,8 +1,9 @@
 //! Descriptor matching: by projection (motion model, local map), by brute force with a ratio test
-//! (reference keyframe, relocalisation), in a window for monocular initialisation ([`area`]), and
-//! the rotation-consistency histogram.
+//! (reference keyframe, relocalisation), in a window for monocular initialisation ([`area`]), along
+//! epipolar lines for triangulation ([`epipolar`]), and the rotation-consistency histogram.
 
 pub mod area;
+pub mod epipolar;
 pub mod stereo;
 
 use stillpoint_geometry::{PinholeCamera, Se3, Vec3};

@@ -1,0 +1,259 @@
+//! Keypoints near an epipolar line, found through a grid instead of testing every keypoint.
+//!
+//! Local mapping matches each free keypoint of a new keyframe along its epipolar line in each
+//! neighbour (ORB-SLAM3 `SearchForTriangulation`). Tested against every keypoint of the
+//! neighbour, that is 2,000 x 2,000 pairs per neighbour on a monocular keyframe, where nearly
+//! every keypoint is free: a third of a monocular run. The grid visits only the cells the
+//! line's band crosses and hands each keypoint there to the caller's exact test, which is
+//! unchanged (the caller sorts what passes, to keep its tie-breaking by order).
+
+/// Points (`xs[n]`, `ys[n]`) bucketed into square cells.
+pub struct EpipolarGrid {
+    min_x: f64,
+    min_y: f64,
+    cell: f64,
+    cols: usize,
+    rows: usize,
+    /// Point indices by cell, the cells row after row (a row of cells is one run).
+    by_rows: Bucketed,
+    /// The same, column after column.
+    by_cols: Bucketed,
+    /// Largest distance from a line that a caller's test can accept, in pixels, with a margin.
+    reach: f64,
+    len: usize,
+}
+
+/// Point indices ordered by cell; `starts[c]..starts[c + 1]` are cell c's.
+struct Bucketed {
+    order: Vec<usize>,
+    starts: Vec<usize>,
+}
+
+impl Bucketed {
+    /// Counting sort of the points by cell (stable: ascending within a cell).
+    fn new(cells: impl Iterator<Item = Option<usize>> + Clone, count: usize) -> Self {
+        let mut starts = vec![0; count + 1];
+        for c in cells.clone().flatten() {
+            starts[c + 1] += 1;
+        }
+        for c in 0..count {
+            starts[c + 1] += starts[c];
+        }
+        let mut next = starts.clone();
+        let mut order = vec![0; starts[count]];
+        for (n, c) in cells.enumerate() {
+            if let Some(c) = c {
+                order[next[c]] = n;
+                next[c] += 1;
+            }
+        }
+        Bucketed { order, starts }
+    }
+
+    /// The points of cells `first..=last`.
+    fn run(&self, first: usize, last: usize) -> &[usize] {
+        &self.order[self.starts[first]..self.starts[last + 1]]
+    }
+}
+
+impl EpipolarGrid {
+    /// A grid over the points with cells of `cell` pixels; `max_distance` is the largest
+    /// distance from a line (in pixels) the caller will accept for any point.
+    pub fn new(xs: &[f64], ys: &[f64], cell: f64, max_distance: f64) -> Self {
+        let len = xs.len().min(ys.len());
+        let finite = |v: &f64| v.is_finite();
+        let (mut min_x, mut max_x, mut min_y, mut max_y) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        let mut first = true;
+        for (x, y) in xs.iter().zip(ys).filter(|(x, y)| finite(x) && finite(y)) {
+            if first {
+                (min_x, max_x, min_y, max_y) = (*x, *x, *y, *y);
+                first = false;
+            } else {
+                min_x = min_x.min(*x);
+                max_x = max_x.max(*x);
+                min_y = min_y.min(*y);
+                max_y = max_y.max(*y);
+            }
+        }
+        let cell = if cell.is_finite() && cell > 0.0 {
+            cell
+        } else {
+            32.0
+        };
+        // At most 4096 cells a side: coordinates far apart (a bad keypoint) must not make the
+        // grid huge; a coarser grid only costs speed.
+        let cell = cell.max((max_x - min_x).max(max_y - min_y) / 4096.0);
+        let cols = ((max_x - min_x) / cell) as usize + 1;
+        let rows = ((max_y - min_y) / cell) as usize + 1;
+        let at = |v: f64, min: f64, count: usize| (((v - min) / cell) as usize).min(count - 1);
+        let cell_of = |n: usize| {
+            let (x, y) = (xs[n], ys[n]);
+            (x.is_finite() && y.is_finite()).then(|| (at(x, min_x, cols), at(y, min_y, rows)))
+        };
+        let by_rows = Bucketed::new(
+            (0..len).map(|n| cell_of(n).map(|(col, row)| row * cols + col)),
+            cols * rows,
+        );
+        let by_cols = Bucketed::new(
+            (0..len).map(|n| cell_of(n).map(|(col, row)| col * rows + row)),
+            cols * rows,
+        );
+        EpipolarGrid {
+            min_x,
+            min_y,
+            cell,
+            cols,
+            rows,
+            by_rows,
+            by_cols,
+            reach: max_distance.abs() * (1.0 + 1e-6) + 0.5,
+            len,
+        }
+    }
+
+    /// Calls `visit` with every point that may lie within the grid's distance of the line
+    /// `a x + b y + c = 0`, each once, in no particular order. Every point is visited when
+    /// the line is not finite, so a caller's exact test decides as it would without the grid.
+    pub fn near_line(&self, a: f64, b: f64, c: f64, mut visit: impl FnMut(usize)) {
+        let norm = (a * a + b * b).sqrt();
+        if !(a.is_finite() && b.is_finite() && c.is_finite() && norm > 0.0 && norm.is_finite()) {
+            (0..self.len).for_each(visit);
+            return;
+        }
+        // Walk along the line's long axis: per column (or row) of cells, the span of the other
+        // coordinate the band covers there, one run of cells.
+        let horizontal = b.abs() >= a.abs();
+        let (along_coef, across_coef, start_along, start_across, count_along, count_across, cells) =
+            if horizontal {
+                (
+                    a,
+                    b,
+                    self.min_x,
+                    self.min_y,
+                    self.cols,
+                    self.rows,
+                    &self.by_cols,
+                )
+            } else {
+                (
+                    b,
+                    a,
+                    self.min_y,
+                    self.min_x,
+                    self.rows,
+                    self.cols,
+                    &self.by_rows,
+                )
+            };
+        // The across-coordinate of the line, in cells from the grid's edge, at the start of
+        // each step along it; the margin in `reach` covers the rounding of the steps.
+        let inv_cell = 1.0 / self.cell;
+        let half = self.reach * norm / across_coef.abs() * inv_cell;
+        let v_start = (-(along_coef * start_along + c) / across_coef - start_across) * inv_cell;
+        let step = -along_coef / across_coef;
+        let last_cell = count_across as f64;
+        for k in 0..count_along {
+            let v0 = v_start + k as f64 * step;
+            let v1 = v0 + step;
+            let first = v0.min(v1) - half;
+            let last = v0.max(v1) + half;
+            if last < 0.0 || first >= last_cell {
+                continue;
+            }
+            let first = first.max(0.0) as usize;
+            let last = (last as usize).min(count_across - 1);
+            let base = k * count_across;
+            cells
+                .run(base + first, base + last)
+                .iter()
+                .for_each(|&n| visit(n));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A small deterministic generator (no dependency for a test).
+    struct Lcg(u64);
+    impl Lcg {
+        fn next(&mut self) -> f64 {
+            self.0 = self
+                .0
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (self.0 >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    fn brute(xs: &[f64], ys: &[f64], a: f64, b: f64, c: f64, d: f64) -> Vec<usize> {
+        let n2 = a * a + b * b;
+        (0..xs.len())
+            .filter(|&n| {
+                let e = a * xs[n] + b * ys[n] + c;
+                e * e / n2 < d * d
+            })
+            .collect()
+    }
+
+    #[test]
+    fn every_point_near_a_line_is_handed_back_in_order() {
+        let mut r = Lcg(7);
+        let xs: Vec<f64> = (0..2000).map(|_| r.next() * 640.0).collect();
+        let ys: Vec<f64> = (0..2000).map(|_| r.next() * 480.0).collect();
+        let grid = EpipolarGrid::new(&xs, &ys, 24.0, 7.0);
+        let mut out = Vec::new();
+        let mut handed_back = 0;
+        for _ in 0..2000 {
+            // Lines of every slope, some through the image, some beside it.
+            let angle = r.next() * std::f64::consts::PI;
+            let (a, b) = (angle.cos(), angle.sin());
+            let (px, py) = (r.next() * 900.0 - 130.0, r.next() * 700.0 - 110.0);
+            let scale = 1e-4 + r.next() * 3.0;
+            let (a, b, c) = (a * scale, b * scale, -(a * px + b * py) * scale);
+            let d = 0.5 + r.next() * 6.5;
+            out.clear();
+            grid.near_line(a, b, c, |n| out.push(n));
+            out.sort_unstable();
+            assert!(out.windows(2).all(|w| w[0] < w[1]), "each point once");
+            let want = brute(&xs, &ys, a, b, c, d);
+            let kept: Vec<usize> = out
+                .iter()
+                .copied()
+                .filter(|&n| want.binary_search(&n).is_ok())
+                .collect();
+            assert_eq!(kept, want);
+            handed_back += out.len();
+        }
+        // The point of the grid: a small share of the points per line.
+        assert!(handed_back < 2000 * 2000 / 4, "{handed_back}");
+    }
+
+    #[test]
+    fn axis_lines_and_bad_input_fall_back_to_every_point() {
+        let xs = [0.0, 10.0, 20.0, f64::NAN, 5.0];
+        let ys = [0.0, 10.0, 20.0, 3.0, f64::INFINITY];
+        let grid = EpipolarGrid::new(&xs, &ys, 4.0, 1.0);
+        let mut out = Vec::new();
+        let mut near = |a: f64, b: f64, c: f64, out: &mut Vec<usize>| {
+            out.clear();
+            grid.near_line(a, b, c, |n| out.push(n));
+            out.sort_unstable();
+        };
+        // x = 10: exactly vertical.
+        near(1.0, 0.0, -10.0, &mut out);
+        assert!(out.contains(&1));
+        // y = 20: exactly horizontal.
+        near(0.0, 1.0, -20.0, &mut out);
+        assert!(out.contains(&2));
+        near(f64::NAN, 1.0, 0.0, &mut out);
+        assert_eq!(out, vec![0, 1, 2, 3, 4]);
+        near(0.0, 0.0, 1.0, &mut out);
+        assert_eq!(out.len(), 5);
+        let empty = EpipolarGrid::new(&[], &[], 16.0, 3.0);
+        let mut visited = 0;
+        empty.near_line(1.0, 1.0, 1.0, |_| visited += 1);
+        assert_eq!(visited, 0);
+    }
+}
