@@ -269,7 +269,6 @@ impl LocalMapper {
         let loose: Vec<f64> = band.iter().map(|b| b * (1.0 + 1e-9)).collect();
         let widest = band.iter().fold(0.0f64, |w, &b| w.max(b)).sqrt();
         let grid = EpipolarGrid::new(&xs, &ys, EPIPOLAR_CELL_PX, widest);
-        let mut near_line: Vec<usize> = Vec::new();
         let mut matches: Vec<(usize, usize, f32)> = Vec::new();
         for &i in free1 {
             let p1 = k1.points[i];
@@ -278,18 +277,14 @@ impl LocalMapper {
             if norm2 <= 0.0 {
                 continue;
             }
-            near_line.clear();
+            // The closest descriptor near the line, the first in the neighbour's keypoint order
+            // among equals (the grid visits in no order, so ties go to the smaller index).
+            let mut best = (u32::MAX, usize::MAX);
             grid.near_line(line.x, line.y, line.z, |n| {
                 let dist = line.x * xs[n] + line.y * ys[n] + line.z;
-                if dist * dist < loose[n] * norm2 && dist * dist / norm2 < band[n] {
-                    near_line.push(n);
+                if !(dist * dist < loose[n] * norm2 && dist * dist / norm2 < band[n]) {
+                    return;
                 }
-            });
-            // In the neighbour's keypoint order, as a test of every keypoint gave them: the
-            // first of equally close descriptors wins.
-            near_line.sort_unstable();
-            let mut best = (u32::MAX, usize::MAX);
-            for &n in &near_line {
                 let j = free2[n];
                 if let Some(ep) = epipole2
                     && k1.depth[i] <= 0.0
@@ -297,13 +292,13 @@ impl LocalMapper {
                     && (ep - k2.points[j]).norm_squared()
                         < 100.0 * self.scales[k2.octaves[j] as usize]
                 {
-                    continue;
+                    return;
                 }
                 let d = hamming(&k1.descriptors[i], &k2.descriptors[j]);
-                if d <= s.th_low && d < best.0 {
+                if d <= s.th_low && (d, j) < best {
                     best = (d, j);
                 }
-            }
+            });
             if best.1 != usize::MAX {
                 matches.push((i, best.1, k2.angles[best.1] - k1.angles[i]));
             }
