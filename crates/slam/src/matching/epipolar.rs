@@ -7,72 +7,76 @@
 //! line's band crosses and hands each keypoint there to the caller's exact test, which is
 //! unchanged (the caller sorts what passes, to keep its tie-breaking by order).
 
-/// Points (`xs[n]`, `ys[n]`) bucketed into square cells.
-pub struct EpipolarGrid {
+/// Points bucketed into square cells, each stored with the caller's item (its index and what
+/// its test needs), so that a line's candidates are read in runs of memory.
+pub struct EpipolarGrid<T> {
     min_x: f64,
     min_y: f64,
     cell: f64,
     cols: usize,
     rows: usize,
-    /// Point indices by cell, the cells row after row (a row of cells is one run).
-    by_rows: Bucketed,
+    /// The items by cell, the cells row after row (a row of cells is one run).
+    by_rows: Bucketed<T>,
     /// The same, column after column.
-    by_cols: Bucketed,
+    by_cols: Bucketed<T>,
+    /// Every item, in the caller's order.
+    all: Vec<T>,
     /// Largest distance from a line that a caller's test can accept, in pixels, with a margin.
     reach: f64,
-    len: usize,
 }
 
-/// Point indices ordered by cell; `starts[c]..starts[c + 1]` are cell c's.
-struct Bucketed {
-    order: Vec<usize>,
+/// Items ordered by cell; `starts[c]..starts[c + 1]` are cell c's.
+struct Bucketed<T> {
+    items: Vec<T>,
     starts: Vec<usize>,
 }
 
-impl Bucketed {
-    /// Counting sort of the points by cell (stable: ascending within a cell).
-    fn new(cells: impl Iterator<Item = Option<usize>> + Clone, count: usize) -> Self {
+impl<T: Copy> Bucketed<T> {
+    /// Counting sort of the items by cell (stable: in the caller's order within a cell).
+    fn new(all: &[T], cells: &[Option<usize>], count: usize) -> Self {
         let mut starts = vec![0; count + 1];
-        for c in cells.clone().flatten() {
+        for c in cells.iter().flatten() {
             starts[c + 1] += 1;
         }
         for c in 0..count {
             starts[c + 1] += starts[c];
         }
+        let mut slots: Vec<Option<T>> = vec![None; starts[count]];
         let mut next = starts.clone();
-        let mut order = vec![0; starts[count]];
-        for (n, c) in cells.enumerate() {
-            if let Some(c) = c {
-                order[next[c]] = n;
+        for (item, c) in all.iter().zip(cells) {
+            if let Some(c) = *c {
+                slots[next[c]] = Some(*item);
                 next[c] += 1;
             }
         }
-        Bucketed { order, starts }
+        Bucketed {
+            items: slots.into_iter().flatten().collect(),
+            starts,
+        }
     }
 
-    /// The points of cells `first..=last`.
-    fn run(&self, first: usize, last: usize) -> &[usize] {
-        &self.order[self.starts[first]..self.starts[last + 1]]
+    /// The items of cells `first..=last`.
+    fn run(&self, first: usize, last: usize) -> &[T] {
+        &self.items[self.starts[first]..self.starts[last + 1]]
     }
 }
 
-impl EpipolarGrid {
-    /// A grid over the points with cells of `cell` pixels; `max_distance` is the largest
-    /// distance from a line (in pixels) the caller will accept for any point.
-    pub fn new(xs: &[f64], ys: &[f64], cell: f64, max_distance: f64) -> Self {
-        let len = xs.len().min(ys.len());
-        let finite = |v: &f64| v.is_finite();
+impl<T: Copy> EpipolarGrid<T> {
+    /// A grid over `items`, each at the image point `at(item)`, with cells of `cell` pixels;
+    /// `max_distance` is the largest distance from a line (in pixels) the caller will accept
+    /// for any item.
+    pub fn new(items: Vec<T>, at: impl Fn(&T) -> (f64, f64), cell: f64, max_distance: f64) -> Self {
+        let points: Vec<(f64, f64)> = items.iter().map(&at).collect();
+        let finite = |&(x, y): &(f64, f64)| x.is_finite() && y.is_finite();
         let (mut min_x, mut max_x, mut min_y, mut max_y) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
-        let mut first = true;
-        for (x, y) in xs.iter().zip(ys).filter(|(x, y)| finite(x) && finite(y)) {
-            if first {
-                (min_x, max_x, min_y, max_y) = (*x, *x, *y, *y);
-                first = false;
+        for (k, &(x, y)) in points.iter().filter(|p| finite(p)).enumerate() {
+            if k == 0 {
+                (min_x, max_x, min_y, max_y) = (x, x, y, y);
             } else {
-                min_x = min_x.min(*x);
-                max_x = max_x.max(*x);
-                min_y = min_y.min(*y);
-                max_y = max_y.max(*y);
+                min_x = min_x.min(x);
+                max_x = max_x.max(x);
+                min_y = min_y.min(y);
+                max_y = max_y.max(y);
             }
         }
         let cell = if cell.is_finite() && cell > 0.0 {
@@ -85,39 +89,39 @@ impl EpipolarGrid {
         let cell = cell.max((max_x - min_x).max(max_y - min_y) / 4096.0);
         let cols = ((max_x - min_x) / cell) as usize + 1;
         let rows = ((max_y - min_y) / cell) as usize + 1;
-        let at = |v: f64, min: f64, count: usize| (((v - min) / cell) as usize).min(count - 1);
-        let cell_of = |n: usize| {
-            let (x, y) = (xs[n], ys[n]);
-            (x.is_finite() && y.is_finite()).then(|| (at(x, min_x, cols), at(y, min_y, rows)))
-        };
-        let by_rows = Bucketed::new(
-            (0..len).map(|n| cell_of(n).map(|(col, row)| row * cols + col)),
-            cols * rows,
-        );
-        let by_cols = Bucketed::new(
-            (0..len).map(|n| cell_of(n).map(|(col, row)| col * rows + row)),
-            cols * rows,
-        );
+        let at_cell = |v: f64, min: f64, count: usize| (((v - min) / cell) as usize).min(count - 1);
+        let cells: Vec<Option<(usize, usize)>> = points
+            .iter()
+            .map(|p| finite(p).then(|| (at_cell(p.0, min_x, cols), at_cell(p.1, min_y, rows))))
+            .collect();
+        let row_major: Vec<Option<usize>> = cells
+            .iter()
+            .map(|c| c.map(|(col, row)| row * cols + col))
+            .collect();
+        let col_major: Vec<Option<usize>> = cells
+            .iter()
+            .map(|c| c.map(|(col, row)| col * rows + row))
+            .collect();
         EpipolarGrid {
             min_x,
             min_y,
             cell,
             cols,
             rows,
-            by_rows,
-            by_cols,
+            by_rows: Bucketed::new(&items, &row_major, cols * rows),
+            by_cols: Bucketed::new(&items, &col_major, cols * rows),
+            all: items,
             reach: max_distance.abs() * (1.0 + 1e-6) + 0.5,
-            len,
         }
     }
 
-    /// Calls `visit` with every point that may lie within the grid's distance of the line
-    /// `a x + b y + c = 0`, each once, in no particular order. Every point is visited when
+    /// Calls `visit` with every item that may lie within the grid's distance of the line
+    /// `a x + b y + c = 0`, each once, in no particular order. Every item is visited when
     /// the line is not finite, so a caller's exact test decides as it would without the grid.
-    pub fn near_line(&self, a: f64, b: f64, c: f64, mut visit: impl FnMut(usize)) {
+    pub fn near_line(&self, a: f64, b: f64, c: f64, mut visit: impl FnMut(&T)) {
         let norm = (a * a + b * b).sqrt();
         if !(a.is_finite() && b.is_finite() && c.is_finite() && norm > 0.0 && norm.is_finite()) {
-            (0..self.len).for_each(visit);
+            self.all.iter().for_each(visit);
             return;
         }
         // Walk along the line's long axis: per column (or row) of cells, the span of the other
@@ -166,7 +170,7 @@ impl EpipolarGrid {
             cells
                 .run(base + first, base + last)
                 .iter()
-                .for_each(|&n| visit(n));
+                .for_each(&mut visit);
         }
     }
 }
@@ -202,7 +206,7 @@ mod tests {
         let mut r = Lcg(7);
         let xs: Vec<f64> = (0..2000).map(|_| r.next() * 640.0).collect();
         let ys: Vec<f64> = (0..2000).map(|_| r.next() * 480.0).collect();
-        let grid = EpipolarGrid::new(&xs, &ys, 24.0, 7.0);
+        let grid = EpipolarGrid::new((0..xs.len()).collect(), |&n| (xs[n], ys[n]), 24.0, 7.0);
         let mut out = Vec::new();
         let mut handed_back = 0;
         for _ in 0..2000 {
@@ -214,7 +218,7 @@ mod tests {
             let (a, b, c) = (a * scale, b * scale, -(a * px + b * py) * scale);
             let d = 0.5 + r.next() * 6.5;
             out.clear();
-            grid.near_line(a, b, c, |n| out.push(n));
+            grid.near_line(a, b, c, |&n| out.push(n));
             out.sort_unstable();
             assert!(out.windows(2).all(|w| w[0] < w[1]), "each point once");
             let want = brute(&xs, &ys, a, b, c, d);
@@ -234,11 +238,11 @@ mod tests {
     fn axis_lines_and_bad_input_fall_back_to_every_point() {
         let xs = [0.0, 10.0, 20.0, f64::NAN, 5.0];
         let ys = [0.0, 10.0, 20.0, 3.0, f64::INFINITY];
-        let grid = EpipolarGrid::new(&xs, &ys, 4.0, 1.0);
+        let grid = EpipolarGrid::new((0..xs.len()).collect(), |&n| (xs[n], ys[n]), 4.0, 1.0);
         let mut out = Vec::new();
         let mut near = |a: f64, b: f64, c: f64, out: &mut Vec<usize>| {
             out.clear();
-            grid.near_line(a, b, c, |n| out.push(n));
+            grid.near_line(a, b, c, |&n| out.push(n));
             out.sort_unstable();
         };
         // x = 10: exactly vertical.
@@ -251,7 +255,7 @@ mod tests {
         assert_eq!(out, vec![0, 1, 2, 3, 4]);
         near(0.0, 0.0, 1.0, &mut out);
         assert_eq!(out.len(), 5);
-        let empty = EpipolarGrid::new(&[], &[], 16.0, 3.0);
+        let empty = EpipolarGrid::<usize>::new(Vec::new(), |_| (0.0, 0.0), 16.0, 3.0);
         let mut visited = 0;
         empty.near_line(1.0, 1.0, 1.0, |_| visited += 1);
         assert_eq!(visited, 0);

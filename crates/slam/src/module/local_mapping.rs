@@ -27,6 +27,19 @@ use crate::optimize::{BaObservation, BaProblem, local_bundle_adjustment};
 /// ~1 ms of work.
 const POINTS_PER_LOCK: usize = 200;
 
+/// A free keypoint of a neighbour keyframe, as the epipolar search reads it.
+#[derive(Clone, Copy)]
+struct NearLine {
+    /// Its index in the keyframe.
+    j: usize,
+    x: f64,
+    y: f64,
+    /// Squared distance from a line it may be matched within, in pixels.
+    band: f64,
+    /// `band` with a margin, for the test without the division.
+    loose: f64,
+}
+
 /// Cell side of the grid that finds a neighbour's keypoints near an epipolar line, in pixels.
 const EPIPOLAR_CELL_PX: f64 = 32.0;
 
@@ -257,18 +270,25 @@ impl LocalMapper {
         // The free keypoints of the neighbour in a grid, so that the epipolar test, which
         // rejects all but a few, looks only at those in the cells the line crosses before any
         // descriptor is compared (a monocular keyframe has ~all its keypoints free, and 30
-        // neighbours: every pair tested took over a third of a monocular run).
-        let xs: Vec<f64> = free2.iter().map(|&j| k2.points[j].x).collect();
-        let ys: Vec<f64> = free2.iter().map(|&j| k2.points[j].y).collect();
-        let band: Vec<f64> = free2
+        // neighbours: every pair tested took over a third of a monocular run). Each carries
+        // its band (3.84 sigma^2, chi-square 95 % at one degree of freedom) and the band with
+        // a margin for a first test without the division: the pair of tests as before the
+        // grid, so that the same pairs pass to the last bit.
+        let candidates: Vec<NearLine> = free2
             .iter()
-            .map(|&j| 3.84 * (1.0 / self.inv_sigma2[k2.octaves[j] as usize]))
+            .map(|&j| {
+                let band = 3.84 * (1.0 / self.inv_sigma2[k2.octaves[j] as usize]);
+                NearLine {
+                    j,
+                    x: k2.points[j].x,
+                    y: k2.points[j].y,
+                    band,
+                    loose: band * (1.0 + 1e-9),
+                }
+            })
             .collect();
-        // The test as it was before the grid (a superset without the division, then the exact
-        // one), so that the same pairs pass to the last bit.
-        let loose: Vec<f64> = band.iter().map(|b| b * (1.0 + 1e-9)).collect();
-        let widest = band.iter().fold(0.0f64, |w, &b| w.max(b)).sqrt();
-        let grid = EpipolarGrid::new(&xs, &ys, EPIPOLAR_CELL_PX, widest);
+        let widest = candidates.iter().fold(0.0f64, |w, c| w.max(c.band)).sqrt();
+        let grid = EpipolarGrid::new(candidates, |c| (c.x, c.y), EPIPOLAR_CELL_PX, widest);
         let mut matches: Vec<(usize, usize, f32)> = Vec::new();
         for &i in free1 {
             let p1 = k1.points[i];
@@ -280,12 +300,12 @@ impl LocalMapper {
             // The closest descriptor near the line, the first in the neighbour's keypoint order
             // among equals (the grid visits in no order, so ties go to the smaller index).
             let mut best = (u32::MAX, usize::MAX);
-            grid.near_line(line.x, line.y, line.z, |n| {
-                let dist = line.x * xs[n] + line.y * ys[n] + line.z;
-                if !(dist * dist < loose[n] * norm2 && dist * dist / norm2 < band[n]) {
+            grid.near_line(line.x, line.y, line.z, |c| {
+                let dist = line.x * c.x + line.y * c.y + line.z;
+                if !(dist * dist < c.loose * norm2 && dist * dist / norm2 < c.band) {
                     return;
                 }
-                let j = free2[n];
+                let j = c.j;
                 if let Some(ep) = epipole2
                     && k1.depth[i] <= 0.0
                     && k2.depth[j] <= 0.0
