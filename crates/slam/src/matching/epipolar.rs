@@ -1,11 +1,11 @@
 //! Keypoints near an epipolar line, found through a grid instead of testing every keypoint.
 //!
 //! Local mapping matches each free keypoint of a new keyframe along its epipolar line in each
-//! neighbour (ORB-SLAM3 `SearchForTriangulation`). Tested against every keypoint of the
-//! neighbour, that is 2,000 x 2,000 pairs per neighbour on a monocular keyframe, where nearly
-//! every keypoint is free: a third of a monocular run. The grid visits only the cells the
-//! line's band crosses and hands each keypoint there to the caller's exact test, which is
-//! unchanged (the caller sorts what passes, to keep its tie-breaking by order).
+//! neighbour (ORB-SLAM3 `SearchForTriangulation`). Tested against every free keypoint of each
+//! of a monocular keyframe's 30 neighbours, where nearly every keypoint is free, that was over a
+//! third of a monocular run. The grid visits only the cells the line's band crosses and hands
+//! each keypoint there to the caller's exact test, which is unchanged; the visits come in no
+//! order, so a caller that breaks ties by order does so by index.
 
 /// Points bucketed into square cells, each stored with the caller's item (its index and what
 /// its test needs), so that a line's candidates are read in runs of memory.
