@@ -240,7 +240,7 @@ mod tests {
         let ys = [0.0, 10.0, 20.0, 3.0, f64::INFINITY];
         let grid = EpipolarGrid::new((0..xs.len()).collect(), |&n| (xs[n], ys[n]), 4.0, 1.0);
         let mut out = Vec::new();
-        let mut near = |a: f64, b: f64, c: f64, out: &mut Vec<usize>| {
+        let near = |a: f64, b: f64, c: f64, out: &mut Vec<usize>| {
             out.clear();
             grid.near_line(a, b, c, |&n| out.push(n));
             out.sort_unstable();
