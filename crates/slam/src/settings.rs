@@ -235,6 +235,17 @@ pub struct MonoInitSettings {
     /// frame 0 (level 0 holds a fifth of the keypoints), but it delayed the real bedroom clip's
     /// map from frame 9 to 40, so it stays 0 (docs/monocular.md).
     pub max_octave: i32,
+    /// Ours: where the matches up to `max_octave` give no two-view reconstruction, keypoints
+    /// up to this level are matched as well (each to its own level, in a search of their own)
+    /// and tried (`max_octave` or below: off, ORB-SLAM's way). 2: the slow cameras of the
+    /// rooms' seed 2 are tracked from frame 0 instead of 45, the real clips as before
+    /// (docs/monocular.md).
+    pub fallback_max_octave: i32,
+    /// Ours: the coarser levels are tried only once the reference has been held this many
+    /// frames: a camera that renews its reference keeps ORB-SLAM's way (tried at once, the
+    /// street with YOLOX started from frame 3 and drifted twice as far), a slow one that holds
+    /// one reference without parallax enough at the finest level gets the second try.
+    pub fallback_after_frames: usize,
     /// Fewer matches than this drop the reference frame (ORB-SLAM: 100).
     pub min_matches: usize,
     /// RANSAC iterations of 8 points for H and F (ORB-SLAM: 200).
@@ -246,9 +257,10 @@ pub struct MonoInitSettings {
     /// Share of the two-view model's inliers that must triangulate (ORB-SLAM: 0.9).
     pub min_triangulated_share: f64,
     /// Rounds of refitting the best RANSAC sample's fundamental matrix to all its inliers, kept
-    /// while its score grows (ORB-SLAM: 0). 3 starts slow synthetic cameras earlier, but the
-    /// real bedroom clip as H.264 then found no two views before frame 190 and tracked 27 of
-    /// 200 (docs/monocular.md), so it stays 0.
+    /// while its score grows (ORB-SLAM: 0). It changes the motion only: the choice between the
+    /// homography and F compares the two samples' scores (compared refitted, F took the real
+    /// bedroom clip's turning views from the homography and its map never started). Alone it
+    /// started the synthetic rooms later, so it stays 0 (docs/monocular.md).
     pub refit_rounds: usize,
     /// A two-view map that bundle adjustment leaves with too few points drops the reference
     /// frame (ORB-SLAM: true). False keeps it: a later frame, with more parallax, may pass.
@@ -291,6 +303,8 @@ impl Default for MonoInitSettings {
             window_px: 100.0,
             ratio: 0.9,
             max_octave: 0,
+            fallback_max_octave: 2,
+            fallback_after_frames: 10,
             min_matches: 100,
             ransac_iterations: 200,
             min_parallax_deg: 1.0,

@@ -52,6 +52,8 @@ pub struct Initialisation {
 pub struct MonoInitializer {
     reference: Option<Frame>,
     prev_matched: Vec<Vec2>,
+    /// Where its keypoints were last matched by the coarser levels' search.
+    prev_matched_coarse: Vec<Vec2>,
     /// Frames offered since the reference that did not start the map.
     between: VecDeque<Frame>,
 }
@@ -61,6 +63,7 @@ impl MonoInitializer {
     pub fn reset(&mut self) {
         self.reference = None;
         self.prev_matched.clear();
+        self.prev_matched_coarse.clear();
         self.between.clear();
     }
 
@@ -89,6 +92,7 @@ impl MonoInitializer {
         let Some(reference) = &self.reference else {
             if frame.len() > p.min_keypoints {
                 self.prev_matched = frame.points.clone();
+                self.prev_matched_coarse = frame.points.clone();
                 self.reference = Some(frame.clone());
                 debug!(
                     frame = frame.index,
@@ -107,32 +111,44 @@ impl MonoInitializer {
             self.reset();
             return None;
         }
-        let matches = search_for_initialisation(
-            reference,
-            frame,
-            &mut self.prev_matched,
-            p.window_px,
-            p.ratio,
-            s.th_low,
-            p.max_octave,
-        );
-        let pairs: Vec<(usize, usize)> = matches
-            .iter()
-            .enumerate()
-            .filter_map(|(i, m)| m.map(|j| (i, j)))
-            .collect();
-        if pairs.len() < p.min_matches {
+        let pairs_of = |matches: Vec<Option<usize>>| -> Vec<(usize, usize)> {
+            matches
+                .iter()
+                .enumerate()
+                .filter_map(|(i, m)| m.map(|j| (i, j)))
+                .collect()
+        };
+        let search = |prev_matched: &mut Vec<Vec2>, max_octave: i32| {
+            pairs_of(search_for_initialisation(
+                reference,
+                frame,
+                prev_matched,
+                p.window_px,
+                p.ratio,
+                s.th_low,
+                max_octave,
+            ))
+        };
+        let finest = search(&mut self.prev_matched, p.max_octave);
+        // ORB-SLAM's rule on the finest levels' matches: fewer, and the view has changed too
+        // much for this reference. A reference kept on the coarser levels' count was held for
+        // 150 frames without a reconstruction where a fresh one would have started the map.
+        if finest.len() < p.min_matches {
             debug!(
                 frame = frame.index,
                 reference = reference.index,
-                matches = pairs.len(),
+                matches = finest.len(),
                 "too few matches: reference dropped"
             );
             self.reset();
             return None;
         }
-        let p1: Vec<Vec2> = pairs.iter().map(|&(i, _)| reference.points[i]).collect();
-        let p2: Vec<Vec2> = pairs.iter().map(|&(_, j)| frame.points[j]).collect();
+        // The coarser levels' own search, with its own last positions (kept on every frame),
+        // so that the finest levels' matches stay exactly ORB-SLAM's; tried once the reference
+        // has been held long enough.
+        let coarse = (p.fallback_max_octave > p.max_octave)
+            .then(|| search(&mut self.prev_matched_coarse, p.fallback_max_octave))
+            .filter(|_| frame.index.saturating_sub(reference.index) >= p.fallback_after_frames);
         let params = TwoViewParams {
             sigma: 1.0,
             iterations: p.ransac_iterations,
@@ -143,17 +159,27 @@ impl MonoInitializer {
             homography_ratio: p.homography_ratio,
             seed: 0,
         };
-        let two_view = match reconstruct(&s.camera, &p1, &p2, &params) {
-            Ok(t) => t,
-            Err(why) => {
-                debug!(
+        let try_pairs = |pairs: &[(usize, usize)]| {
+            let p1: Vec<Vec2> = pairs.iter().map(|&(i, _)| reference.points[i]).collect();
+            let p2: Vec<Vec2> = pairs.iter().map(|&(_, j)| frame.points[j]).collect();
+            reconstruct(&s.camera, &p1, &p2, &params)
+        };
+        // The finest levels first (ORB-SLAM's views); where they give no reconstruction the
+        // coarser levels' matches get a second try.
+        let mut attempts = std::iter::once(finest).chain(coarse);
+        let (pairs, two_view) = loop {
+            let Some(pairs) = attempts.next() else {
+                self.remember(frame, p.backfill_frames);
+                return None;
+            };
+            match try_pairs(&pairs) {
+                Ok(t) => break (pairs, t),
+                Err(why) => debug!(
                     frame = frame.index,
                     reference = reference.index,
                     matches = pairs.len(),
                     "no reconstruction: {why}"
-                );
-                self.remember(frame, p.backfill_frames);
-                return None;
+                ),
             }
         };
         // Keypoints the front-end keeps but forbids new points on found none here either.
@@ -409,6 +435,43 @@ mod tests {
         assert!(start(0).is_none());
         let got = start(2).expect("initialised from levels 0-2");
         assert!(got.points.len() > 200, "{} points", got.points.len());
+    }
+
+    #[test]
+    fn the_coarser_levels_get_a_second_try_where_the_finest_give_no_map() {
+        // A third of the keypoints on each of levels 0-2. The views need 150 triangulated
+        // points: level 0's ~130 matches keep the reference but cannot give them.
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let (points, descriptors) = scene(13);
+        let truth21 = Se3::new(Vec3::new(-0.35, 0.02, -0.05), Vec3::new(0.0, 0.04, 0.01));
+        // The same second view offered 5 and 10 frames after the reference.
+        let start = |fallback_max_octave: i32| {
+            let mut s = SlamSettings::monocular(cam, 30.0);
+            s.mono_init.min_triangulated = 150;
+            s.mono_init.fallback_max_octave = fallback_max_octave;
+            s.mono_init.fallback_after_frames = 10;
+            let mut init = MonoInitializer::default();
+            let first = view_in_levels(0, &Se3::identity(), &points, &descriptors, &s, 3);
+            assert!(init.add_frame(&first, &s).is_none());
+            [5, 10].map(|index| {
+                let second = view_in_levels(index, &truth21, &points, &descriptors, &s, 3);
+                (init.add_frame(&second, &s), init.reference_index())
+            })
+        };
+        let [(early, _), (late, reference)] = start(0);
+        assert!(early.is_none() && late.is_none());
+        assert_eq!(
+            reference,
+            Some(0),
+            "the finest level's matches keep the reference"
+        );
+        let [(early, reference), (late, _)] = start(2);
+        assert!(early.is_none(), "the coarser levels wait 10 frames");
+        assert_eq!(reference, Some(0));
+        let got = late.expect("initialised from levels 0-2");
+        assert!(got.points.len() >= 150, "{} points", got.points.len());
+        let dir = got.pose21.translation.vector.normalize();
+        assert!((dir - truth21.translation.vector.normalize()).norm() < 1e-2);
     }
 
     #[test]
