@@ -663,6 +663,21 @@ mod tests {
         (p1, p2)
     }
 
+    /// `n` random points `near`-`far` m ahead of the camera, in its field of view.
+    fn scene(seed: u64, n: usize, near: f64, far: f64) -> Vec<Vec3> {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+        (0..n)
+            .map(|_| {
+                let z = rng.random_range(near..far);
+                Vec3::new(
+                    rng.random_range(-0.6..0.6) * z,
+                    rng.random_range(-0.45..0.45) * z,
+                    z,
+                )
+            })
+            .collect()
+    }
+
     /// A camera that moved 0.4 m sideways and a little forward, turning 3 degrees towards the
     /// scene it passes.
     fn motion() -> Se3 {
@@ -701,17 +716,7 @@ mod tests {
         };
         let (mut plain, mut refitted) = (Vec::new(), Vec::new());
         for seed in 0..8 {
-            let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
-            let points: Vec<Vec3> = (0..200)
-                .map(|_| {
-                    let z = rng.random_range(2.0..5.0);
-                    Vec3::new(
-                        rng.random_range(-0.6..0.6) * z,
-                        rng.random_range(-0.45..0.45) * z,
-                        z,
-                    )
-                })
-                .collect();
+            let points = scene(seed, 200, 2.0, 5.0);
             let (p1, p2) = views(&points, &truth, 1.0, 100 + seed);
             for (rounds, errors) in [(0, &mut plain), (3, &mut refitted)] {
                 let r = reconstruct(&camera(), &p1, &p2, &params(rounds));
@@ -736,17 +741,7 @@ mod tests {
         // compared so it took the real bedroom clip's turning views from the homography (the
         // map never started). The choice compares sample with sample: the refit changes the
         // motion, never the share.
-        let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
-        let points: Vec<Vec3> = (0..300)
-            .map(|_| {
-                let z = rng.random_range(2.0..5.0);
-                Vec3::new(
-                    rng.random_range(-0.6..0.6) * z,
-                    rng.random_range(-0.45..0.45) * z,
-                    z,
-                )
-            })
-            .collect();
+        let points = scene(5, 300, 2.0, 5.0);
         let mut compared = 0;
         for seed in 0..4 {
             let (p1, p2) = views(&points, &motion(), 1.0, 200 + seed);
@@ -767,17 +762,7 @@ mod tests {
 
     #[test]
     fn a_general_scene_is_reconstructed_from_the_fundamental_matrix() {
-        let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
-        let points: Vec<Vec3> = (0..400)
-            .map(|_| {
-                let z = rng.random_range(3.0..9.0);
-                Vec3::new(
-                    rng.random_range(-0.6..0.6) * z,
-                    rng.random_range(-0.45..0.45) * z,
-                    z,
-                )
-            })
-            .collect();
+        let points = scene(1, 400, 3.0, 9.0);
         let truth = motion();
         let (p1, p2) = views(&points, &truth, 0.5, 2);
         let r = reconstruct(&camera(), &p1, &p2, &TwoViewParams::default()).expect("accepted");
