@@ -19,8 +19,9 @@ pub struct EpipolarGrid<T> {
     by_rows: Bucketed<T>,
     /// The same, column after column.
     by_cols: Bucketed<T>,
-    /// Every item, in the caller's order.
-    all: Vec<T>,
+    /// The items at no finite point (in no cell), visited with the cells' for a line that
+    /// is not finite.
+    unplaced: Vec<T>,
     /// Largest distance from a line that a caller's test can accept, in pixels, with a margin.
     reach: f64,
 }
@@ -102,6 +103,12 @@ impl<T: Copy> EpipolarGrid<T> {
             .iter()
             .map(|c| c.map(|(col, row)| col * rows + row))
             .collect();
+        let unplaced = items
+            .iter()
+            .zip(&cells)
+            .filter(|(_, c)| c.is_none())
+            .map(|(item, _)| *item)
+            .collect();
         EpipolarGrid {
             min_x,
             min_y,
@@ -110,7 +117,7 @@ impl<T: Copy> EpipolarGrid<T> {
             rows,
             by_rows: Bucketed::new(&items, &row_major, cols * rows),
             by_cols: Bucketed::new(&items, &col_major, cols * rows),
-            all: items,
+            unplaced,
             reach: max_distance.abs() * (1.0 + 1e-6) + 0.5,
         }
     }
@@ -121,7 +128,11 @@ impl<T: Copy> EpipolarGrid<T> {
     pub fn near_line(&self, a: f64, b: f64, c: f64, mut visit: impl FnMut(&T)) {
         let norm = (a * a + b * b).sqrt();
         if !(a.is_finite() && b.is_finite() && c.is_finite() && norm > 0.0 && norm.is_finite()) {
-            self.all.iter().for_each(visit);
+            self.by_rows
+                .items
+                .iter()
+                .chain(&self.unplaced)
+                .for_each(visit);
             return;
         }
         // Walk along the line's long axis: per column (or row) of cells, the span of the other

@@ -111,15 +111,9 @@ impl MonoInitializer {
             self.reset();
             return None;
         }
-        let pairs_of = |matches: Vec<Option<usize>>| -> Vec<(usize, usize)> {
-            matches
-                .iter()
-                .enumerate()
-                .filter_map(|(i, m)| m.map(|j| (i, j)))
-                .collect()
-        };
-        let search = |prev_matched: &mut Vec<Vec2>, max_octave: i32| {
-            pairs_of(search_for_initialisation(
+        // (reference keypoint, frame keypoint) pairs of the levels up to `max_octave`.
+        let search = |prev_matched: &mut Vec<Vec2>, max_octave: i32| -> Vec<(usize, usize)> {
+            search_for_initialisation(
                 reference,
                 frame,
                 prev_matched,
@@ -127,7 +121,11 @@ impl MonoInitializer {
                 p.ratio,
                 s.th_low,
                 max_octave,
-            ))
+            )
+            .into_iter()
+            .enumerate()
+            .filter_map(|(i, m)| m.map(|j| (i, j)))
+            .collect()
         };
         let finest = search(&mut self.prev_matched, p.max_octave);
         // ORB-SLAM's rule on the finest levels' matches: fewer, and the view has changed too

@@ -239,9 +239,6 @@ impl LocalMapper {
             return;
         }
         let pose2 = k2.pose_cw;
-        let free2: Vec<usize> = (0..k2.points.len())
-            .filter(|&j| free_keypoint(k2, j))
-            .collect();
         // Fundamental matrix of the pair, for the epipolar check (pixels of 1 -> line in 2).
         let t12 = k1.pose_cw * pose2.inverse();
         let (r21, t21) = {
@@ -274,9 +271,9 @@ impl LocalMapper {
         // its band (3.84 sigma^2, chi-square 95 % at one degree of freedom) and the band with
         // a margin for a first test without the division: the pair of tests as before the
         // grid, so that the same pairs pass to the last bit.
-        let candidates: Vec<NearLine> = free2
-            .iter()
-            .map(|&j| {
+        let candidates: Vec<NearLine> = (0..k2.points.len())
+            .filter(|&j| free_keypoint(k2, j))
+            .map(|j| {
                 let band = 3.84 * (1.0 / self.inv_sigma2[k2.octaves[j] as usize]);
                 NearLine {
                     j,
