@@ -150,9 +150,9 @@ fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &S
         .collect();
     let mut lambda = 1e-4;
     let mut cost = total_cost(p, active, s, robust);
-    // One camera-point block per observation (megabytes in a local window): allocated once,
-    // each active one written every iteration (zero where it cannot be linearised); the
-    // others are never read.
+    // One camera-point block per observation (megabytes in a local window): allocated once;
+    // every iteration writes those of the active observations by free cameras (zero where one
+    // cannot be linearised), the only ones read.
     let mut w = vec![Matrix6x3::<f64>::zeros(); p.observations.len()];
     for _ in 0..iterations {
         let mut u = vec![Matrix6::<f64>::zeros(); n_free];
