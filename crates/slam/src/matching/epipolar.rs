@@ -66,7 +66,7 @@ impl<T: Copy> EpipolarGrid<T> {
     /// A grid over `items`, each at the image point `at(item)`, with cells of `cell` pixels;
     /// `max_distance` is the largest distance from a line (in pixels) the caller will accept
     /// for any item.
-    pub fn new(items: Vec<T>, at: impl Fn(&T) -> (f64, f64), cell: f64, max_distance: f64) -> Self {
+    pub fn new(items: &[T], at: impl Fn(&T) -> (f64, f64), cell: f64, max_distance: f64) -> Self {
         let points: Vec<(f64, f64)> = items.iter().map(&at).collect();
         let finite = |&(x, y): &(f64, f64)| x.is_finite() && y.is_finite();
         let (mut min_x, mut max_x, mut min_y, mut max_y) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
@@ -115,8 +115,8 @@ impl<T: Copy> EpipolarGrid<T> {
             cell,
             cols,
             rows,
-            by_rows: Bucketed::new(&items, &row_major, cols * rows),
-            by_cols: Bucketed::new(&items, &col_major, cols * rows),
+            by_rows: Bucketed::new(items, &row_major, cols * rows),
+            by_cols: Bucketed::new(items, &col_major, cols * rows),
             unplaced,
             reach: max_distance.abs() * (1.0 + 1e-6) + 0.5,
         }
@@ -217,7 +217,7 @@ mod tests {
         let mut r = Lcg(7);
         let xs: Vec<f64> = (0..2000).map(|_| r.next() * 640.0).collect();
         let ys: Vec<f64> = (0..2000).map(|_| r.next() * 480.0).collect();
-        let grid = EpipolarGrid::new((0..xs.len()).collect(), |&n| (xs[n], ys[n]), 24.0, 7.0);
+        let grid = EpipolarGrid::new(&Vec::from_iter(0..xs.len()), |&n| (xs[n], ys[n]), 24.0, 7.0);
         let mut out = Vec::new();
         let mut handed_back = 0;
         for _ in 0..2000 {
@@ -249,7 +249,7 @@ mod tests {
     fn axis_lines_and_bad_input_fall_back_to_every_point() {
         let xs = [0.0, 10.0, 20.0, f64::NAN, 5.0];
         let ys = [0.0, 10.0, 20.0, 3.0, f64::INFINITY];
-        let grid = EpipolarGrid::new((0..xs.len()).collect(), |&n| (xs[n], ys[n]), 4.0, 1.0);
+        let grid = EpipolarGrid::new(&Vec::from_iter(0..xs.len()), |&n| (xs[n], ys[n]), 4.0, 1.0);
         let mut out = Vec::new();
         let near = |a: f64, b: f64, c: f64, out: &mut Vec<usize>| {
             out.clear();
@@ -266,7 +266,7 @@ mod tests {
         assert_eq!(out, vec![0, 1, 2, 3, 4]);
         near(0.0, 0.0, 1.0, &mut out);
         assert_eq!(out.len(), 5);
-        let empty = EpipolarGrid::<usize>::new(Vec::new(), |_| (0.0, 0.0), 16.0, 3.0);
+        let empty = EpipolarGrid::<usize>::new(&[], |_| (0.0, 0.0), 16.0, 3.0);
         let mut visited = 0;
         empty.near_line(1.0, 1.0, 1.0, |_| visited += 1);
         assert_eq!(visited, 0);

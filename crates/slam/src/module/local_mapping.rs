@@ -285,7 +285,7 @@ impl LocalMapper {
             })
             .collect();
         let widest = candidates.iter().fold(0.0f64, |w, c| w.max(c.band)).sqrt();
-        let grid = EpipolarGrid::new(candidates, |c| (c.x, c.y), EPIPOLAR_CELL_PX, widest);
+        let grid = EpipolarGrid::new(&candidates, |c| (c.x, c.y), EPIPOLAR_CELL_PX, widest);
         let mut matches: Vec<(usize, usize, f32)> = Vec::new();
         for &i in free1 {
             let p1 = k1.points[i];
