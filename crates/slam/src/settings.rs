@@ -143,6 +143,17 @@ pub struct SlamSettings {
     /// `CreateNewMapPoints`, `SearchInNeighbors`: 10 stereo/RGB-D, 30 monocular).
     #[serde(default = "default_mapping_neighbours")]
     pub mapping_neighbours: usize,
+    /// Ours: threads that match and triangulate the new keyframe with its neighbours when
+    /// local mapping runs inline (a recording), each taking a share of the neighbours; the
+    /// points are added in the neighbours' order, so the map is the same for any count.
+    /// Monocular 2: matching along epipolar lines is a third of a monocular keyframe's mapping
+    /// (30 neighbours, nearly every keypoint free), and on a recording the second core waits
+    /// while a keyframe is mapped. With depth 1: a keyframe has few free keypoints (1.3-1.6
+    /// ms of a 22 ms keyframe on the RGB-D room), no gain, and the second thread's allocator
+    /// arena costs 4 MB. With local mapping on its own thread it stays one: tracking shares the
+    /// map lock. Measurements: docs/realtime.md.
+    #[serde(default = "default_triangulation_threads")]
+    pub triangulation_threads: usize,
     /// Local BA optimises the new keyframe and at most this many - 1 of its best covisible
     /// keyframes (ours; ORB-SLAM takes them all).
     pub local_ba_max_keyframes: usize,
@@ -215,6 +226,10 @@ fn default_true() -> bool {
 
 fn default_mapping_neighbours() -> usize {
     10
+}
+
+fn default_triangulation_threads() -> usize {
+    1
 }
 
 /// Monocular initialisation (ORB-SLAM `Tracking::MonocularInitialization` and `Initializer` /
@@ -336,6 +351,7 @@ impl SlamSettings {
             kf_ref_ratio: 0.9,
             point_min_observations: 2,
             mapping_neighbours: 30,
+            triangulation_threads: 2,
             ..Self::rgbd(camera, 40.0, fps)
         }
     }
@@ -386,6 +402,7 @@ impl SlamSettings {
             covisibility_min_shared: 15,
             local_neighbours: 10,
             mapping_neighbours: default_mapping_neighbours(),
+            triangulation_threads: 1,
             triangulate_new_points: true,
             local_ba_max_keyframes: 20,
             point_found_ratio: 0.25,

@@ -184,10 +184,48 @@ impl LocalMapper {
                 .collect();
             (free1, k1.best_covisibles(self.s.mapping_neighbours))
         };
+        let threads = if self.s.local_mapping_thread {
+            1
+        } else {
+            self.s
+                .triangulation_threads
+                .clamp(1, neighbours.len().max(1))
+        };
         let mut created = Vec::new();
-        for kf2 in neighbours {
+        if threads == 1 {
+            // The lock per neighbour: tracking, on its own thread, gets the map in between.
+            for kf2 in neighbours {
+                let Ok(m) = map.lock() else { return };
+                self.triangulate_with_neighbour(&m, kf, kf2, &free1, &mut created);
+            }
+        } else {
+            // Inline, nothing else uses the map: each thread takes a run of the neighbours,
+            // and their points join in the neighbours' order, as one thread would make them.
             let Ok(m) = map.lock() else { return };
-            self.triangulate_with_neighbour(&m, kf, kf2, &free1, &mut created);
+            let m: &Map = &m;
+            let share = neighbours.len().div_ceil(threads);
+            let this = &*self;
+            let free1 = &free1;
+            let work = move |run: &[KfId]| {
+                let mut out = Vec::new();
+                for &kf2 in run {
+                    this.triangulate_with_neighbour(m, kf, kf2, free1, &mut out);
+                }
+                out
+            };
+            let mut runs = neighbours.chunks(share);
+            let first = runs.next().unwrap_or_default();
+            std::thread::scope(|sc| {
+                let others: Vec<_> = runs.map(|run| sc.spawn(move || work(run))).collect();
+                created = work(first);
+                for h in others {
+                    match h.join() {
+                        Ok(points) => created.extend(points),
+                        // Its neighbours' points are lost, nothing else.
+                        Err(_) => tracing::warn!("local mapping: a triangulation thread failed"),
+                    }
+                }
+            });
         }
         let recent = &mut self.recent_points;
         let scales = &self.scales;
@@ -899,6 +937,18 @@ mod tests {
     use crate::{Descriptor, Feature, Frame, KeypointDepth};
     use stillpoint_geometry::{PinholeCamera, Se3};
 
+    /// `n` descriptors of random bits (a small generator started at `seed`).
+    fn random_descriptors(n: usize, mut seed: u64) -> Vec<Descriptor> {
+        (0..n)
+            .map(|_| {
+                std::array::from_fn(|_| {
+                    seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+                    (seed >> 56) as u8
+                })
+            })
+            .collect()
+    }
+
     #[test]
     fn keypoints_without_depth_are_triangulated_unless_flagged() {
         let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
@@ -911,17 +961,7 @@ mod tests {
                 Vec3::new(x * 0.6, y * 0.5, 6.0 + (i % 7) as f64 * 0.5)
             })
             .collect();
-        let mut state = 0x2545_f491_4f6c_dd1d_u64;
-        let descriptors: Vec<Descriptor> = (0..60)
-            .map(|_| {
-                std::array::from_fn(|_| {
-                    state = state
-                        .wrapping_mul(6_364_136_223_846_793_005)
-                        .wrapping_add(1);
-                    (state >> 56) as u8
-                })
-            })
-            .collect();
+        let descriptors = random_descriptors(60, 0x2545_f491_4f6c_dd1d);
         let view = |pose: Se3, flags: &[bool]| {
             let feats: Vec<Feature> = points
                 .iter()
@@ -963,6 +1003,80 @@ mod tests {
             }
         }
         assert_eq!(mapper.recent_points.len(), 30);
+    }
+
+    /// A monocular keyframe with four neighbours that all see the same free points: the first
+    /// neighbour to triangulate a keypoint takes it, so the order counts. Split over threads,
+    /// the map is the one a single thread makes, to the bit.
+    #[test]
+    fn triangulation_over_threads_makes_the_single_threads_map() {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let points: Vec<Vec3> = (0..140)
+            .map(|i| {
+                let (x, y) = ((i % 14) as f64 - 6.5, (i / 14) as f64 - 4.5);
+                Vec3::new(x * 0.45, y * 0.4, 4.0 + (i % 9) as f64 * 0.5)
+            })
+            .collect();
+        let descriptors = random_descriptors(points.len(), 0x9e37_79b9_7f4a_7c15);
+        let poses = [
+            Se3::identity(),
+            Se3::translation(-0.3, 0.0, 0.0),
+            Se3::translation(0.3, 0.05, 0.0),
+            Se3::translation(0.0, 0.3, 0.05),
+            Se3::translation(-0.2, -0.2, 0.1),
+        ];
+        let map_with = |threads: usize| {
+            let mut s = SlamSettings::monocular(cam, 30.0);
+            s.triangulation_threads = threads;
+            let mut map = Map::new();
+            let kfs: Vec<KfId> = poses
+                .iter()
+                .enumerate()
+                .map(|(n, pose)| {
+                    let feats: Vec<Feature> = points
+                        .iter()
+                        .map(|p| {
+                            let pc = (pose * nalgebra::Point3::from(*p)).coords;
+                            Feature::at(cam.project_undistorted(&pc).unwrap())
+                        })
+                        .collect();
+                    let mut f =
+                        Frame::new_with_mask(n, n as f64, &feats, &descriptors, None, &s, &[])
+                            .unwrap();
+                    f.pose_cw = Some(*pose);
+                    map.add_keyframe(&f).unwrap()
+                })
+                .collect();
+            // The first 40 points are mapped and seen by every keyframe: they connect them.
+            for (i, p) in points.iter().enumerate().take(40) {
+                let mp = map.add_point(*p, kfs[0], i).unwrap();
+                for &k in &kfs[1..] {
+                    map.add_observation(mp, k, i);
+                }
+            }
+            for &k in &kfs {
+                map.update_connections(k, 15);
+            }
+            let shared = SharedMap::new(map);
+            LocalMapper::new(s).create_new_points(&shared, kfs[0]);
+            let map = shared.lock().unwrap();
+            kfs.iter()
+                .flat_map(|k| map.keyframes[k].map_points.clone())
+                .map(|mp| {
+                    mp.map(|mp| {
+                        let p = &map.points[&mp];
+                        let at = p.position.map(f64::to_bits);
+                        (mp, at, p.observations.clone())
+                    })
+                })
+                .collect::<Vec<_>>()
+        };
+        let one = map_with(1);
+        let made = one.iter().flatten().count();
+        assert!(made > 40 * 5 + 100, "few points triangulated: {made}");
+        for threads in [2, 3, 4] {
+            assert_eq!(map_with(threads), one, "{threads} threads");
+        }
     }
 
     /// Six keyframes 0.1 s apart that all see the same points: each is redundant with the
