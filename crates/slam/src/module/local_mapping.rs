@@ -219,11 +219,8 @@ impl LocalMapper {
                 let others: Vec<_> = runs.map(|run| sc.spawn(move || work(run))).collect();
                 created = work(first);
                 for h in others {
-                    match h.join() {
-                        Ok(points) => created.extend(points),
-                        // Its neighbours' points are lost, nothing else.
-                        Err(_) => tracing::warn!("local mapping: a triangulation thread failed"),
-                    }
+                    // A worker's panic is the mapper's, as with one thread.
+                    created.extend(h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)));
                 }
             });
         }
