@@ -104,7 +104,8 @@ impl DynamicFrontEnd {
         let depth = &self.settings.dynamic.depth;
         let moving = self.moving_boxes();
         if self.settings.orb_exclusion {
-            out.skip_next = Regions::new(moving.clone(), depth, false);
+            out.skip_next = Regions::new(moving.clone(), depth, false)
+                .with_min_yield(self.settings.orb_exclusion_min_yield);
         }
         let erase = self.settings.erase_recent_mover_points_frames;
         if erase > 0 && !moving.is_empty() {

@@ -13,6 +13,9 @@ pub struct Regions {
     objects: Vec<ObjectRegion>,
     params: DepthParams,
     up_to_far: bool,
+    /// As ORB's budget mask: the share of the budget below which the mask drawn without depth
+    /// gives way ([`Regions::min_yield`]); 0 = never.
+    min_yield: f32,
 }
 
 impl Regions {
@@ -24,7 +27,21 @@ impl Regions {
             objects,
             params: params.clone(),
             up_to_far,
+            min_yield: 0.0,
         }
+    }
+
+    /// The same regions, whose mask as ORB's budget mask, drawn without depth (whole boxes),
+    /// gives way when it leaves fewer than `share` of the budget ([`Regions::min_yield`]).
+    pub fn with_min_yield(mut self, share: f32) -> Self {
+        self.min_yield = share;
+        self
+    }
+
+    /// As ORB's budget mask drawn without depth: when the extraction it masks finds fewer than
+    /// this share of the budget, the budget left goes to the masked pixels (0: never).
+    pub fn min_yield(&self) -> f32 {
+        self.min_yield
     }
 
     /// No region.

@@ -152,7 +152,8 @@ pub struct FrameResult {
     /// Per keypoint: the pyramid level ORB found it on.
     pub octaves: Vec<u8>,
     /// The pixels where ORB kept no corner (the feature budget: last frame's movers); `None`
-    /// when it kept them everywhere. Part of the front-end's decision, with [`Self::dynamic`].
+    /// when it kept them everywhere, the mask having given way too
+    /// (`front_end.orb_exclusion_min_yield`). Part of the front-end's decision, with [`Self::dynamic`].
     pub excluded: Option<Arc<Gray8>>,
     /// Per keypoint: `true` = judged on a moving object and removed before tracking.
     pub dynamic: Vec<bool>,
@@ -414,6 +415,35 @@ impl Pipeline {
             };
             (left, right, measured, orb_ms)
         });
+        // Whole boxes (no depth) over a plain view can leave ORB far short of its budget, and
+        // tracking with it: below the front-end's share, the budget left unspent goes to the
+        // masked pixels (every corner found outside them stays), and the culling decides there.
+        let budget = self.orb.params().n_features;
+        let short = (feats.keypoints.len() as f32) < self.skip_next.min_yield() * budget as f32;
+        let mut given_way = None;
+        let (feats, orb_ms) = match excluded.take() {
+            Some(mask) if depth_image.is_none() && short => {
+                let t1 = Instant::now();
+                let mut inside = OrbExtractor::new(OrbParams {
+                    n_features: budget - feats.keypoints.len(),
+                    ..self.orb.params().clone()
+                });
+                let mut outside = (*mask).clone();
+                outside.data.iter_mut().for_each(|v| *v = 255 - *v);
+                inside.set_exclusion_mask(Some(Arc::new(outside)));
+                let threads = if frame.right.is_some() { 1 } else { 2 };
+                let more = inside.extract_on(&frame.gray, threads);
+                let mut feats = feats;
+                feats.keypoints.extend(more.keypoints);
+                feats.descriptors.extend(more.descriptors);
+                given_way = Some(mask);
+                (feats, orb_ms + ms_since(t1))
+            }
+            mask => {
+                excluded = mask;
+                (feats, orb_ms)
+            }
+        };
         timings.orb_ms = orb_ms;
         let mut features: Vec<Feature> = feats.keypoints.iter().map(Feature::from).collect();
         let keypoints: Vec<[f32; 2]> = features.iter().map(|k| [k.x, k.y]).collect();
@@ -437,6 +467,16 @@ impl Pipeline {
         }
         if dynamic.len() != keypoints.len() {
             dynamic = vec![false; keypoints.len()];
+        }
+        // Where the mask gave way (the movers' boxes and their margins) keypoints are tracked
+        // only: a limb outside its box was kept off by the mask alone, and no culling sees it.
+        if let Some(mask) = &given_way {
+            if no_new_points.len() != keypoints.len() {
+                no_new_points = vec![false; keypoints.len()];
+            }
+            for (barred, k) in no_new_points.iter_mut().zip(&keypoints) {
+                *barred |= mask.get(k[0] as usize, k[1] as usize) > 0;
+            }
         }
         // The kept keypoints' flags, in the order tracking sees them.
         let kept_no_new_points: Vec<bool> = if no_new_points.is_empty() {

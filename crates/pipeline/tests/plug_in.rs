@@ -135,3 +135,100 @@ fn a_front_end_is_called_twice_a_frame_and_its_judgement_is_kept() {
     let expected: Vec<Option<usize>> = (0..seq.len()).map(|i| i.checked_sub(1)).collect();
     assert_eq!(calls.previous, expected, "each frame names the one before");
 }
+
+/// How much of the image's width, from the left, `WideSkipFrontEnd` asks ORB to skip.
+const SKIPPED_SHARE: f32 = 0.9;
+
+/// Culls nothing and asks ORB to skip the image's left nine tenths, giving way below
+/// `min_yield` of ORB's budget.
+struct WideSkipFrontEnd {
+    min_yield: f32,
+}
+
+impl FrontEnd for WideSkipFrontEnd {
+    fn start(&mut self, _camera: PinholeCamera) {}
+
+    fn measure(&mut self, _frame: &FrameInput) {}
+
+    fn judge(&mut self, frame: &FrameInput, keypoints: &[[f32; 2]]) -> Judgement {
+        let (w, h) = (frame.gray.width as f32, frame.gray.height as f32);
+        let region = ([0.0, 0.0, SKIPPED_SHARE * w, h], None);
+        Judgement {
+            dynamic: vec![false; keypoints.len()],
+            skip_next: Regions::new(vec![region], &Default::default(), false)
+                .with_min_yield(self.min_yield),
+            ..Default::default()
+        }
+    }
+}
+
+/// A monocular run of a static sequence behind `WideSkipFrontEnd`: per frame once its map
+/// stands, (the mask in force, keypoints found in the skipped part, of those free to make map
+/// points).
+fn wide_skip_run(
+    seq: &dyn stillpoint_datasets::Sequence,
+    min_yield: f32,
+) -> Vec<(bool, usize, usize)> {
+    let mut settings = PipelineSettings::from_dataset(seq.settings());
+    assert!(settings.slam.monocular);
+    settings.slam.local_mapping_thread = false;
+    // The mask applies from the map's first frame on (a young map takes every corner).
+    settings.slam.mono_init.young_map_seconds = 0.0;
+    let front_end = WideSkipFrontEnd { min_yield };
+    let mut slam = Pipeline::new(settings, Some(Box::new(front_end)), None);
+    let mut out = Vec::new();
+    for i in 0..seq.len() {
+        let frame = seq.frame(i).unwrap();
+        let r = slam.track(&frame).unwrap();
+        if r.pose_wc.is_none() {
+            continue;
+        }
+        let skip = SKIPPED_SHARE * frame.gray.width as f32;
+        let inside: Vec<usize> = (0..r.keypoints.len())
+            .filter(|&i| r.keypoints[i][0] < skip - 1.0)
+            .collect();
+        let barred = |i: usize| r.no_new_points.get(i).copied().unwrap_or(false);
+        let may_map = inside.iter().filter(|&&i| !barred(i)).count();
+        out.push((r.excluded.is_some(), inside.len(), may_map));
+    }
+    out
+}
+
+#[test]
+fn a_budget_mask_without_depth_that_leaves_orb_short_gives_way() {
+    let tmp = tempfile::tempdir().unwrap();
+    let config = SynthConfig {
+        preset: Preset::Static,
+        frames: 40,
+        ..SynthConfig::default()
+    };
+    write_sequence(&config, WriteOptions::default(), tmp.path()).unwrap();
+    // Without depth.txt the folder reads monocular: the mask is the whole region.
+    std::fs::remove_file(tmp.path().join("depth.txt")).unwrap();
+    let seq = stillpoint_datasets::open(tmp.path(), None, None).unwrap();
+
+    // Never giving way: the map's frames find nothing in the skipped nine tenths.
+    let kept = wide_skip_run(seq.as_ref(), 0.0);
+    let masked: Vec<_> = kept.iter().filter(|(mask, _, _)| *mask).collect();
+    assert!(masked.len() >= 5, "{kept:?}");
+    assert!(
+        masked.iter().all(|&&(_, inside, _)| inside == 0),
+        "{kept:?}"
+    );
+
+    // The tenth left cannot take 75 % of the budget: on every such frame the rest goes to the
+    // skipped part, whose keypoints are tracked but make no map points (the first frame of the
+    // map, extracted whole while the map started, excepted).
+    let given_way = wide_skip_run(seq.as_ref(), 0.75);
+    assert!(given_way.len() >= 5, "{given_way:?}");
+    assert!(
+        given_way
+            .iter()
+            .all(|&(mask, inside, _)| !mask && inside > 0),
+        "{given_way:?}"
+    );
+    assert!(
+        given_way[1..].iter().all(|&(_, _, may_map)| may_map == 0),
+        "{given_way:?}"
+    );
+}
