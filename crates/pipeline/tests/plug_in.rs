@@ -58,16 +58,29 @@ impl FrontEnd for LeftHalfFrontEnd {
     }
 }
 
+/// The static synthetic sequence of `frames` frames written into `dir` and opened; without
+/// `depth` its depth.txt is removed, so that the folder reads monocular.
+fn static_sequence(
+    dir: &std::path::Path,
+    frames: usize,
+    depth: bool,
+) -> Box<dyn stillpoint_datasets::Sequence> {
+    let config = SynthConfig {
+        preset: Preset::Static,
+        frames,
+        ..SynthConfig::default()
+    };
+    write_sequence(&config, WriteOptions::default(), dir).unwrap();
+    if !depth {
+        std::fs::remove_file(dir.join("depth.txt")).unwrap();
+    }
+    stillpoint_datasets::open(dir, None, None).unwrap()
+}
+
 #[test]
 fn a_front_end_is_called_twice_a_frame_and_its_judgement_is_kept() {
     let tmp = tempfile::tempdir().unwrap();
-    let config = SynthConfig {
-        preset: Preset::Static,
-        frames: 6,
-        ..SynthConfig::default()
-    };
-    write_sequence(&config, WriteOptions::default(), tmp.path()).unwrap();
-    let seq = stillpoint_datasets::open(tmp.path(), None, None).unwrap();
+    let seq = static_sequence(tmp.path(), 6, true);
     let mut settings = PipelineSettings::from_dataset(seq.settings());
     settings.slam.local_mapping_thread = false;
     let calls = Arc::new(Mutex::new(Calls::default()));
@@ -197,15 +210,8 @@ fn wide_skip_run(
 #[test]
 fn a_budget_mask_without_depth_that_leaves_orb_short_gives_way() {
     let tmp = tempfile::tempdir().unwrap();
-    let config = SynthConfig {
-        preset: Preset::Static,
-        frames: 40,
-        ..SynthConfig::default()
-    };
-    write_sequence(&config, WriteOptions::default(), tmp.path()).unwrap();
-    // Without depth.txt the folder reads monocular: the mask is the whole region.
-    std::fs::remove_file(tmp.path().join("depth.txt")).unwrap();
-    let seq = stillpoint_datasets::open(tmp.path(), None, None).unwrap();
+    // Monocular: the mask is the whole region.
+    let seq = static_sequence(tmp.path(), 40, false);
 
     // Never giving way: the map's frames find nothing in the skipped nine tenths.
     let kept = wide_skip_run(seq.as_ref(), 0.0);
