@@ -153,7 +153,8 @@ pub struct FrameResult {
     pub octaves: Vec<u8>,
     /// The pixels where ORB kept no corner (the feature budget: last frame's movers); `None`
     /// when it kept them everywhere, the mask having given way too
-    /// (`front_end.orb_exclusion_min_yield`). Part of the front-end's decision, with [`Self::dynamic`].
+    /// (`front_end.orb_exclusion_min_yield`). Part of the front-end's decision, with
+    /// [`Self::dynamic`].
     pub excluded: Option<Arc<Gray8>>,
     /// Per keypoint: `true` = judged on a moving object and removed before tracking.
     pub dynamic: Vec<bool>,
@@ -418,14 +419,15 @@ impl Pipeline {
         // Whole boxes (no depth) over a plain view can leave ORB far short of its budget, and
         // tracking with it: below the front-end's share, the budget left unspent goes to the
         // masked pixels (every corner found outside them stays), and the culling decides there.
-        let budget = self.orb.params().n_features;
-        let short = (feats.keypoints.len() as f32) < self.skip_next.min_yield() * budget as f32;
+        let (budget, found) = (self.orb.params().n_features, feats.keypoints.len());
+        // (A share set above 1 asks no more than the whole budget.)
+        let short = found < budget && (found as f32) < self.skip_next.min_yield() * budget as f32;
         let mut given_way = None;
         let (feats, orb_ms) = match excluded.take() {
             Some(mask) if depth_image.is_none() && short => {
                 let t1 = Instant::now();
                 let mut inside = OrbExtractor::new(OrbParams {
-                    n_features: budget - feats.keypoints.len(),
+                    n_features: budget - found,
                     ..self.orb.params().clone()
                 });
                 let mut outside = (*mask).clone();
