@@ -304,10 +304,12 @@ pub struct MonoInitSettings {
     pub thin_map_seconds: f64,
     /// See `thin_map_seconds`.
     pub thin_map_inliers: usize,
-    /// Ours: once the map stands, the frames between its two views (up to this many, the
-    /// newest) are tracked in it and get their poses late, so that a recording's trajectory
-    /// starts at the map's first keyframe rather than at the frame that had the parallax (0:
-    /// ORB-SLAM's way, those frames stay without a pose).
+    /// Ours: once the map stands, the frames offered to the initialiser (up to this many, the
+    /// newest) are tracked in it and get their poses late: those between its two views, and
+    /// those of earlier reference frames dropped for too few matches (tracked back from the
+    /// first view until one fails), so that a recording's trajectory starts where the camera
+    /// first saw the map's ground rather than at the frame that had the parallax (0: ORB-SLAM's
+    /// way, those frames stay without a pose).
     pub backfill_frames: usize,
 }
 

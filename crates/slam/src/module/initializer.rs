@@ -44,6 +44,10 @@ pub struct Initialisation {
     /// `MonoInitSettings::backfill_frames` of them, the newest): once the map stands they can
     /// be tracked in it.
     pub between: Vec<Frame>,
+    /// The frames offered before the reference frame since the initialiser last started over
+    /// (earlier references dropped for too few matches, and the frames matched to them), oldest
+    /// first; with `between`, at most `backfill_frames` frames.
+    pub before: Vec<Frame>,
 }
 
 /// The monocular initialiser's state: the reference frame and where its keypoints were last
@@ -56,15 +60,30 @@ pub struct MonoInitializer {
     prev_matched_coarse: Vec<Vec2>,
     /// Frames offered since the reference that did not start the map.
     between: VecDeque<Frame>,
+    /// Frames offered before the reference: earlier references dropped because the view moved
+    /// on, and their frames (a plain room may drop two before one starts the map).
+    before: VecDeque<Frame>,
 }
 
 impl MonoInitializer {
-    /// Forget the reference frame: the next frame with enough keypoints becomes it.
+    /// Start over: the next frame with enough keypoints becomes the reference, and no frame
+    /// offered so far is kept.
     pub fn reset(&mut self) {
-        self.reference = None;
+        self.drop_reference(None, 0);
+        self.before.clear();
+    }
+
+    /// Drop the reference frame (the next frame with enough keypoints becomes it) but keep it,
+    /// its frames and `frame` as frames before the next reference (the newest `keep` in all).
+    fn drop_reference(&mut self, frame: Option<&Frame>, keep: usize) {
+        self.before.extend(self.reference.take());
+        self.before.extend(self.between.drain(..));
+        self.before.extend(frame.cloned());
+        while self.before.len() > keep {
+            self.before.pop_front();
+        }
         self.prev_matched.clear();
         self.prev_matched_coarse.clear();
-        self.between.clear();
     }
 
     /// Keep `frame` for tracking once the map stands (the newest `keep` only).
@@ -76,6 +95,9 @@ impl MonoInitializer {
             self.between.pop_front();
         }
         self.between.push_back(frame.clone());
+        while self.before.len() + self.between.len() > keep {
+            self.before.pop_front();
+        }
     }
 
     /// Index of the reference frame, when there is one.
@@ -85,12 +107,15 @@ impl MonoInitializer {
 
     /// Offer a frame. The first with more than `min_keypoints` keypoints becomes the reference;
     /// later ones are matched to it, and the reference is dropped when a frame has too few
-    /// keypoints or matches (the camera moved too far, or the view changed). Returns the
+    /// matches (the camera moved too far: the frames so far are kept, to be tracked once a map
+    /// stands) or too few keypoints (the view changed: all is forgotten). Returns the
     /// initialisation once the two views reconstruct and survive bundle adjustment.
     pub fn add_frame(&mut self, frame: &Frame, s: &SlamSettings) -> Option<Initialisation> {
         let p = &s.mono_init;
         let Some(reference) = &self.reference else {
-            if frame.len() > p.min_keypoints {
+            if frame.len() <= p.min_keypoints {
+                self.reset();
+            } else {
                 self.prev_matched = frame.points.clone();
                 self.prev_matched_coarse = frame.points.clone();
                 self.reference = Some(frame.clone());
@@ -138,7 +163,7 @@ impl MonoInitializer {
                 matches = finest.len(),
                 "too few matches: reference dropped"
             );
-            self.reset();
+            self.drop_reference(Some(frame), p.backfill_frames);
             return None;
         }
         // The coarser levels' own search, with its own last positions (kept on every frame),
@@ -204,13 +229,14 @@ impl MonoInitializer {
                 "initial map rejected after bundle adjustment"
             );
             if p.reset_on_rejection {
-                self.reset();
+                self.drop_reference(Some(frame), p.backfill_frames);
             } else {
                 self.remember(frame, p.backfill_frames);
             }
             return None;
         };
         let between = std::mem::take(&mut self.between).into();
+        let before = std::mem::take(&mut self.before).into();
         self.reset();
         Some(Initialisation {
             reference,
@@ -219,6 +245,7 @@ impl MonoInitializer {
             model: two_view.model,
             parallax_deg: two_view.parallax_deg,
             between,
+            before,
         })
     }
 }
@@ -470,6 +497,36 @@ mod tests {
         assert!(got.points.len() >= 150, "{} points", got.points.len());
         let dir = got.pose21.translation.vector.normalize();
         assert!((dir - truth21.translation.vector.normalize()).norm() < 1e-2);
+    }
+
+    #[test]
+    fn a_reference_dropped_for_too_few_matches_is_kept_as_a_frame_before() {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let s = SlamSettings::monocular(cam, 30.0);
+        let (a, a_desc) = scene(14);
+        let (b, b_desc) = scene(15);
+        let truth21 = Se3::new(Vec3::new(-0.35, 0.02, -0.05), Vec3::new(0.0, 0.04, 0.01));
+        // Frame 0 sees scene a, 1 scene b (no match: 0 is dropped), 2 and 3 start the map in b.
+        // `sparse_at`: a frame with too few keypoints offered before frame 2.
+        let before = |sparse_at: Option<usize>| {
+            let mut init = MonoInitializer::default();
+            let mut frames = vec![
+                view(0, &Se3::identity(), &a, &a_desc, &s),
+                view(1, &Se3::identity(), &b, &b_desc, &s),
+                view(2, &Se3::identity(), &b, &b_desc, &s),
+                view(3, &truth21, &b, &b_desc, &s),
+            ];
+            if let Some(i) = sparse_at {
+                frames.insert(i, view(9, &Se3::identity(), &b[..50], &b_desc[..50], &s));
+            }
+            let mut got = frames.iter().filter_map(|f| init.add_frame(f, &s));
+            let got = got.next().expect("initialised");
+            assert_eq!((got.reference.index, got.between.len()), (2, 0));
+            got.before.iter().map(|f| f.index).collect::<Vec<_>>()
+        };
+        assert_eq!(before(None), [0, 1]);
+        // A frame with too few keypoints (a covered lens) parts the views: all is forgotten.
+        assert!(before(Some(2)).is_empty());
     }
 
     #[test]

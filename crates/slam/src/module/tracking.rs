@@ -77,6 +77,18 @@ pub struct Backfilled {
     pub reference: KfId,
 }
 
+impl Backfilled {
+    /// Frame `f`, tracked at `pose_cw` against keyframe `reference`.
+    fn of(f: &Frame, pose_cw: Se3, reference: KfId) -> Self {
+        Self {
+            index: f.index,
+            timestamp: f.timestamp,
+            pose_wc: pose_cw.inverse(),
+            reference,
+        }
+    }
+}
+
 /// One pose inlier of a tracked frame.
 #[derive(Clone, Copy, Debug)]
 pub struct FrameObservation {
@@ -503,6 +515,15 @@ impl Tracker {
             [first, kf],
             second,
         );
+        let mut tracked = self.track_before(
+            std::mem::take(&mut init.before),
+            &between,
+            second,
+            map,
+            [first, kf],
+        );
+        tracked.extend(between);
+        let between = tracked;
         if let Some(b) = between.first() {
             info!(
                 frames = between.len(),
@@ -543,11 +564,7 @@ impl Tracker {
             pose_wc: cw1.inverse(),
             reference: kfs[0],
         }];
-        let points: BTreeSet<MpId> = kfs
-            .iter()
-            .filter_map(|k| map.keyframes.get(k))
-            .flat_map(|k| k.map_points.iter().flatten().copied())
-            .collect();
+        let points = Self::points_of(map, &kfs);
         let (mut last_cw, mut last_index) = (cw1, i1);
         for mut f in frames {
             if f.index <= last_index || f.index >= i2 {
@@ -559,44 +576,111 @@ impl Tracker {
             } else {
                 kfs[1]
             };
-            f.map_points.iter_mut().for_each(|m| *m = None);
-            f.outliers.iter_mut().for_each(|o| *o = false);
-            f.pose_cw = Some(last_cw.lerp_slerp(&cw2, t));
-            let mut matches = self.project_points(&mut f, &points, map, 5.0);
-            if matches < self.s.motion_min_matches {
-                f.map_points.iter_mut().for_each(|m| *m = None);
-                matches = search_by_descriptors(
-                    &mut f,
-                    &map.keyframes[&nearer],
-                    map,
-                    self.s.ref_kf_ratio,
-                    self.s.th_low,
-                );
-            }
-            let mut inliers = 0;
-            if matches >= MIN_DESCRIPTOR_MATCHES {
-                self.optimize_frame(&mut f, map);
-                Self::discard_outliers(&mut f, map);
-                self.project_points(&mut f, &points, map, self.s.local_map_search_th);
-                inliers = self.optimize_frame(&mut f, map);
-            }
-            debug!(
-                frame = f.index,
-                matches, inliers, "frame before the map stood"
+            let inliers = self.track_in_first_views(
+                &mut f,
+                last_cw.lerp_slerp(&cw2, t),
+                &points,
+                map,
+                nearer,
             );
             if inliers >= self.s.min_tracked_inliers
                 && let Some(pose) = f.pose_cw
             {
-                out.push(Backfilled {
-                    index: f.index,
-                    timestamp: f.timestamp,
-                    pose_wc: pose.inverse(),
-                    reference: nearer,
-                });
+                out.push(Backfilled::of(&f, pose, nearer));
                 (last_cw, last_index) = (pose, f.index);
             }
         }
         out
+    }
+
+    /// Monocular: the frames offered before the new map's first view (earlier references that
+    /// were dropped for too few matches, and their frames), tracked in it newest first from the
+    /// first view back, each from the pose the motion of the two frames after it gives, until
+    /// one does not track (the view it came from is not the map's); returned oldest first.
+    /// `later` is what `track_between` returned (the first view first).
+    fn track_before(
+        &self,
+        frames: Vec<Frame>,
+        later: &[Backfilled],
+        second: (Se3, usize),
+        map: &Map,
+        kfs: [KfId; 2],
+    ) -> Vec<Backfilled> {
+        let Some(first_view) = later.first() else {
+            return Vec::new();
+        };
+        let points = Self::points_of(map, &kfs);
+        // The two tracked frames nearest after the next one to track: (pose, index).
+        let mut near = (first_view.pose_wc.inverse(), first_view.index);
+        let mut far = later
+            .get(1)
+            .map_or(second, |b| (b.pose_wc.inverse(), b.index));
+        let mut out = Vec::new();
+        for mut f in frames.into_iter().rev() {
+            if f.index >= near.1 {
+                continue;
+            }
+            // The motion from `far` to `near`, carried on as far before `near` again.
+            let step = near.0 * far.0.inverse();
+            let share = ((near.1 - f.index) as f64 / (far.1 - near.1) as f64).min(1.0);
+            let prior = Se3::identity().lerp_slerp(&step, share) * near.0;
+            let inliers = self.track_in_first_views(&mut f, prior, &points, map, kfs[0]);
+            let Some(pose) = f.pose_cw.filter(|_| inliers >= self.s.min_tracked_inliers) else {
+                break;
+            };
+            out.push(Backfilled::of(&f, pose, kfs[0]));
+            (far, near) = (near, (pose, f.index));
+        }
+        out.reverse();
+        out
+    }
+
+    /// The map points keyframes `kfs` see.
+    fn points_of(map: &Map, kfs: &[KfId]) -> BTreeSet<MpId> {
+        kfs.iter()
+            .filter_map(|k| map.keyframes.get(k))
+            .flat_map(|k| k.map_points.iter().flatten().copied())
+            .collect()
+    }
+
+    /// A frame offered before a new monocular map stood, tracked in its first two views from
+    /// `prior`: `points` projected and matched in wide windows (as after a relocalisation),
+    /// else matched to keyframe `nearer`'s points; then pose optimisation and a second, narrow
+    /// projection. Returns the inliers.
+    fn track_in_first_views(
+        &self,
+        f: &mut Frame,
+        prior: Se3,
+        points: &BTreeSet<MpId>,
+        map: &Map,
+        nearer: KfId,
+    ) -> usize {
+        f.map_points.iter_mut().for_each(|m| *m = None);
+        f.outliers.iter_mut().for_each(|o| *o = false);
+        f.pose_cw = Some(prior);
+        let mut matches = self.project_points(f, points, map, 5.0);
+        if matches < self.s.motion_min_matches {
+            f.map_points.iter_mut().for_each(|m| *m = None);
+            matches = search_by_descriptors(
+                f,
+                &map.keyframes[&nearer],
+                map,
+                self.s.ref_kf_ratio,
+                self.s.th_low,
+            );
+        }
+        let mut inliers = 0;
+        if matches >= MIN_DESCRIPTOR_MATCHES {
+            self.optimize_frame(f, map);
+            Self::discard_outliers(f, map);
+            self.project_points(f, points, map, self.s.local_map_search_th);
+            inliers = self.optimize_frame(f, map);
+        }
+        debug!(
+            frame = f.index,
+            matches, inliers, "frame before the map stood"
+        );
+        inliers
     }
 
     /// Project `points` into `frame` from its pose and match them in windows of `th` (as

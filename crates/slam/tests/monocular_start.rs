@@ -1,0 +1,85 @@
+//! Where a monocular trajectory starts: the frames offered before the map stood, including
+//! those of a reference frame the initialiser dropped, get poses once it stands. A scene
+//! projected here (no images): a camera going round a 1 m circle, looking out at a room's walls.
+
+use rand::{Rng, SeedableRng};
+use stillpoint_geometry::{PinholeCamera, Se3, Vec3, umeyama};
+use stillpoint_slam::{SlamSettings, System, TrackInput};
+
+mod common;
+use common::{observe_with_noise, room};
+
+/// Camera to world at frame `i`: 1.2 degrees and 2 cm round the circle a frame, looking out.
+fn truth(i: usize) -> Se3 {
+    let a = std::f64::consts::TAU * i as f64 / 300.0;
+    let z = Vec3::new(a.cos(), 0.0, a.sin());
+    let y = Vec3::new(0.0, 1.0, 0.0);
+    let r = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[
+        y.cross(&z),
+        y,
+        z,
+    ]));
+    Se3::from_parts(
+        nalgebra::Translation3::from(Vec3::new(a.cos(), 0.0, a.sin())),
+        nalgebra::UnitQuaternion::from_rotation_matrix(&r),
+    )
+}
+
+/// Runs `frames` monocular frames with `settings` changed by `adjust`; frame 1 is blurred (80
+/// more bits of each descriptor flipped: too far for initialisation's matching, near enough for
+/// tracking's). Returns the frames the trajectory has a pose for and its Sim(3) ATE (m).
+fn run(frames: usize, adjust: impl Fn(&mut SlamSettings)) -> (Vec<usize>, f64) {
+    let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
+    let mut s = SlamSettings::monocular(cam, 30.0);
+    s.local_mapping_thread = false;
+    adjust(&mut s);
+    let sc = room(5, 16_000);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+    let mut sys = System::new(s);
+    for i in 0..frames {
+        let (f, mut d, _) = observe_with_noise(&sc, &truth(i), &cam, &mut rng, 0.3);
+        if i == 1 {
+            for desc in &mut d {
+                for _ in 0..80 {
+                    let b = rng.random_range(0..256);
+                    desc[b / 8] ^= 1 << (b % 8);
+                }
+            }
+        }
+        sys.track(TrackInput::new(i, i as f64 / 30.0, &f, &d))
+            .expect("tracking");
+    }
+    sys.shutdown().expect("shutdown");
+    let trajectory = sys.rebuilt_trajectory();
+    let posed: Vec<usize> = trajectory
+        .iter()
+        .map(|(t, _, _)| (t * 30.0).round() as usize)
+        .collect();
+    let est: Vec<Vec3> = trajectory
+        .iter()
+        .map(|(_, p, _)| p.translation.vector)
+        .collect();
+    let gt: Vec<Vec3> = posed.iter().map(|&i| truth(i).translation.vector).collect();
+    let align = umeyama(&est, &gt, true).expect("alignment");
+    let sse: f64 = est
+        .iter()
+        .zip(&gt)
+        .map(|(e, g)| (align.transform_point(e) - g).norm_squared())
+        .sum();
+    (posed, (sse / est.len() as f64).sqrt())
+}
+
+#[test]
+fn frames_of_a_dropped_reference_are_tracked_once_the_map_stands() {
+    // The blurred frame 1 drops reference frame 0; frame 2 becomes the reference and starts the
+    // map a few frames later. Without the frames kept (backfill 0), 0 and 1 have no pose.
+    let (posed, _) = run(30, |s| s.mono_init.backfill_frames = 0);
+    assert!(
+        posed[0] >= 2,
+        "without backfill the trajectory starts at {}",
+        posed[0]
+    );
+    let (posed, ate) = run(30, |_| {});
+    assert_eq!(posed, (0..30).collect::<Vec<_>>(), "every frame has a pose");
+    assert!(ate < 0.01, "ATE {ate} m");
+}
