@@ -306,11 +306,28 @@ pub struct MonoInitSettings {
     pub thin_map_inliers: usize,
     /// Ours: once the map stands, the frames offered to the initialiser (up to this many, the
     /// newest) are tracked in it and get their poses late: those between its two views, and
-    /// those of earlier reference frames dropped for too few matches (tracked back from the
-    /// first view until one fails), so that a recording's trajectory starts where the camera
-    /// first saw the map's ground rather than at the frame that had the parallax (0: ORB-SLAM's
-    /// way, those frames stay without a pose).
+    /// (`backfill_before_reference`) those of earlier reference frames dropped for too few
+    /// matches, so that a recording's trajectory starts where the camera first saw the map's
+    /// ground rather than at the frame that had the parallax (0: ORB-SLAM's way, those frames
+    /// stay without a pose).
     pub backfill_frames: usize,
+    /// Ours: the frames of reference frames dropped for too few matches are kept too, and
+    /// tracked back from the map's first view until one fails. A turning hand-held camera in a
+    /// plain room drops one or two references before one starts the map; a car driving forward
+    /// gets those frames placed from far-off points, 5-10 % off along the road (false: the
+    /// trajectory starts at the map's first view; docs/monocular.md).
+    pub backfill_before_reference: bool,
+}
+
+impl MonoInitSettings {
+    /// How many frames of a dropped reference the initialiser keeps.
+    pub fn frames_kept_before(&self) -> usize {
+        if self.backfill_before_reference {
+            self.backfill_frames
+        } else {
+            0
+        }
+    }
 }
 
 impl Default for MonoInitSettings {
@@ -336,6 +353,7 @@ impl Default for MonoInitSettings {
             thin_map_seconds: 0.0,
             thin_map_inliers: 100,
             backfill_frames: 100,
+            backfill_before_reference: true,
         }
     }
 }

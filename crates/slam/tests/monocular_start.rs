@@ -72,10 +72,13 @@ fn run(frames: usize, adjust: impl Fn(&mut SlamSettings)) -> (Vec<usize>, f64) {
 #[test]
 fn frames_of_a_dropped_reference_are_tracked_once_the_map_stands() {
     // The blurred frame 1 drops reference frame 0; frame 2 becomes the reference and starts the
-    // map a few frames later. Without the frames kept (backfill 0), 0 and 1 have no pose.
+    // map a few frames later. Without the dropped reference's frames kept, the trajectory starts
+    // at the map's first view; without any frame kept, at its second.
+    let (posed, _) = run(30, |s| s.mono_init.backfill_before_reference = false);
+    assert_eq!(posed[..2], [2, 3]);
     let (posed, _) = run(30, |s| s.mono_init.backfill_frames = 0);
     assert!(
-        posed[0] >= 2,
+        posed[0] > 2,
         "without backfill the trajectory starts at {}",
         posed[0]
     );

@@ -163,7 +163,7 @@ impl MonoInitializer {
                 matches = finest.len(),
                 "too few matches: reference dropped"
             );
-            self.drop_reference(Some(frame), p.backfill_frames);
+            self.drop_reference(Some(frame), p.frames_kept_before());
             return None;
         }
         // The coarser levels' own search, with its own last positions (kept on every frame),
@@ -229,7 +229,7 @@ impl MonoInitializer {
                 "initial map rejected after bundle adjustment"
             );
             if p.reset_on_rejection {
-                self.drop_reference(Some(frame), p.backfill_frames);
+                self.drop_reference(Some(frame), p.frames_kept_before());
             } else {
                 self.remember(frame, p.backfill_frames);
             }
