@@ -86,6 +86,9 @@ pub struct OrbExtractor {
     /// Level-0 mask (non-zero = keep no corner there), beside the rectangles; shared with
     /// whoever set it, who may report it.
     exclude_mask: Option<Arc<Gray8>>,
+    /// Per level, the corners of the last extraction that the mask kept out, in FAST's order
+    /// (for [`Self::extract_masked`]).
+    masked_corners: Vec<Vec<Corner>>,
 }
 
 /// Which corner score picks the keypoint kept in each quadtree node.
@@ -118,17 +121,7 @@ impl OrbExtractor {
             })
             .collect();
         let level_sigma2 = scale_factors.iter().map(|s| s * s).collect();
-        // features per level: geometric series with ratio 1/scale (ORB-SLAM3 constructor)
-        let factor = 1.0 / params.scale_factor;
-        let mut desired = params.n_features as f32 * (1.0 - factor) / (1.0 - factor.powi(n as i32));
-        let mut features_per_level = vec![0usize; n];
-        let mut sum = 0;
-        for f in features_per_level.iter_mut().take(n - 1) {
-            *f = desired.round() as usize;
-            sum += *f;
-            desired *= factor;
-        }
-        features_per_level[n - 1] = params.n_features.saturating_sub(sum);
+        let features_per_level = features_per_level(params.n_features, params.scale_factor, n);
         let angle_patch = AnglePatch::new(&orientation_umax());
         Self {
             params,
@@ -143,6 +136,7 @@ impl OrbExtractor {
             score: OrbScore::default(),
             exclude: Vec::new(),
             exclude_mask: None,
+            masked_corners: Vec::new(),
         }
     }
 
@@ -301,10 +295,51 @@ impl OrbExtractor {
                 .collect()
         };
         done.sort_by_key(|d| d.level);
+        self.masked_corners.resize_with(done.len(), Vec::new);
         for d in done {
+            self.masked_corners[d.level] = d.masked;
             self.timings.fast_ms += d.fast_ms;
             self.timings.distribute_ms += d.distribute_ms;
             self.timings.describe_ms += d.describe_ms;
+            out.keypoints.extend(d.keypoints);
+            out.descriptors.extend(d.descriptors);
+        }
+        out
+    }
+
+    /// The keypoints the last extraction's mask ([`Self::set_exclusion_mask`]) kept out, up to
+    /// `n_features` spread over the levels as an extraction with that budget spreads them; `img`
+    /// must be the image last given. The same keypoints, in the same order, as a fresh
+    /// extraction of `img` with that budget and the mask inverted (a mask of 0 and 255), without
+    /// building the pyramid or running FAST again: the last extraction's are kept.
+    pub fn extract_masked(&mut self, img: &Gray8, n_features: usize) -> OrbFeatures {
+        let mut out = OrbFeatures::default();
+        if !valid(img) {
+            return out;
+        }
+        let per_level =
+            features_per_level(n_features, self.params.scale_factor, self.params.n_levels);
+        let ctx = LevelContext {
+            image: img,
+            params: &self.params,
+            low_th: None,
+            score: self.score,
+            exclude: &[],
+            exclude_mask: None,
+            features_per_level: &per_level,
+            scale_factors: &self.scale_factors,
+            angle_patch: &self.angle_patch,
+        };
+        for (level, corners) in self.masked_corners.iter().enumerate() {
+            let level_img = match level {
+                0 => img,
+                _ => match self.pyramid[..self.pyramid_len].get(level - 1) {
+                    Some(l) => l,
+                    None => break,
+                },
+            };
+            let mut d = LevelFeatures::new(level);
+            describe_level(&ctx, level_img, corners, &mut self.scratch[0], &mut d);
             out.keypoints.extend(d.keypoints);
             out.descriptors.extend(d.descriptors);
         }
@@ -380,9 +415,41 @@ struct LevelFeatures {
     level: usize,
     keypoints: Vec<KeyPoint>,
     descriptors: Vec<Descriptor>,
+    /// The corners the exclusion mask kept out, in FAST's order.
+    masked: Vec<Corner>,
     fast_ms: f64,
     distribute_ms: f64,
     describe_ms: f64,
+}
+
+impl LevelFeatures {
+    fn new(level: usize) -> Self {
+        Self {
+            level,
+            keypoints: Vec::new(),
+            descriptors: Vec::new(),
+            masked: Vec::new(),
+            fast_ms: 0.0,
+            distribute_ms: 0.0,
+            describe_ms: 0.0,
+        }
+    }
+}
+
+/// Features per level for a budget of `n_features`: a geometric series with ratio 1/scale
+/// (ORB-SLAM3's extractor constructor), the last level taking what is left.
+fn features_per_level(n_features: usize, scale_factor: f32, n_levels: usize) -> Vec<usize> {
+    let factor = 1.0 / scale_factor;
+    let mut desired = n_features as f32 * (1.0 - factor) / (1.0 - factor.powi(n_levels as i32));
+    let mut per_level = vec![0usize; n_levels];
+    let mut sum = 0;
+    for f in per_level.iter_mut().take(n_levels - 1) {
+        *f = desired.round() as usize;
+        sum += *f;
+        desired *= factor;
+    }
+    per_level[n_levels - 1] = n_features.saturating_sub(sum);
+    per_level
 }
 
 /// FAST corners of one level, spread by the quadtree, oriented and described.
@@ -393,30 +460,28 @@ fn extract_level(
     scratch: &mut LevelScratch,
 ) -> LevelFeatures {
     let t1 = Instant::now();
-    let (w, h) = (level_img.width, level_img.height);
-    let mut out = LevelFeatures {
-        level,
-        keypoints: Vec::new(),
-        descriptors: Vec::new(),
-        fast_ms: 0.0,
-        distribute_ms: 0.0,
-        describe_ms: 0.0,
-    };
-    let corners = &mut scratch.corners;
+    let mut out = LevelFeatures::new(level);
+    let mut corners = std::mem::take(&mut scratch.corners);
     corners.clear();
     detect_in_cells(
         level_img,
         ctx.params,
         ctx.low_th,
-        corners,
+        &mut corners,
         &mut scratch.fast,
     );
     let to_image = LevelToImage::new(ctx.image, level_img);
     if let Some(mask) = ctx.exclude_mask {
+        let masked = &mut out.masked;
         corners.retain(|c| {
             let (x, y) = to_image.map(c.x as f32, c.y as f32);
-            mask.get_checked(x as isize, y as isize)
-                .is_none_or(|m| m == 0)
+            let free = mask
+                .get_checked(x as isize, y as isize)
+                .is_none_or(|m| m == 0);
+            if !free {
+                masked.push(*c);
+            }
+            free
         });
     }
     if !ctx.exclude.is_empty() {
@@ -427,6 +492,24 @@ fn extract_level(
                 .any(|r| x >= r[0] && x <= r[2] && y >= r[1] && y <= r[3])
         });
     }
+    out.fast_ms = ms_since(t1);
+    describe_level(ctx, level_img, &corners, scratch, &mut out);
+    scratch.corners = corners;
+    out
+}
+
+/// The corners of one level scored, spread by the quadtree to the level's budget, oriented and
+/// described into `out`.
+fn describe_level(
+    ctx: &LevelContext,
+    level_img: &Gray8,
+    corners: &[Corner],
+    scratch: &mut LevelScratch,
+    out: &mut LevelFeatures,
+) {
+    let t1 = Instant::now();
+    let (level, (w, h)) = (out.level, (level_img.width, level_img.height));
+    let to_image = LevelToImage::new(ctx.image, level_img);
     // The Harris score is part of detection, so it counts in `fast_ms`.
     let scores: Vec<f32> = match ctx.score {
         OrbScore::Harris => corners
@@ -436,7 +519,7 @@ fn extract_level(
         OrbScore::Fast => corners.iter().map(|c| c.score as f32).collect(),
     };
     let t2 = Instant::now();
-    out.fast_ms = (t2 - t1).as_secs_f64() * 1e3;
+    out.fast_ms += (t2 - t1).as_secs_f64() * 1e3;
     let keep = distribute_quadtree(
         corners,
         &scores,
@@ -451,7 +534,7 @@ fn extract_level(
     let t3 = Instant::now();
     out.distribute_ms = (t3 - t2).as_secs_f64() * 1e3;
     if keep.is_empty() {
-        return out;
+        return;
     }
     gaussian_blur7_with(level_img, &mut scratch.blurred, &mut scratch.blur_tmp);
     let scale = ctx.scale_factors[level];
@@ -475,7 +558,6 @@ fn extract_level(
         });
     }
     out.describe_ms = ms_since(t3);
-    out
 }
 
 /// Level pixel -> level-0 pixel. Each level is resized from the one above with pixel centres
@@ -1095,6 +1177,36 @@ mod tests {
         assert_eq!(two.extract_on(&img, 2), serial);
         // And again, on the buffers the first call left.
         assert_eq!(two.extract_on(&img, 2), serial);
+    }
+
+    #[test]
+    fn the_masked_corners_kept_are_a_fresh_extraction_under_the_inverted_mask() {
+        let img = texture(640, 480, 9);
+        let mut mask = Gray8::new(640, 480, 0);
+        for y in 60..420 {
+            for x in 200..520 {
+                mask.set(x, y, 255);
+            }
+        }
+        let mut inverted = mask.clone();
+        inverted.data.iter_mut().for_each(|v| *v = 255 - *v);
+        let mut orb = OrbExtractor::new(OrbParams::default());
+        orb.set_exclusion_mask(Some(Arc::new(mask)));
+        for (threads, budget) in [(1, 400), (2, 400), (2, 1000)] {
+            orb.extract_on(&img, threads);
+            let mut fresh = OrbExtractor::new(OrbParams {
+                n_features: budget,
+                ..OrbParams::default()
+            });
+            fresh.set_exclusion_mask(Some(Arc::new(inverted.clone())));
+            let expected = fresh.extract(&img);
+            assert!(expected.keypoints.len() > budget / 2);
+            assert_eq!(
+                orb.extract_masked(&img, budget),
+                expected,
+                "{threads} threads"
+            );
+        }
     }
 
     #[test]

@@ -426,15 +426,8 @@ impl Pipeline {
         let (feats, orb_ms) = match excluded.take() {
             Some(mask) if depth_image.is_none() && short => {
                 let t1 = Instant::now();
-                let mut inside = OrbExtractor::new(OrbParams {
-                    n_features: budget - found,
-                    ..self.orb.params().clone()
-                });
-                let mut outside = (*mask).clone();
-                outside.data.iter_mut().for_each(|v| *v = 255 - *v);
-                inside.set_exclusion_mask(Some(Arc::new(outside)));
-                let threads = if frame.right.is_some() { 1 } else { 2 };
-                let more = inside.extract_on(&frame.gray, threads);
+                // The corners FAST found under the mask, kept by the extraction just made.
+                let more = self.orb.extract_masked(&frame.gray, budget - found);
                 let mut feats = feats;
                 feats.keypoints.extend(more.keypoints);
                 feats.descriptors.extend(more.descriptors);
