@@ -99,8 +99,9 @@ pub struct FrameReport {
     /// Of `tracking_ms`, the time spent waiting for the map while local mapping or loop
     /// closing held it (ms).
     pub map_wait_ms: f64,
-    /// Monocular, on the frame that started a map: the earlier frames between its two views,
-    /// tracked in it (oldest first).
+    /// Monocular, on the frame that started a map: the earlier frames offered before it stood
+    /// (its first view, the frames between its two views and those of references dropped
+    /// before), tracked in it (oldest first); their poses settle later as tracked frames' do.
     pub backfilled: Vec<crate::Backfilled>,
 }
 
@@ -400,6 +401,7 @@ impl System {
         };
         let waiting = Instant::now();
         let map_wait_ms;
+        let mut backfilled = Vec::new();
         let outcome = {
             let mut map = self
                 .map
@@ -462,13 +464,26 @@ impl System {
                 }
             }
             // Frames tracked late come before this one: the anchors stay in time order.
-            for b in &outcome.backfilled {
+            // They settle as tracked frames do, counted from the map's first two keyframes.
+            let keyframes_at = self.keyframes_inserted
+                + [outcome.first_keyframe, outcome.new_keyframe]
+                    .iter()
+                    .flatten()
+                    .count();
+            for (b, observations) in std::mem::take(&mut outcome.backfilled) {
                 if let Some(k) = map.keyframes.get(&b.reference) {
-                    self.anchors.push((
-                        b.timestamp,
-                        b.reference,
-                        b.pose_wc.inverse() * k.pose_cw.inverse(),
-                    ));
+                    let pose_cw = b.pose_wc.inverse();
+                    if self.settings.trajectory_settle_keyframes > 0 && !observations.is_empty() {
+                        self.unsettled.push_back(Unsettled {
+                            anchor: self.anchors.len(),
+                            pose_cw,
+                            observations,
+                            keyframes_at,
+                        });
+                    }
+                    self.anchors
+                        .push((b.timestamp, b.reference, pose_cw * k.pose_cw.inverse()));
+                    backfilled.push(b);
                 }
             }
             if let Some(wc) = outcome.pose_wc
@@ -529,7 +544,7 @@ impl System {
             new_map: outcome.new_map,
             tracking_ms,
             map_wait_ms,
-            backfilled: outcome.backfilled,
+            backfilled,
         })
     }
 

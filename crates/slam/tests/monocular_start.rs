@@ -86,3 +86,28 @@ fn frames_of_a_dropped_reference_are_tracked_once_the_map_stands() {
     assert_eq!(posed, (0..30).collect::<Vec<_>>(), "every frame has a pose");
     assert!(ate < 0.01, "ATE {ate} m");
 }
+
+#[test]
+fn frames_tracked_before_the_map_stood_settle_as_tracked_frames_do() {
+    // Their poses are optimised again once the map around them is refined, as every tracked
+    // frame's is (`trajectory_settle_keyframes`): right after the map stands they wait, with
+    // the frame that started it; the map's first view, a keyframe, does not.
+    let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
+    let mut s = SlamSettings::monocular(cam, 30.0);
+    s.local_mapping_thread = false;
+    let sc = room(5, 16_000);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+    let mut sys = System::new(s);
+    for i in 0..30 {
+        let (f, d, _) = observe_with_noise(&sc, &truth(i), &cam, &mut rng, 0.3);
+        let report = sys
+            .track(TrackInput::new(i, i as f64 / 30.0, &f, &d))
+            .expect("tracking");
+        if !report.backfilled.is_empty() {
+            assert!(report.backfilled.len() >= 2, "{:?}", report.backfilled);
+            assert_eq!(sys.frames_waiting_to_settle(), report.backfilled.len());
+            return;
+        }
+    }
+    panic!("no map stood in 30 frames");
+}

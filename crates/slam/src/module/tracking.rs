@@ -59,10 +59,15 @@ pub struct TrackOutcome {
     pub relocalised: bool,
     /// The map started is a new one (the old one was lost for good).
     pub new_map: bool,
-    /// Monocular: the frames between the new map's two first views, tracked in it once it
-    /// stood (`MonoInitSettings::backfill_frames`), oldest first.
-    pub backfilled: Vec<Backfilled>,
+    /// Monocular: the frames offered before the new map stood, tracked in it once it stood
+    /// (`MonoInitSettings::backfill_frames`), oldest first, each with its pose inliers (none
+    /// for the map's first view, a keyframe).
+    pub backfilled: Vec<PosedLate>,
 }
+
+/// A frame tracked late in a new monocular map, with its pose inliers (none for the map's first
+/// view, a keyframe).
+pub type PosedLate = (Backfilled, Vec<FrameObservation>);
 
 /// A frame offered before its monocular map stood, tracked in that map afterwards.
 #[derive(Clone, Copy, Debug)]
@@ -78,14 +83,15 @@ pub struct Backfilled {
 }
 
 impl Backfilled {
-    /// Frame `f`, tracked at `pose_cw` against keyframe `reference`.
-    fn of(f: &Frame, pose_cw: Se3, reference: KfId) -> Self {
-        Self {
+    /// Frame `f`, tracked at `pose_cw` against keyframe `reference`, and its pose inliers.
+    fn of(f: &Frame, pose_cw: Se3, reference: KfId) -> (Self, Vec<FrameObservation>) {
+        let posed = Self {
             index: f.index,
             timestamp: f.timestamp,
             pose_wc: pose_cw.inverse(),
             reference,
-        }
+        };
+        (posed, observations(f, &matched(f, true)))
     }
 }
 
@@ -472,7 +478,7 @@ impl Tracker {
         frame: &mut Frame,
         map: &mut Map,
         origin_cw: Se3,
-    ) -> Option<(KfId, KfId, Vec<Backfilled>)> {
+    ) -> Option<(KfId, KfId, Vec<PosedLate>)> {
         let mut init = self.mono_init.add_frame(frame, &self.s)?;
         if map.current_keyframes().next().is_some() {
             map.start_new_map();
@@ -524,7 +530,7 @@ impl Tracker {
         );
         tracked.extend(between);
         let between = tracked;
-        if let Some(b) = between.first() {
+        if let Some((b, _)) = between.first() {
             info!(
                 frames = between.len(),
                 first = b.index,
@@ -549,7 +555,7 @@ impl Tracker {
         map: &Map,
         kfs: [KfId; 2],
         second: (Se3, usize),
-    ) -> Vec<Backfilled> {
+    ) -> Vec<PosedLate> {
         if self.s.mono_init.backfill_frames == 0 {
             return Vec::new();
         }
@@ -558,12 +564,13 @@ impl Tracker {
             first_view.index,
         );
         let (cw2, i2) = second;
-        let mut out = vec![Backfilled {
+        let first = Backfilled {
             index: i1,
             timestamp: first_view.timestamp,
             pose_wc: cw1.inverse(),
             reference: kfs[0],
-        }];
+        };
+        let mut out = vec![(first, Vec::new())];
         let points = Self::points_of(map, &kfs);
         let (mut last_cw, mut last_index) = (cw1, i1);
         for mut f in frames {
@@ -601,12 +608,12 @@ impl Tracker {
     fn track_before(
         &self,
         frames: Vec<Frame>,
-        later: &[Backfilled],
+        later: &[PosedLate],
         second: (Se3, usize),
         map: &Map,
         kfs: [KfId; 2],
-    ) -> Vec<Backfilled> {
-        let Some(first_view) = later.first() else {
+    ) -> Vec<PosedLate> {
+        let Some((first_view, _)) = later.first() else {
             return Vec::new();
         };
         let points = Self::points_of(map, &kfs);
@@ -614,7 +621,7 @@ impl Tracker {
         let mut near = (first_view.pose_wc.inverse(), first_view.index);
         let mut far = later
             .get(1)
-            .map_or(second, |b| (b.pose_wc.inverse(), b.index));
+            .map_or(second, |(b, _)| (b.pose_wc.inverse(), b.index));
         let mut out = Vec::new();
         for mut f in frames.into_iter().rev() {
             if f.index >= near.1 {
