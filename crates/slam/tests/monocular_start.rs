@@ -3,11 +3,11 @@
 //! projected here (no images): a camera going round a 1 m circle, looking out at a room's walls.
 
 use rand::{Rng, SeedableRng};
-use stillpoint_geometry::{PinholeCamera, Se3, Vec3, umeyama};
+use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
 use stillpoint_slam::{SlamSettings, System, TrackInput};
 
 mod common;
-use common::{observe_with_noise, room};
+use common::{ate_rmse, observe_with_noise, room};
 
 /// Camera to world at frame `i`: 1.2 degrees and 2 cm round the circle a frame, looking out.
 fn truth(i: usize) -> Se3 {
@@ -60,13 +60,8 @@ fn run(frames: usize, adjust: impl Fn(&mut SlamSettings)) -> (Vec<usize>, f64) {
         .map(|(_, p, _)| p.translation.vector)
         .collect();
     let gt: Vec<Vec3> = posed.iter().map(|&i| truth(i).translation.vector).collect();
-    let align = umeyama(&est, &gt, true).expect("alignment");
-    let sse: f64 = est
-        .iter()
-        .zip(&gt)
-        .map(|(e, g)| (align.transform_point(e) - g).norm_squared())
-        .sum();
-    (posed, (sse / est.len() as f64).sqrt())
+    let ate = ate_rmse(&est, &gt, true);
+    (posed, ate)
 }
 
 #[test]

@@ -4,7 +4,7 @@
 //! over a lap; loop closing must find the revisit, correct it and lower the error.
 
 use rand::SeedableRng;
-use stillpoint_geometry::{PinholeCamera, Se3, Vec3, umeyama};
+use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
 use stillpoint_slam::TrackInput;
 use stillpoint_slam::{SlamSettings, System};
 
@@ -12,7 +12,7 @@ use stillpoint_slam::{SlamSettings, System};
 const LAP: usize = 300;
 
 mod common;
-use common::{observe_with_noise, room};
+use common::{ate_rmse, observe_with_noise, room};
 
 /// Camera-to-world pose at frame i: on a 1 m circle, looking outwards, a lap every `LAP`.
 fn truth(i: usize) -> Se3 {
@@ -143,13 +143,7 @@ fn run_with(
         .iter()
         .map(|(t, _)| truth((t * 30.0).round() as usize).translation.vector)
         .collect();
-    let align = umeyama(&est, &gt, mono).expect("alignment");
-    let sse: f64 = est
-        .iter()
-        .zip(&gt)
-        .map(|(e, g)| (align.transform_point(e) - g).norm_squared())
-        .sum();
-    let ate = (sse / est.len() as f64).sqrt();
+    let ate = ate_rmse(&est, &gt, mono);
     eprintln!(
         "loop closing {loop_closing}: {} of {frames} tracked in {maps} maps, ATE {ate:.4} m, loops {loops:?}",
         est.len()

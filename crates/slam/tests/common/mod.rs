@@ -2,7 +2,7 @@
 //! observation by a camera (keypoints with +-0.3 px noise, depth, descriptors with 3 bits flipped).
 
 use rand::{Rng, SeedableRng};
-use stillpoint_geometry::{PinholeCamera, Se3, Vec3};
+use stillpoint_geometry::{PinholeCamera, Se3, Vec3, umeyama};
 use stillpoint_image::DepthMetres;
 use stillpoint_slam::{Descriptor, Feature};
 
@@ -94,4 +94,17 @@ pub fn observe_with_noise(
         d.push(desc);
     }
     (f, d, depth)
+}
+
+/// ATE RMSE of positions `est` against `truth` after the best rigid alignment (with a scale,
+/// Sim(3), when `with_scale`: a monocular map has its own).
+#[allow(dead_code)] // not every test file uses it
+pub fn ate_rmse(est: &[Vec3], truth: &[Vec3], with_scale: bool) -> f64 {
+    let align = umeyama(est, truth, with_scale).expect("alignment");
+    let sse: f64 = est
+        .iter()
+        .zip(truth)
+        .map(|(e, g)| (align.transform_point(e) - g).norm_squared())
+        .sum();
+    (sse / est.len() as f64).sqrt()
 }
