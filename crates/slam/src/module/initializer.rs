@@ -69,16 +69,19 @@ impl MonoInitializer {
     /// Start over: the next frame with enough keypoints becomes the reference, and no frame
     /// offered so far is kept.
     pub fn reset(&mut self) {
-        self.drop_reference(None, 0);
+        self.reference = None;
+        self.prev_matched.clear();
+        self.prev_matched_coarse.clear();
+        self.between.clear();
         self.before.clear();
     }
 
     /// Drop the reference frame (the next frame with enough keypoints becomes it) but keep it,
     /// its frames and `frame` as frames before the next reference (the newest `keep` in all).
-    fn drop_reference(&mut self, frame: Option<&Frame>, keep: usize) {
+    fn drop_reference(&mut self, frame: &Frame, keep: usize) {
         self.before.extend(self.reference.take());
         self.before.extend(self.between.drain(..));
-        self.before.extend(frame.cloned());
+        self.before.push_back(frame.clone());
         while self.before.len() > keep {
             self.before.pop_front();
         }
@@ -163,7 +166,7 @@ impl MonoInitializer {
                 matches = finest.len(),
                 "too few matches: reference dropped"
             );
-            self.drop_reference(Some(frame), p.frames_kept_before());
+            self.drop_reference(frame, p.frames_kept_before());
             return None;
         }
         // The coarser levels' own search, with its own last positions (kept on every frame),
@@ -229,7 +232,7 @@ impl MonoInitializer {
                 "initial map rejected after bundle adjustment"
             );
             if p.reset_on_rejection {
-                self.drop_reference(Some(frame), p.frames_kept_before());
+                self.drop_reference(frame, p.frames_kept_before());
             } else {
                 self.remember(frame, p.backfill_frames);
             }
