@@ -7,7 +7,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 use tracing::debug;
 
-use stillpoint_geometry::Se3;
+use stillpoint_geometry::{Se3, Vec3};
 use stillpoint_image::DepthMetres;
 
 use crate::data::{FreeSpaceCheck, KfId, Map, SharedMap};
@@ -15,7 +15,7 @@ use crate::map_file::{MapFile, MapSensor};
 use crate::module::local_mapping::{LocalMapper, MapperHooks, MapperThread};
 use crate::module::loop_closing::{LoopCloser, LoopStats, LoopThread, MapCorrection};
 use crate::module::tracking::{FrameObservation, Tracker};
-use crate::optimize::{PoseObservation, optimize_pose};
+use crate::optimize::{PoseObservation, PosePrior, optimize_pose_with_prior};
 use crate::place::{KeyFrameDatabase, Vocabulary};
 use crate::{Descriptor, Feature, Frame, KeypointDepth, SlamError, SlamSettings, TrackingState};
 
@@ -611,6 +611,69 @@ impl System {
         self.unsettled.len()
     }
 
+    /// Where anchor `a`'s neighbours in time put it: the mean of the positions interpolated at
+    /// its timestamp between the k-th frame before and the k-th after, k = 1 to
+    /// `trajectory_smooth_neighbours`, as a prior for settling it, its standard deviation
+    /// `trajectory_smooth_sigma_depth` of the median depth of `obs` (ours). `None` when
+    /// smoothing is off or no pair of neighbours is near enough in time on the same map.
+    fn smoothing_prior(&self, map: &Map, a: usize, obs: &[PoseObservation]) -> Option<PosePrior> {
+        let s = &self.settings;
+        if s.trajectory_smooth_sigma_depth <= 0.0 || s.trajectory_smooth_neighbours == 0 {
+            return None;
+        }
+        let (t, r, t_cr) = *self.anchors.get(a)?;
+        let epoch = map.keyframes.get(&r)?.map_epoch;
+        let pose_wc = |i: usize| -> Option<(f64, Se3)> {
+            let (ti, ri, t_cr) = *self.anchors.get(i)?;
+            if (ti - t).abs() > s.trajectory_smooth_max_gap_s
+                || map.keyframes.get(&ri)?.map_epoch != epoch
+            {
+                return None;
+            }
+            Some((ti, (t_cr * map.keyframe_pose_cw(ri)?).inverse()))
+        };
+        let mut sum = Vec3::zeros();
+        let mut n = 0.0;
+        for k in 1..=s.trajectory_smooth_neighbours {
+            let (Some((t0, before)), Some((t1, after))) =
+                (a.checked_sub(k).and_then(pose_wc), pose_wc(a + k))
+            else {
+                break;
+            };
+            if !(t0 < t && t < t1) {
+                break;
+            }
+            let share = (t - t0) / (t1 - t0);
+            sum += before
+                .translation
+                .vector
+                .lerp(&after.translation.vector, share);
+            n += 1.0;
+        }
+        if n == 0.0 {
+            return None;
+        }
+        // The frame's own rotation, the neighbours' position: only the position is held.
+        let pose_cw = t_cr * map.keyframe_pose_cw(r)?;
+        let mut depths: Vec<f64> = obs
+            .iter()
+            .map(|o| (pose_cw * nalgebra::Point3::from(o.world)).z)
+            .filter(|z| *z > 0.0)
+            .collect();
+        if depths.is_empty() {
+            return None;
+        }
+        let mid = depths.len() / 2;
+        let depth = *depths.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let mut prior_wc = pose_cw.inverse();
+        prior_wc.translation.vector = sum / n;
+        Some(PosePrior {
+            pose_cw: prior_wc.inverse(),
+            inv_sigma2_rot: 0.0,
+            inv_sigma2_trans: (s.trajectory_smooth_sigma_depth * depth).powi(-2),
+        })
+    }
+
     /// Optimise again the poses of the tracked frames that local mapping has since refined the
     /// keyframes around (`SlamSettings::trajectory_settle_keyframes` keyframes later, mapping
     /// idle), or all of them (`all`, at the end), against the map as it is now, and anchor each
@@ -684,10 +747,11 @@ impl System {
             // From the pose tracking found and from the one its keyframe carries it to now
             // (they differ after a loop correction, or when the keyframe moved): the start with
             // more inliers wins.
+            let prior = self.smoothing_prior(&map, u.anchor, &obs);
             let best = [u.pose_cw, t_cr * ref_cw]
                 .into_iter()
                 .map(|mut pose| {
-                    let outliers = optimize_pose(&mut pose, &obs, s);
+                    let outliers = optimize_pose_with_prior(&mut pose, &obs, s, prior.as_ref());
                     (outliers.iter().filter(|&&o| !o).count(), pose)
                 })
                 .max_by_key(|(inliers, _)| *inliers);

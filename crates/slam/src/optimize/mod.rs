@@ -6,7 +6,7 @@ pub mod pose;
 pub mod pose_graph;
 
 pub use local_ba::{BaObservation, BaProblem, local_bundle_adjustment};
-pub use pose::{PoseObservation, optimize_pose};
+pub use pose::{PoseObservation, PosePrior, optimize_pose, optimize_pose_with_prior};
 pub use pose_graph::{
     Graph, GraphEdge, PoseGraph, PoseGraphEdge, PoseGraphReport, Sim3Edge, Sim3Graph,
     optimize_pose_graph, optimize_sim3_graph,
