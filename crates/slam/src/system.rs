@@ -611,32 +611,41 @@ impl System {
         self.unsettled.len()
     }
 
+    /// Anchor `i`'s time, camera-to-world pose (through its keyframe as the map has it now) and
+    /// map.
+    fn anchor_pose_wc(&self, map: &Map, i: usize) -> Option<(f64, Se3, u32)> {
+        let (t, r, t_cr) = *self.anchors.get(i)?;
+        let pose_wc = (t_cr * map.keyframe_pose_cw(r)?).inverse();
+        Some((t, pose_wc, map.keyframes.get(&r)?.map_epoch))
+    }
+
     /// Where anchor `a`'s neighbours in time put it: the mean of the positions interpolated at
     /// its timestamp between the k-th frame before and the k-th after, k = 1 to
-    /// `trajectory_smooth_neighbours`, as a prior for settling it, its standard deviation
-    /// `trajectory_smooth_sigma_depth` of the median depth of `obs` (ours). `None` when
-    /// smoothing is off or no pair of neighbours is near enough in time on the same map.
-    fn smoothing_prior(&self, map: &Map, a: usize, obs: &[PoseObservation]) -> Option<PosePrior> {
+    /// `trajectory_smooth_neighbours`, as a prior for settling it (now at `pose_cw`), its
+    /// standard deviation `trajectory_smooth_sigma_depth` of the median depth of `obs` (ours).
+    /// `None` when smoothing is off or no pair of neighbours is near enough in time on the same
+    /// map.
+    fn smoothing_prior(
+        &self,
+        map: &Map,
+        a: usize,
+        pose_cw: &Se3,
+        obs: &[PoseObservation],
+    ) -> Option<PosePrior> {
         let s = &self.settings;
         if s.trajectory_smooth_sigma_depth <= 0.0 || s.trajectory_smooth_neighbours == 0 {
             return None;
         }
-        let (t, r, t_cr) = *self.anchors.get(a)?;
-        let epoch = map.keyframes.get(&r)?.map_epoch;
-        let pose_wc = |i: usize| -> Option<(f64, Se3)> {
-            let (ti, ri, t_cr) = *self.anchors.get(i)?;
-            if (ti - t).abs() > s.trajectory_smooth_max_gap_s
-                || map.keyframes.get(&ri)?.map_epoch != epoch
-            {
-                return None;
-            }
-            Some((ti, (t_cr * map.keyframe_pose_cw(ri)?).inverse()))
+        let (t, _, epoch) = self.anchor_pose_wc(map, a)?;
+        let near = |i: usize| {
+            self.anchor_pose_wc(map, i)
+                .filter(|(ti, _, e)| *e == epoch && (ti - t).abs() <= s.trajectory_smooth_max_gap_s)
         };
         let mut sum = Vec3::zeros();
         let mut n = 0.0;
         for k in 1..=s.trajectory_smooth_neighbours {
-            let (Some((t0, before)), Some((t1, after))) =
-                (a.checked_sub(k).and_then(pose_wc), pose_wc(a + k))
+            let (Some((t0, before, _)), Some((t1, after, _))) =
+                (a.checked_sub(k).and_then(near), near(a + k))
             else {
                 break;
             };
@@ -650,27 +659,22 @@ impl System {
                 .lerp(&after.translation.vector, share);
             n += 1.0;
         }
-        if n == 0.0 {
-            return None;
-        }
-        // The frame's own rotation, the neighbours' position: only the position is held.
-        let pose_cw = t_cr * map.keyframe_pose_cw(r)?;
-        let mut depths: Vec<f64> = obs
+        let depths: Vec<f64> = obs
             .iter()
             .map(|o| (pose_cw * nalgebra::Point3::from(o.world)).z)
             .filter(|z| *z > 0.0)
             .collect();
-        if depths.is_empty() {
+        if n == 0.0 || depths.is_empty() {
             return None;
         }
-        let mid = depths.len() / 2;
-        let depth = *depths.select_nth_unstable_by(mid, f64::total_cmp).1;
+        // The frame's own rotation, the neighbours' position: only the position is held.
         let mut prior_wc = pose_cw.inverse();
         prior_wc.translation.vector = sum / n;
+        let sigma = s.trajectory_smooth_sigma_depth * stillpoint_core::stats::median(&depths);
         Some(PosePrior {
             pose_cw: prior_wc.inverse(),
             inv_sigma2_rot: 0.0,
-            inv_sigma2_trans: (s.trajectory_smooth_sigma_depth * depth).powi(-2),
+            inv_sigma2_trans: sigma.powi(-2),
         })
     }
 
@@ -747,8 +751,9 @@ impl System {
             // From the pose tracking found and from the one its keyframe carries it to now
             // (they differ after a loop correction, or when the keyframe moved): the start with
             // more inliers wins.
-            let prior = self.smoothing_prior(&map, u.anchor, &obs);
-            let best = [u.pose_cw, t_cr * ref_cw]
+            let anchored = t_cr * ref_cw;
+            let prior = self.smoothing_prior(&map, u.anchor, &anchored, &obs);
+            let best = [u.pose_cw, anchored]
                 .into_iter()
                 .map(|mut pose| {
                     let outliers = optimize_pose_with_prior(&mut pose, &obs, s, prior.as_ref());
@@ -780,12 +785,8 @@ impl System {
         let Ok(m) = self.map.lock() else {
             return Vec::new();
         };
-        self.anchors
-            .iter()
-            .filter_map(|(t, r, t_cr)| {
-                let pose_wc = (t_cr * m.keyframe_pose_cw(*r)?).inverse();
-                Some((*t, pose_wc, m.keyframes.get(r)?.map_epoch))
-            })
+        (0..self.anchors.len())
+            .filter_map(|i| self.anchor_pose_wc(&m, i))
             .collect()
     }
 

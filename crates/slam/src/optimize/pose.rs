@@ -107,13 +107,8 @@ pub fn optimize_pose_with_prior(
                 // The step that takes the pose onto the prior, in the left update's coordinates
                 // (`retract`): the residual is that step minus this iteration's.
                 let d = p.pose_cw * pose_cw.inverse();
-                let to_prior = Vector6::from_iterator(
-                    d.rotation
-                        .scaled_axis()
-                        .iter()
-                        .chain(d.translation.vector.iter())
-                        .copied(),
-                );
+                let (w, t) = (d.rotation.scaled_axis(), d.translation.vector);
+                let to_prior = Vector6::new(w.x, w.y, w.z, t.x, t.y, t.z);
                 for k in 0..6 {
                     let w = if k < 3 {
                         p.inv_sigma2_rot
