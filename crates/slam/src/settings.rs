@@ -153,6 +153,9 @@ pub struct SlamSettings {
     /// New RGB-D keyframes create map points from depth for at least this many closest keypoints
     /// (ORB-SLAM3 `CreateNewKeyFrame`: 100).
     pub kf_new_points_min: usize,
+    /// Two keyframes' rays to a new point without depth must meet at an angle whose cosine is
+    /// below this (ORB-SLAM3 `CreateNewMapPoints`: 0.9998, 1.15 degrees).
+    pub new_point_max_cos_parallax: f64,
     /// Covisibility edge weight: shared points needed for an edge (ORB-SLAM3: 15).
     pub covisibility_min_shared: usize,
     /// Neighbours taken into the local map (ORB-SLAM3 tracking: 10 per keyframe).
@@ -440,6 +443,7 @@ impl SlamSettings {
             trajectory_settle_max_per_frame: default_settle_max_per_frame(),
             seen_through_gap_px: 1.0,
             kf_new_points_min: 100,
+            new_point_max_cos_parallax: 0.9998,
             covisibility_min_shared: 15,
             local_neighbours: 10,
             mapping_neighbours: default_mapping_neighbours(),

@@ -403,7 +403,7 @@ impl LocalMapper {
         let cos_stereo = c1.min(c2);
         let x = if cos_rays < cos_stereo
             && cos_rays > 0.0
-            && (k1.depth[i] > 0.0 || k2.depth[j] > 0.0 || cos_rays < 0.9998)
+            && (k1.depth[i] > 0.0 || k2.depth[j] > 0.0 || cos_rays < s.new_point_max_cos_parallax)
         {
             crate::solve::triangulate(&k1.pose_cw, &x1, &k2.pose_cw, &x2)?
         } else if k1.depth[i] > 0.0 && c1 < c2 {
