@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use stillpoint_trajectory::{
     Alignment, AteOptions, DeltaUnit, ErrorSeries, ErrorStats, KittiOptions, Matching, RpeOptions,
     Trajectory, TrajectoryFormat, ate, kitti_odometry, plot_error_over_time, plot_top_view,
-    read_trajectory_lenient, rpe,
+    read_trajectory_lenient, rpe, scale_along_path,
 };
 
 #[derive(clap::Subcommand)]
@@ -65,6 +65,10 @@ pub struct AteArgs {
     /// per-frame boxes (boxes.jsonl, as `stillpoint synth` writes them).
     #[arg(long, requires = "time_plot")]
     dataset: Option<PathBuf>,
+    /// Cut the ground-truth path into this many pieces of equal length and report the aligned
+    /// estimate's scale on each, and its drift from end to end (monocular scale drift; 0: none).
+    #[arg(long, default_value_t = stillpoint_trajectory::SCALE_PIECES)]
+    scale_pieces: usize,
 }
 
 #[derive(clap::Args)]
@@ -195,17 +199,28 @@ fn run_ate(a: AteArgs) -> Result<()> {
             shaded.len()
         );
     }
+    let along = scale_along_path(&r, a.scale_pieces);
     if i.json {
         let mut v = stats_json(&r.stats);
         v["metric"] = json!("ate");
         v["align"] = json!(i.align);
         v["scale"] = json!(r.alignment.scale);
+        v["scale_along_path"] = json!(along);
         println!("{v}");
     } else {
         print_table(
             &format!("APE w.r.t. translation part (m)\n{}", align_title(i.align)),
             &r.stats,
         );
+        if let Some(s) = &along {
+            let ratios: Vec<String> = s.ratios.iter().map(|q| format!("{q:.3}")).collect();
+            println!(
+                "scale along the path ({} pieces): {}\nscale drift, end to end: {:+.1} %",
+                s.ratios.len(),
+                ratios.join(" "),
+                100.0 * s.drift
+            );
+        }
     }
     Ok(())
 }

@@ -276,7 +276,8 @@ pub fn summary_json(scored: &ScoredRun) -> serde_json::Value {
         "ate": acc.as_ref().map(|(a, _)| serde_json::json!({
             "align": scored.alignment(), "scale": a.alignment.scale,
             "rmse": a.stats.rmse, "mean": a.stats.mean, "median": a.stats.median,
-            "std": a.stats.std, "max": a.stats.max, "pairs": a.stats.count})),
+            "std": a.stats.std, "max": a.stats.max, "pairs": a.stats.count,
+            "scale_drift": stillpoint_trajectory::scale_along_path(a, stillpoint_trajectory::SCALE_PIECES).map(|s| s.drift)})),
         "rpe_1s": acc.as_ref().and_then(|(_, r)| r.as_ref()).map(|r| serde_json::json!({
             "trans_rmse": r.translation.rmse, "trans_std": r.translation.std,
             "rot_rmse_deg": r.rotation_deg.rmse})),

@@ -31,7 +31,8 @@ pub use io::{
 };
 pub use kitti::{KittiOptions, KittiResult, kitti_odometry};
 pub use metrics::{
-    Alignment, AteOptions, AteResult, DeltaUnit, ErrorStats, RpeOptions, RpeResult, ate, rpe,
+    Alignment, AteOptions, AteResult, DeltaUnit, ErrorStats, RpeOptions, RpeResult, SCALE_PIECES,
+    ScaleAlongPath, ate, rpe, scale_along_path,
 };
 pub use plot::{ErrorSeries, plot_error_over_time, plot_top_view};
 

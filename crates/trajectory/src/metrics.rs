@@ -126,6 +126,106 @@ impl AteResult {
     }
 }
 
+/// The estimate's scale along the path ([`scale_along_path`]).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ScaleAlongPath {
+    /// Per piece of the ground-truth path (equal lengths, in order): the scale that best maps
+    /// the truth's positions there onto the aligned estimate's, about their means. 1 is the
+    /// scale of the whole run's alignment.
+    pub ratios: Vec<f64>,
+    /// The least-squares line through `ratios` (over the path's fraction at each piece's
+    /// middle), its value at the path's end minus at its start: the share by which the scale
+    /// grew (negative: shrank) from one end to the other.
+    pub drift: f64,
+}
+
+/// Pieces the path is cut into for [`scale_along_path`] by default (`eval ate`, `run --json`):
+/// a tenth of a 60 m drive is 6 m, long against a monocular run's centimetres of error.
+pub const SCALE_PIECES: usize = 10;
+
+/// A piece of the path counts in [`scale_along_path`] when the RMS spread of its true positions
+/// is at least this many times the run's ATE.
+const MIN_EXTENT_PER_ERROR: f64 = 10.0;
+
+/// How the scale of an aligned estimate (a monocular run's, [`Alignment::Sim3`]) changes along
+/// the path: `pieces` pieces of equal ground-truth path length, each with the scale of its own
+/// positions against the truth's. Jitter does not lengthen a piece (a path length of a noisy
+/// estimate would). Only pieces whose true positions spread at least 10 times the run's ATE
+/// count (a drive's pieces, not a hand-held camera's few centimetres); `None` with fewer than
+/// two such pieces of at least 3 pairs.
+///
+/// ```
+/// use stillpoint_geometry::{Se3, Vec3};
+/// use stillpoint_trajectory::{Alignment, AteOptions, Trajectory, ate, scale_along_path};
+/// // A straight drive whose estimate covers each metre 5 % shorter by the end.
+/// let n = 200;
+/// let stamps: Vec<f64> = (0..n).map(|i| i as f64).collect();
+/// let at = |x: f64| Se3::new(Vec3::new(x, 0.0, 0.0), Vec3::zeros());
+/// let gt = Trajectory::from_parts(stamps.clone(), (0..n).map(|i| at(i as f64)).collect()).unwrap();
+/// let mut x = 0.0;
+/// let est: Vec<Se3> = (0..n).map(|i| { let p = at(x); x += 1.0 - 0.05 * i as f64 / n as f64; p }).collect();
+/// let est = Trajectory::from_parts(stamps, est).unwrap();
+/// let r = ate(&gt, &est, &AteOptions { align: Alignment::Sim3, ..Default::default() }).unwrap();
+/// let s = scale_along_path(&r, 10).unwrap();
+/// assert!((s.drift + 0.05).abs() < 0.01, "{}", s.drift);
+/// ```
+pub fn scale_along_path(r: &AteResult, pieces: usize) -> Option<ScaleAlongPath> {
+    let (g, e) = (&r.gt_positions, &r.est_positions);
+    if pieces < 2 || g.len() < 2 {
+        return None;
+    }
+    let mut along = Vec::with_capacity(g.len());
+    let mut total = 0.0;
+    for k in 0..g.len() {
+        if k > 0 {
+            total += (g[k] - g[k - 1]).norm();
+        }
+        along.push(total);
+    }
+    if total <= 0.0 {
+        return None;
+    }
+    // Each pair in the piece its distance along the true path falls in (the end in the last).
+    let mut members: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+    for (k, &d) in along.iter().enumerate() {
+        let piece = ((d / total * pieces as f64) as usize).min(pieces - 1);
+        members.entry(piece).or_default().push(k);
+    }
+    let mut points: Vec<(f64, f64)> = Vec::new();
+    for (piece, idx) in members {
+        if idx.len() < 3 {
+            continue;
+        }
+        let mean = |v: &[Vec3]| idx.iter().map(|&k| v[k]).sum::<Vec3>() / idx.len() as f64;
+        let (gm, em) = (mean(g), mean(e));
+        let (mut cross, mut spread) = (0.0, 0.0);
+        for &k in &idx {
+            cross += (e[k] - em).dot(&(g[k] - gm));
+            spread += (g[k] - gm).norm_squared();
+        }
+        // A piece whose extent is not well above the run's error tells no scale (a hand-held
+        // camera's 10 cm with 2 cm of error).
+        if spread > 0.0 && (spread / idx.len() as f64).sqrt() >= MIN_EXTENT_PER_ERROR * r.stats.rmse
+        {
+            points.push(((piece as f64 + 0.5) / pieces as f64, cross / spread));
+        }
+    }
+    if points.len() < 2 {
+        return None;
+    }
+    let n = points.len() as f64;
+    let (mx, my) = (
+        points.iter().map(|p| p.0).sum::<f64>() / n,
+        points.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let sxy: f64 = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    let sxx: f64 = points.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    Some(ScaleAlongPath {
+        ratios: points.iter().map(|p| p.1).collect(),
+        drift: if sxx > 0.0 { sxy / sxx } else { 0.0 },
+    })
+}
+
 /// Associated pairs, the matched ground truth, the matched and aligned estimate, the alignment.
 type Aligned = (Vec<(usize, usize)>, Trajectory, Trajectory, Sim3);
 
@@ -355,6 +455,33 @@ mod tests {
             })
             .collect();
         Trajectory::from_parts(stamps, poses).unwrap()
+    }
+
+    #[test]
+    fn jitter_does_not_read_as_a_change_of_scale() {
+        // The helix at half scale, each position 2 cm off at random: every piece's scale is
+        // the run's, whatever the jitter adds to the estimate's path length.
+        let gt = helix(300);
+        // A hash-like pseudo-random offset per pose, within ±2 cm on each axis.
+        let noise = |x: f64| ((x * 12.9898).sin() * 43758.5453).fract() * 0.02;
+        let mut est = gt.clone();
+        for (i, p) in est.poses.iter_mut().enumerate() {
+            let i = i as f64;
+            let jitter = Vec3::new(noise(i + 0.1), noise(i + 0.2), noise(i + 0.3));
+            *p = Se3::from_parts((p.translation.vector * 0.5 + jitter).into(), p.rotation);
+        }
+        let opts = AteOptions {
+            align: Alignment::Sim3,
+            ..Default::default()
+        };
+        let r = ate(&gt, &est, &opts).unwrap();
+        let s = scale_along_path(&r, 10).unwrap();
+        assert_eq!(s.ratios.len(), 10);
+        assert!(s.ratios.iter().all(|q| (q - 1.0).abs() < 0.03), "{s:?}");
+        assert!(s.drift.abs() < 0.01, "{s:?}");
+        // Too short a run to cut in pieces.
+        let two = ate(&helix(2), &helix(2), &opts).unwrap();
+        assert_eq!(scale_along_path(&two, 10), None);
     }
 
     #[test]
