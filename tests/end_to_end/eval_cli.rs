@@ -73,6 +73,16 @@ fn ate_rpe_json_and_plot() {
     ] {
         assert!(sim3.get(key).is_some(), "missing {key}");
     }
+    // The estimate is the truth at another scale throughout: every piece's scale is the run's.
+    let along = &sim3["scale_along_path"];
+    let ratios = along["ratios"].as_array().expect("scale along the path");
+    assert_eq!(ratios.len(), 10, "{along}");
+    assert!(
+        ratios
+            .iter()
+            .all(|q| (q.as_f64().unwrap() - 1.0).abs() < 1e-9)
+    );
+    assert!(along["drift"].as_f64().unwrap().abs() < 1e-9, "{along}");
     let r = json(&stillpoint(&[
         "eval",
         "rpe",
@@ -92,6 +102,12 @@ fn ate_rpe_json_and_plot() {
     assert!(r["rotation_deg"]["max"].as_f64().unwrap() < 1e-6);
     let table = stillpoint(&["eval", "ate", "--gt", g, "--est", e]);
     assert!(String::from_utf8_lossy(&table.stdout).contains("rmse"));
+    let table = stillpoint(&["eval", "ate", "--gt", g, "--est", e, "--align", "sim3"]);
+    let table = String::from_utf8_lossy(&table.stdout).into_owned();
+    assert!(
+        table.contains("scale drift, end to end: ") && table.contains("0.0 %"),
+        "{table}"
+    );
 }
 
 #[test]
