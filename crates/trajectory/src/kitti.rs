@@ -70,11 +70,7 @@ pub fn kitti_odometry(
         return Err(TrajectoryError::Invalid("KITTI step must be >= 1".into()));
     }
     // Accumulated ground-truth path length at each frame.
-    let mut dist = vec![0.0; gt.len()];
-    for i in 1..gt.len() {
-        dist[i] = dist[i - 1]
-            + (gt.poses[i].translation.vector - gt.poses[i - 1].translation.vector).norm();
-    }
+    let dist = gt.distances_along();
     let mut t_errs = Vec::new();
     let mut per_length: Vec<(usize, f64, f64)> = vec![(0, 0.0, 0.0); opts.lengths.len()];
     for first in (0..gt.len()).step_by(opts.step) {

@@ -88,6 +88,11 @@ impl Trajectory {
         self.poses.iter().map(|p| p.translation.vector).collect()
     }
 
+    /// Length of the path through the positions up to each pose, in metres (0 at the first).
+    pub fn distances_along(&self) -> Vec<f64> {
+        distances_along(&self.positions())
+    }
+
     /// Length of the path through the positions, in metres.
     pub fn path_length(&self) -> f64 {
         self.poses
@@ -103,4 +108,17 @@ impl Trajectory {
             poses: ids.iter().map(|&i| self.poses[i]).collect(),
         }
     }
+}
+
+/// Length of the path through `points` up to each of them (0 at the first).
+pub(crate) fn distances_along(points: &[Vec3]) -> Vec<f64> {
+    let mut along = Vec::with_capacity(points.len());
+    let mut total = 0.0;
+    for (k, p) in points.iter().enumerate() {
+        if k > 0 {
+            total += (p - points[k - 1]).norm();
+        }
+        along.push(total);
+    }
+    along
 }

@@ -174,14 +174,8 @@ pub fn scale_along_path(r: &AteResult, pieces: usize) -> Option<ScaleAlongPath> 
     if pieces < 2 || g.len() < 2 {
         return None;
     }
-    let mut along = Vec::with_capacity(g.len());
-    let mut total = 0.0;
-    for k in 0..g.len() {
-        if k > 0 {
-            total += (g[k] - g[k - 1]).norm();
-        }
-        along.push(total);
-    }
+    let along = crate::distances_along(g);
+    let total = along[along.len() - 1];
     if total <= 0.0 {
         return None;
     }
