@@ -38,6 +38,9 @@ pub struct TrackInput<'a> {
     /// Keypoints that may be tracked but must not create map points (same length as
     /// `features`, or empty): the front-end's keypoints on objects not proven still.
     pub no_new_points: &'a [bool],
+    /// Keypoints that may be matched to map points only as closely as keyframes match (same
+    /// length as `features`, or empty).
+    pub close_match_only: &'a [bool],
     /// The caller's own map hygiene once the frame has a pose, `hygiene(map, pose_wc)`.
     pub hygiene: Option<MapHygiene<'a>>,
 }
@@ -57,6 +60,7 @@ impl<'a> TrackInput<'a> {
             descriptors,
             depth: KeypointDepth::None,
             no_new_points: &[],
+            close_match_only: &[],
             hygiene: None,
         }
     }
@@ -373,6 +377,7 @@ impl System {
             descriptors,
             depth,
             no_new_points,
+            close_match_only,
             hygiene,
         } = input;
         let t0 = Instant::now();
@@ -382,7 +387,7 @@ impl System {
                 msg: "timestamp is not finite".into(),
             });
         }
-        let frame = Frame::new_with_mask(
+        let mut frame = Frame::new_with_mask(
             index,
             timestamp,
             features,
@@ -391,6 +396,9 @@ impl System {
             &self.settings,
             no_new_points,
         )?;
+        if close_match_only.len() == frame.len() {
+            frame.close_match_only = close_match_only.to_vec();
+        }
         let keypoints = frame.len();
         let (idle, queued) = match &self.mapping {
             Mapping::Inline(_) => (true, 0),

@@ -190,6 +190,10 @@ pub struct Frame {
     /// front-end kept them only because a static box protects them, inside a moving object's
     /// box: possibly on the moving object).
     pub no_new_point: Vec<bool>,
+    /// Keypoints that may be matched to a map point only as closely as keyframes match
+    /// (`th_low`): those the front-end culled, offered to the map's static points only
+    /// (empty: none).
+    pub close_match_only: Vec<bool>,
     /// World-to-camera pose once tracked.
     pub pose_cw: Option<Se3>,
     /// Keypoints by image cell, for searches in a window.
@@ -255,6 +259,7 @@ impl Frame {
             map_points: Vec::new(),
             outliers: Vec::new(),
             no_new_point: Vec::with_capacity(features.len()),
+            close_match_only: Vec::new(),
             pose_cw: None,
             grid: KeypointGrid::new(&[], 1.0, 1.0),
         };

@@ -135,6 +135,9 @@ pub fn search_by_projection_last(
                 continue;
             }
             let d = hamming(&p.descriptor, &cur.descriptors[c]);
+            if d > s.th_low && cur.close_match_only.get(c).copied().unwrap_or(false) {
+                continue;
+            }
             if d < best.0 {
                 best = (d, c);
             }
@@ -239,6 +242,9 @@ pub fn search_by_projection_local(
                 continue;
             }
             let d = hamming(&p.descriptor, &cur.descriptors[c]);
+            if d > s.th_low && cur.close_match_only.get(c).copied().unwrap_or(false) {
+                continue;
+            }
             if d < best.0 {
                 second = best.0;
                 second_level = best_level;
@@ -323,6 +329,63 @@ mod tests {
         let none = NearestTwo::of([]);
         assert_eq!(none.index, usize::MAX);
         assert!(!none.accepted(u32::MAX, 1.0));
+    }
+
+    /// A map point 2 m ahead of a frame at the origin (seen by keypoint 0 of its first
+    /// keyframe, descriptor all zeros) and a frame whose one keypoint lies where it projects,
+    /// its descriptor `bits` bits away from the point's.
+    fn point_and_frame(bits: usize) -> (Map, Frame, Frame, SlamSettings) {
+        use crate::Feature;
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let s = SlamSettings::monocular(cam, 30.0);
+        let at_centre = [Feature {
+            x: 320.0,
+            y: 240.0,
+            octave: 0,
+            angle: 0.0,
+        }];
+        let mut seen = Frame::new(0, 0.0, &at_centre, &[[0u8; 32]], None, &s).unwrap();
+        seen.pose_cw = Some(Se3::identity());
+        let mut map = Map::new();
+        let kf = map.add_keyframe(&seen).unwrap();
+        let mp = map.add_point(Vec3::new(0.0, 0.0, 2.0), kf, 0).unwrap();
+        map.update_point(mp, &s.scale_factors());
+        seen.map_points[0] = Some(mp);
+        let mut descriptor = [0u8; 32];
+        for b in 0..bits {
+            descriptor[b / 8] |= 1 << (b % 8);
+        }
+        let mut cur = Frame::new(1, 0.1, &at_centre, &[descriptor], None, &s).unwrap();
+        cur.pose_cw = Some(Se3::identity());
+        (map, seen, cur, s)
+    }
+
+    #[test]
+    fn a_close_match_only_keypoint_matches_only_within_th_low() {
+        for (bits, close_only, matched) in [(70, false, true), (70, true, false), (30, true, true)]
+        {
+            let (map, last, mut cur, s) = point_and_frame(bits);
+            assert!(s.th_low < 70 && 70 <= s.th_high && 30 <= s.th_low);
+            if close_only {
+                cur.close_match_only = vec![true];
+            }
+            let mut local = cur.clone();
+            let by_motion = search_by_projection_last(&mut cur, &last, &map, 15.0, &s);
+            assert_eq!(
+                by_motion == 1,
+                matched,
+                "last frame, {bits} bits, {close_only}"
+            );
+            let centre = Vec3::zeros();
+            let pose = Se3::identity();
+            let projected: Vec<_> = map
+                .points
+                .keys()
+                .filter_map(|&mp| project_in_frustum(&map, mp, &pose, &centre, &s))
+                .collect();
+            let n = search_by_projection_local(&mut local, &projected, &map, 1.0, &s);
+            assert_eq!(n == 1, matched, "local map, {bits} bits, {close_only}");
+        }
     }
 
     #[test]
