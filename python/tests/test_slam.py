@@ -113,7 +113,7 @@ def test_a_frame_reports_what_was_judged(walking_halfsphere):
     np.testing.assert_allclose(last.pose[3], [0, 0, 0, 1])
     n = len(last.keypoints)
     assert last.keypoints.shape == (n, 2) and last.dynamic.shape == (n,) == last.matched.shape
-    assert not (last.dynamic & last.matched).any(), "a culled keypoint is never matched"
+    assert not (last.dynamic & last.matched).any(), "with depth a culled keypoint is never matched"
     for key in ("semantic", "geometry", "orb", "tracking", "binding", "total"):
         assert last.timings[key] >= 0
     run = slam.finish()

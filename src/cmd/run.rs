@@ -255,6 +255,7 @@ pub fn summary_json(scored: &ScoredRun) -> serde_json::Value {
         })
         .collect();
     let (cm, cmed, cp90) = s.culled_stats();
+    let (mm, mmed, mp90) = s.culled_matched_stats();
     serde_json::json!({
         "sequence": s.name,
         "sensor": s.sensor,
@@ -273,6 +274,7 @@ pub fn summary_json(scored: &ScoredRun) -> serde_json::Value {
             "frames": s.maps.frames.iter().map(|(map, frames)| serde_json::json!({"map": map, "frames": frames})).collect::<Vec<_>>(),
         },
         "culled_per_frame": {"mean": cm, "median": cmed, "p90": cp90},
+        "culled_matched_per_frame": {"mean": mm, "median": mmed, "p90": mp90},
         "ate": acc.as_ref().map(|(a, _)| serde_json::json!({
             "align": scored.alignment(), "scale": a.alignment.scale,
             "rmse": a.stats.rmse, "mean": a.stats.mean, "median": a.stats.median,
@@ -438,6 +440,13 @@ pub fn print_culled_row(s: &RunSummary) {
         "{:<30} {m:>9.1} {med:>9.1} {p90:>9.1}",
         "keypoints culled / frame"
     );
+    if s.culled_matched_per_frame.iter().any(|&m| m > 0) {
+        let (m, med, p90) = s.culled_matched_stats();
+        println!(
+            "{:<30} {m:>9.1} {med:>9.1} {p90:>9.1}",
+            "  of those matched to the map"
+        );
+    }
 }
 
 /// The flags that are shorthands for settings, as `--set`s laid before the user's own (which

@@ -76,6 +76,9 @@ pub struct Judgement {
     pub erase_recent: Option<EraseRecent>,
     /// The frame's objects, for overlays, recordings and static dense maps.
     pub objects: SceneObjects,
+    /// The culled keypoints may still be matched to the map's existing points, closely, and
+    /// make none (`front_end.offer_culled_to_map_below`; frames without depth only).
+    pub offer_culled_to_map: bool,
 }
 
 /// Map points to erase once the frame has its pose (RGB-D): those made since frame `since` that

@@ -65,6 +65,17 @@ pub struct FrontEndSettings {
     /// its map for 47 frames at 400-470 keypoints a frame instead of 1,000. Measurements:
     /// docs/monocular.md.
     pub orb_exclusion_min_yield: f32,
+    /// Ours (monocular, off by default): once the map stands, a frame without depth whose
+    /// culling keeps less than this share of its keypoints offers the culled ones to the map's
+    /// existing points: they may be matched to map points, only as closely as keyframes match
+    /// each other (`slam.th_low`), and make none (1: whenever any is culled; 0: never). Without
+    /// depth the culling takes whole boxes, and a walker close to the camera takes most of the
+    /// view's static keypoints with his box (living_close seed 1 read monocular with YOLOX
+    /// lost its map for 14 frames; at 1 every room run tracks every frame). Off because the
+    /// culled keypoints also find the points a mover left in the map: map points on movers
+    /// rose on some runs (a 120-frame street 2 -> 12) for no gain in accuracy. Measurements:
+    /// docs/monocular.md.
+    pub offer_culled_to_map_below: f32,
     /// Ours (map hygiene): kept keypoints inside the box of a movable object not proven still
     /// for `ObjectParams::still_frames_to_map` frames create no map points, unless their depth
     /// puts them behind the object.
@@ -151,6 +162,7 @@ impl Default for FrontEndSettings {
             seated_kept_make_points: false,
             orb_exclusion: true,
             orb_exclusion_min_yield: 0.75,
+            offer_culled_to_map_below: 0.0,
             movable_hygiene: true,
             movable_hygiene_margin: 0.5,
             orb_exclusion_margin: 0.05,

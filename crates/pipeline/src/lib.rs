@@ -156,7 +156,9 @@ pub struct FrameResult {
     /// (`front_end.orb_exclusion_min_yield`). Part of the front-end's decision, with
     /// [`Self::dynamic`].
     pub excluded: Option<Arc<Gray8>>,
-    /// Per keypoint: `true` = judged on a moving object and removed before tracking.
+    /// Per keypoint: `true` = judged on a moving object: removed before tracking, or, where
+    /// the frame offered its culled keypoints to the map (`front_end.offer_culled_to_map_below`,
+    /// monocular), only matched closely to existing map points.
     pub dynamic: Vec<bool>,
     /// Per keypoint: kept for tracking but barred from creating map points (on an object not
     /// proven still); empty when none is.
@@ -168,8 +170,8 @@ pub struct FrameResult {
     pub objects: SceneObjects,
     /// Map points matched by tracking (pose inliers).
     pub inliers: usize,
-    /// Per keypoint: matched to a map point and kept by the pose (culled keypoints never are);
-    /// empty when the frame was not tracked.
+    /// Per keypoint: matched to a map point and kept by the pose (culled keypoints only where
+    /// the frame offered them to the map); empty when the frame was not tracked.
     pub matched: Vec<bool>,
     /// The frame became a keyframe.
     pub new_keyframe: bool,
@@ -192,6 +194,16 @@ impl FrameResult {
     /// Keypoints removed as dynamic.
     pub fn culled(&self) -> usize {
         self.dynamic.iter().filter(|&&d| d).count()
+    }
+
+    /// Culled keypoints matched to map points and kept by the pose (only where the frame
+    /// offered its culled keypoints to the map).
+    pub fn culled_matched(&self) -> usize {
+        self.dynamic
+            .iter()
+            .zip(&self.matched)
+            .filter(|&(&d, &m)| d && m)
+            .count()
     }
 }
 
@@ -445,15 +457,35 @@ impl Pipeline {
         let octaves: Vec<u8> = features.iter().map(|k| k.octave).collect();
         let mut descriptors = feats.descriptors;
         let (mut dynamic, mut no_new_points, mut dynamic_boxes) = (Vec::new(), Vec::new(), 0);
+        // What tracking does not see (the culled keypoints, unless offered to the map), and
+        // the keypoints it may match only closely.
+        let (mut removed, mut close_match_only) = (Vec::new(), Vec::new());
         let (mut objects, mut erase_recent) = (SceneObjects::default(), None);
         if let (Some(f), true) = (self.front_end.as_mut(), measured) {
             let judged = f.judge(&input, &keypoints);
             timings.semantic_ms = judged.semantic_ms;
             timings.geometry_ms = judged.geometry_ms + dense_stereo_ms;
             dynamic_boxes = judged.dynamic_boxes;
-            remove_dynamic(&mut features, &mut descriptors, &judged.dynamic);
-            if judged.no_new_points.len() == judged.dynamic.len() {
-                no_new_points = judged.no_new_points;
+            // Monocular, once the map stands: the culled keypoints stay, to be matched to the
+            // map's points only (closely) and to make none.
+            let offered = judged.offer_culled_to_map
+                && frame.right.is_none()
+                && self.system.state() != TrackingState::NotInitialized;
+            let mut no_new = judged.no_new_points;
+            if offered {
+                if no_new.len() != judged.dynamic.len() {
+                    no_new = vec![false; judged.dynamic.len()];
+                }
+                for (n, d) in no_new.iter_mut().zip(&judged.dynamic) {
+                    *n |= *d;
+                }
+                close_match_only = judged.dynamic.clone();
+            } else {
+                remove_dynamic(&mut features, &mut descriptors, &judged.dynamic);
+                removed = judged.dynamic.clone();
+            }
+            if no_new.len() == judged.dynamic.len() {
+                no_new_points = no_new;
             }
             dynamic = judged.dynamic;
             self.skip_next = judged.skip_next;
@@ -462,6 +494,9 @@ impl Pipeline {
         }
         if dynamic.len() != keypoints.len() {
             dynamic = vec![false; keypoints.len()];
+        }
+        if removed.len() != keypoints.len() {
+            removed = vec![false; keypoints.len()];
         }
         // Where the mask gave way (the movers' boxes and their margins) keypoints are tracked
         // only: a limb outside its box was kept off by the mask alone, and no culling sees it.
@@ -479,7 +514,7 @@ impl Pipeline {
         } else {
             no_new_points
                 .iter()
-                .zip(&dynamic)
+                .zip(&removed)
                 .filter(|(_, d)| !**d)
                 .map(|(n, _)| *n)
                 .collect()
@@ -521,6 +556,7 @@ impl Pipeline {
             .track(TrackInput {
                 depth,
                 no_new_points: &kept_no_new_points,
+                close_match_only: &close_match_only,
                 hygiene,
                 ..TrackInput::new(frame.index, frame.timestamp, &features, &descriptors)
             })
@@ -538,12 +574,12 @@ impl Pipeline {
             index: frame.index,
             pose_wc: report.pose_wc,
         });
-        // Tracking saw the kept keypoints only: spread its flags back over all of them.
+        // Tracking saw the keypoints not removed: spread its flags back over all of them.
         let matched = if report.matched.is_empty() {
             Vec::new()
         } else {
             let mut kept = report.matched.iter();
-            dynamic
+            removed
                 .iter()
                 .map(|&d| !d && kept.next().copied().unwrap_or(false))
                 .collect()

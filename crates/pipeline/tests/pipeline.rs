@@ -8,21 +8,24 @@ use stillpoint_pipeline::{Pipeline, PipelineSettings};
 use stillpoint_synth::{Preset, SynthConfig, WriteOptions, write_sequence};
 use stillpoint_trajectory::{Alignment, AteOptions, Trajectory, ate, read_tum};
 
+/// The dynamic front-end on the sequence's own boxes (`boxes.jsonl`).
+fn gt_front_end(seq: &dyn stillpoint_datasets::Sequence, s: FrontEndSettings) -> Box<dyn FrontEnd> {
+    let boxes = seq.boxes();
+    let detector = open_detector(
+        "gt",
+        &Default::default(),
+        boxes.as_deref(),
+        GtDetectorParams::default(),
+    )
+    .unwrap();
+    Box::new(DynamicFrontEnd::new(detector, s))
+}
+
 fn run(dir: &std::path::Path, with_front_end: bool) -> (f64, usize, usize) {
     let seq = stillpoint_datasets::open(dir, None, None).unwrap();
     let mut settings = PipelineSettings::from_dataset(seq.settings());
     settings.slam.local_mapping_thread = false;
-    let front_end = with_front_end.then(|| {
-        let boxes = seq.boxes();
-        let detector = open_detector(
-            "gt",
-            &Default::default(),
-            boxes.as_deref(),
-            GtDetectorParams::default(),
-        )
-        .unwrap();
-        Box::new(DynamicFrontEnd::new(detector, FrontEndSettings::default())) as Box<dyn FrontEnd>
-    });
+    let front_end = with_front_end.then(|| gt_front_end(seq.as_ref(), FrontEndSettings::default()));
     let mut slam = Pipeline::new(settings, front_end, None);
     let mut culled = 0;
     for i in 0..seq.len() {
@@ -104,4 +107,71 @@ fn with_true_poses_the_dense_cloud_lies_on_the_static_scene() {
     let d = cloud_to_surface(&points, &surface);
     // Voxel means of samples on a plane lie on it; at corners and edges a voxel straddles two.
     assert!(d.median_m < 1e-3 && d.within_1cm > 0.99, "{d:?}");
+}
+
+/// Monocular (the walking sequence with its depth withheld), gt boxes: culled keypoints matched
+/// to map points and kept by the pose, and of those on a walker (the generator's masks), over
+/// the run; `offer_below` is `front_end.offer_culled_to_map_below`.
+fn monocular_culled_matches(dir: &std::path::Path, offer_below: f32) -> (usize, usize, usize) {
+    let seq = stillpoint_datasets::open(dir, None, None).unwrap();
+    let mut settings = PipelineSettings::from_dataset(seq.settings());
+    settings.slam.local_mapping_thread = false;
+    let front_end = FrontEndSettings {
+        offer_culled_to_map_below: offer_below,
+        ..FrontEndSettings::default()
+    };
+    let mut slam = Pipeline::new(settings, Some(gt_front_end(seq.as_ref(), front_end)), None);
+    let (mut matched, mut on_walkers, mut tracked) = (0, 0, 0);
+    for i in 0..seq.len() {
+        let frame = seq.frame(i).unwrap();
+        let r = slam.track(&frame).unwrap();
+        tracked += usize::from(r.pose_wc.is_some());
+        if r.culled_matched() == 0 {
+            continue;
+        }
+        matched += r.culled_matched();
+        let mask = stillpoint_image::read_gray(
+            &dir.join("mask").join(format!("{:.6}.png", frame.timestamp)),
+        )
+        .unwrap();
+        on_walkers += r
+            .keypoints
+            .iter()
+            .zip(r.dynamic.iter().zip(&r.matched))
+            .filter(|(k, (d, m))| **d && **m && mask.get(k[0] as usize, k[1] as usize) > 0)
+            .count();
+    }
+    (matched, on_walkers, tracked)
+}
+
+#[test]
+fn monocular_culled_keypoints_match_the_static_map_only() {
+    let tmp = tempfile::tempdir().unwrap();
+    let config = SynthConfig {
+        preset: Preset::WalkingXyz,
+        frames: 60,
+        ..SynthConfig::default()
+    };
+    let options = WriteOptions {
+        masks: true,
+        ..WriteOptions::default()
+    };
+    write_sequence(&config, options, tmp.path()).unwrap();
+    std::fs::remove_file(tmp.path().join("depth.txt")).unwrap();
+    let ((offered, on_walkers, tracked), (never, _, _)) = std::thread::scope(|s| {
+        let offered = s.spawn(|| monocular_culled_matches(tmp.path(), 1.0));
+        let never = monocular_culled_matches(tmp.path(), 0.0);
+        (offered.join().unwrap(), never)
+    });
+    eprintln!("culled keypoints matched: {offered}, on walkers {on_walkers}; tracked {tracked}");
+    assert!(tracked >= 50, "{tracked} frames tracked");
+    assert!(
+        offered > 100,
+        "{offered} culled keypoints matched to the map"
+    );
+    assert!(
+        on_walkers * 20 <= offered,
+        "{on_walkers} of {offered} on the walkers"
+    );
+    assert_eq!(never, 0, "offer_culled_to_map_below = 0 offers none");
 }

@@ -178,6 +178,10 @@ pub struct RunSummary {
     pub maps: MapsReport,
     /// Keypoints the front-end culled, per frame processed.
     pub culled_per_frame: Vec<usize>,
+    /// Of those, matched to the map's points and kept by the pose, per frame processed
+    /// (monocular frames that offered their culled keypoints to the map,
+    /// `front_end.offer_culled_to_map_below`).
+    pub culled_matched_per_frame: Vec<usize>,
     /// The per-frame trajectory (frames following their refined keyframes).
     pub trajectory: Trajectory,
     /// The keyframes' poses.
@@ -246,6 +250,16 @@ impl RunSummary {
     pub fn culled_stats(&self) -> (f64, f64, f64) {
         let culled: Vec<f64> = self.culled_per_frame.iter().map(|&c| c as f64).collect();
         stillpoint_core::stats::stats(&culled)
+    }
+
+    /// mean / median / p90 of the culled keypoints matched to map points per frame.
+    pub fn culled_matched_stats(&self) -> (f64, f64, f64) {
+        let matched: Vec<f64> = self
+            .culled_matched_per_frame
+            .iter()
+            .map(|&c| c as f64)
+            .collect();
+        stillpoint_core::stats::stats(&matched)
     }
 }
 

@@ -288,6 +288,7 @@ pub fn run_source(
         new_maps: tally.new_maps,
         maps: fin.maps.clone(),
         culled_per_frame: tally.culled,
+        culled_matched_per_frame: tally.culled_matched,
         trajectory: fin.trajectory,
         keyframe_trajectory: fin.keyframe_trajectory,
         timings,
@@ -573,6 +574,7 @@ impl<'a> Feed<'a> {
 /// What the run counts as frames go by.
 struct Tally {
     culled: Vec<usize>,
+    culled_matched: Vec<usize>,
     times: Vec<FrameTimings>,
     /// Per frame read in order: how long the run waited for it (decoding, unless read ahead).
     reading_ms: Vec<f64>,
@@ -593,6 +595,7 @@ impl Tally {
     fn new(n: usize, replay: bool) -> Self {
         Self {
             culled: Vec::with_capacity(n.min(1 << 16)),
+            culled_matched: Vec::with_capacity(n.min(1 << 16)),
             times: Vec::with_capacity(n.min(1 << 16)),
             reading_ms: Vec::with_capacity(n.min(1 << 16)),
             tracked: 0,
@@ -642,11 +645,14 @@ impl Tally {
         let culled = r.culled();
         self.most_keypoints = self.most_keypoints.max(r.keypoints.len() - culled);
         self.culled.push(culled);
+        let culled_matched = r.culled_matched();
+        self.culled_matched.push(culled_matched);
         tracing::debug!(
             frame = r.index,
             state = ?r.state,
             keypoints = r.keypoints.len() - culled,
             culled,
+            culled_matched,
             inliers = r.inliers,
             keyframe = r.new_keyframe,
             "tracked"
