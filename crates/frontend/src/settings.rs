@@ -71,10 +71,10 @@ pub struct FrontEndSettings {
     /// each other (`slam.th_low`), and make none (1: whenever any is culled; 0: never). Without
     /// depth the culling takes whole boxes, and a walker close to the camera takes most of the
     /// view's static keypoints with his box (living_close seed 1 read monocular with YOLOX
-    /// lost its map for 14 frames; at 1 every room run tracks every frame). Off because the
-    /// culled keypoints also find the points a mover left in the map: map points on movers
-    /// rose on some runs (a 120-frame street 2 -> 12) for no gain in accuracy. Measurements:
-    /// docs/monocular.md.
+    /// lost its map for 14 frames; at 1 every room run tracks every frame). Off: the mean
+    /// accuracy did not gain, single runs moved both ways, and map points on movers rose on
+    /// some (a 120-frame street 2 -> 12, made from a car judged static, not from the offered
+    /// keypoints). Measurements: docs/monocular.md.
     pub offer_culled_to_map_below: f32,
     /// Ours (map hygiene): kept keypoints inside the box of a movable object not proven still
     /// for `ObjectParams::still_frames_to_map` frames create no map points, unless their depth
