@@ -95,10 +95,7 @@ impl Trajectory {
 
     /// Length of the path through the positions, in metres.
     pub fn path_length(&self) -> f64 {
-        self.poses
-            .windows(2)
-            .map(|w| (w[1].translation.vector - w[0].translation.vector).norm())
-            .sum()
+        self.distances_along().last().copied().unwrap_or(0.0)
     }
 
     /// The poses at the given indices, in that order.
