@@ -242,10 +242,12 @@ impl FrontEnd for DynamicFrontEnd {
         };
         let mut out = self.judge_measured(frame, measured, keypoints);
         self.outputs(frame.index, &mut out);
-        let kept = out.dynamic.iter().filter(|d| !**d).count();
-        out.offer_culled_to_map = frame.depth.is_none()
-            && kept < out.dynamic.len()
-            && (kept as f32) < self.settings.offer_culled_to_map_below * out.dynamic.len() as f32;
+        let below = self.settings.offer_culled_to_map_below;
+        if frame.depth.is_none() && below > 0.0 {
+            let kept = out.dynamic.iter().filter(|d| !**d).count();
+            out.offer_culled_to_map =
+                kept < out.dynamic.len() && (kept as f32) < below * out.dynamic.len() as f32;
+        }
         out
     }
 }

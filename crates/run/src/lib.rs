@@ -248,19 +248,19 @@ pub struct DenseReport {
 impl RunSummary {
     /// mean / median / p90 of the keypoints the front-end culled per frame.
     pub fn culled_stats(&self) -> (f64, f64, f64) {
-        let culled: Vec<f64> = self.culled_per_frame.iter().map(|&c| c as f64).collect();
-        stillpoint_core::stats::stats(&culled)
+        count_stats(&self.culled_per_frame)
     }
 
     /// mean / median / p90 of the culled keypoints matched to map points per frame.
     pub fn culled_matched_stats(&self) -> (f64, f64, f64) {
-        let matched: Vec<f64> = self
-            .culled_matched_per_frame
-            .iter()
-            .map(|&c| c as f64)
-            .collect();
-        stillpoint_core::stats::stats(&matched)
+        count_stats(&self.culled_matched_per_frame)
     }
+}
+
+/// mean / median / p90 of per-frame counts.
+fn count_stats(counts: &[usize]) -> (f64, f64, f64) {
+    let counts: Vec<f64> = counts.iter().map(|&c| c as f64).collect();
+    stillpoint_core::stats::stats(&counts)
 }
 
 /// Why a run could not start or finish. Each names what it was doing; the cause is its source.
