@@ -18,9 +18,13 @@ pub(crate) struct BackgroundDetector {
     interval_s: f64,
     /// [`FrontEndSettings::background_detect_max_wait_s`].
     max_wait_s: f64,
-    /// Classes that move on their own (people, animals, vehicles): only while one is in view are
-    /// old boxes worth waiting for (an empty room loses nothing to them, a fast turn loses
-    /// frames).
+    /// [`FrontEndSettings::background_detect_max_wait_without_mover_s`].
+    max_wait_without_mover_s: f64,
+    /// [`FrontEndSettings::background_detect_wait_slice_s`].
+    wait_slice: std::time::Duration,
+    /// Classes that move on their own (people, animals, vehicles): while one is in view a late
+    /// detection is waited for whole; with none, in slices (someone may have walked in, but a
+    /// whole wait stops a fast turn for an inference).
     movable_classes: Vec<u16>,
     /// [`FrontEndSettings::background_detect_at_side_edge`].
     at_side_edge_every_frame: bool,
@@ -82,6 +86,10 @@ impl BackgroundDetector {
             last_sent: None,
             interval_s: settings.background_detect_interval_s,
             max_wait_s: settings.background_detect_max_wait_s,
+            max_wait_without_mover_s: settings.background_detect_max_wait_without_mover_s,
+            wait_slice: std::time::Duration::from_secs_f64(
+                settings.background_detect_wait_slice_s.max(0.0),
+            ),
             movable_classes: settings.dynamic.objects.movable_classes.clone(),
             at_side_edge_every_frame: settings.background_detect_at_side_edge,
             schedule: (settings.background_detect_every_frames > 0).then(|| {
@@ -139,13 +147,25 @@ impl BackgroundDetector {
                 while let Some(done) = self.thread.try_recv() {
                     self.take(done);
                 }
-                // live, the detector behind: wait for the frame it holds rather than go on
-                // with boxes too old (frames arriving meanwhile are dropped)
-                let held_too_long = self
-                    .last_sent
-                    .is_some_and(|t| frame.timestamp - t > self.max_wait_s);
-                if self.busy && self.max_wait_s > 0.0 && held_too_long && self.mover_in_view() {
-                    self.wait_for_detection(frame.index);
+                // live, the detector behind: with a mover in the newest boxes wait for the
+                // frame it holds rather than go on with boxes too old (frames arriving
+                // meanwhile are dropped); without one, someone may have come into view since:
+                // give the detector a slice of the core on each frame until it finishes
+                let held_for = self.last_sent.map(|t| frame.timestamp - t);
+                let overdue = |limit: f64| limit > 0.0 && held_for.is_some_and(|h| h > limit);
+                if self.busy && self.mover_in_view() {
+                    if overdue(self.max_wait_s) {
+                        self.wait_for_detection(frame.index);
+                    }
+                } else if self.busy && overdue(self.max_wait_without_mover_s) {
+                    match self.thread.recv_timeout(self.wait_slice) {
+                        Ok(Some(done)) => self.take(done),
+                        Ok(None) => {}
+                        Err(e) => {
+                            self.busy = false;
+                            tracing::warn!("frame {}: detector failed: {e}", frame.index);
+                        }
+                    }
                 }
             }
         }

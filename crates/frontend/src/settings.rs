@@ -110,9 +110,25 @@ pub struct FrontEndSettings {
     /// older than 15 frames are kept while a newer detection is on its way. 0: as before, never
     /// wait and drop them (docs/realtime.md).
     pub background_detect_max_wait_s: f64,
-    /// Nice steps (Linux) the background detector runs below tracking, as local mapping does
-    /// (`slam.background_nice`): its boxes may come a little later, a frame may not. Live
-    /// runs; on a schedule of frames `background_detect_nice_on_schedule` instead.
+    /// Live, with the detector in the background and no movable object in its newest boxes:
+    /// once the frame it holds was handed over more than this long ago (seconds of the frames'
+    /// clock), each frame waits for it at most `background_detect_wait_slice_s` before going
+    /// on. Someone may have come into view since the newest boxes, and a starved detector
+    /// (one core at 60 Hz: tracking never idle, the detector 10 nice steps below) would leave
+    /// them unboxed for seconds, long enough to be mapped; the slices give it the core in
+    /// pieces, so the system drops frames (fewer frames, a little more motion between them)
+    /// instead of stopping for a whole inference, which cost a fast turn its track
+    /// (docs/realtime.md). 0: never wait without a mover in view.
+    pub background_detect_max_wait_without_mover_s: f64,
+    /// The most a frame waits for an overdue detection with no mover in view (seconds of the
+    /// wall clock; about one frame at 60 Hz).
+    pub background_detect_wait_slice_s: f64,
+    /// Nice steps (Linux) the background detector runs below tracking: its boxes may come a
+    /// little later, a frame may not. Ours: 5, above local mapping and loop closing
+    /// (`slam.background_nice`, 10), so that the time a starved machine's frames leave it goes
+    /// to the detector first (at 10, one core at 60 Hz, a person was boxed up to 40 frames
+    /// after walking in: docs/realtime.md). Live runs; on a schedule of frames
+    /// `background_detect_nice_on_schedule` instead.
     pub background_detect_nice: i32,
     /// As `background_detect_nice`, on a recording's schedule of frames
     /// (`background_detect_every_frames`), where frames wait for the detector's boxes: 0, at
@@ -170,7 +186,9 @@ impl Default for FrontEndSettings {
             detector_in_background: false,
             background_detect_interval_s: 0.1,
             background_detect_max_wait_s: 0.5,
-            background_detect_nice: 10,
+            background_detect_max_wait_without_mover_s: 0.2,
+            background_detect_wait_slice_s: 0.016,
+            background_detect_nice: 5,
             background_detect_nice_on_schedule: 0,
             background_detect_at_side_edge: true,
             detect_recordings_on_schedule: true,

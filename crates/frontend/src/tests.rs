@@ -329,24 +329,27 @@ fn a_frame_that_needs_its_own_boxes_waits_for_them_on_a_schedule() {
     assert_eq!(seen, expected);
 }
 
-/// Live, with a person in view, a detector that falls behind is waited for once the frame it
-/// holds was handed over more than `background_detect_max_wait_s` ago: no frame goes on with
-/// older boxes (a starved machine drops frames instead of mapping the person).
-#[test]
-fn a_live_detector_that_falls_behind_is_waited_for() {
+/// Ages (in frames) of the boxes each of 30 live frames at 60 Hz gets from a background
+/// detector that finishes the detection of frame k only once the caller has started frame
+/// k + 4, finding one box of `class_id` a frame.
+fn box_ages_with_a_detector_behind(class_id: u16, settings: FrontEndSettings) -> Vec<f32> {
     use std::sync::Arc;
     use std::sync::atomic::{AtomicUsize, Ordering};
-    /// Finishes the detection of frame k only once the caller has started frame k + 4.
-    struct Behind(Arc<AtomicUsize>);
+    struct Behind(Arc<AtomicUsize>, u16);
     impl Detector for Behind {
         fn detect(&mut self, input: &DetectInput) -> Result<Vec<Detection>, DetectError> {
             let frame = (input.timestamp * 60.0).round() as usize;
             while frame > 0 && self.0.load(Ordering::SeqCst) < frame + 4 {
                 std::thread::yield_now();
             }
+            // and then takes a while: a frame that does not wait for it goes on without it
+            // (the ages asserted hold only because the frames wait)
+            for _ in 0..20_000 {
+                std::thread::yield_now();
+            }
             Ok(vec![Detection {
                 bbox: stillpoint_geometry::BBox::new(20.0 + frame as f32, 10.0, 60.0, 50.0),
-                class_id: crate::PERSON_CLASS,
+                class_id: self.1,
                 score: 0.9,
             }])
         }
@@ -355,17 +358,10 @@ fn a_live_detector_that_falls_behind_is_waited_for() {
         }
     }
     let started = Arc::new(AtomicUsize::new(0));
-    let settings = FrontEndSettings {
-        detector_in_background: true,
-        background_detect_every_frames: 0,
-        background_detect_interval_s: 0.0,
-        // 60 Hz: a detection held 4 frames (0.067 s) is waited for, 3 (0.05 s) is not
-        background_detect_max_wait_s: 0.06,
-        ..Default::default()
-    };
-    let mut front = DynamicFrontEnd::new(Box::new(Behind(Arc::clone(&started))), settings)
-        .detect_in_background()
-        .unwrap();
+    let mut front =
+        DynamicFrontEnd::new(Box::new(Behind(Arc::clone(&started), class_id)), settings)
+            .detect_in_background()
+            .unwrap();
     let gray = Gray8::new(96, 64, 0);
     let mut ages = Vec::new();
     for i in 0..30 {
@@ -380,21 +376,70 @@ fn a_live_detector_that_falls_behind_is_waited_for() {
             own_boxes: false,
         };
         let judged = front.judge(&input, &[]);
-        let detected = judged.objects.tracked.first().map(|o| o.bbox.x1 - 20.0);
-        ages.push(detected.map(|d| i as f32 - d));
+        let detected = judged
+            .objects
+            .tracked
+            .first()
+            .map(|o| o.bbox.x1 - 20.0)
+            .unwrap_or_else(|| panic!("frame {i}: no boxes"));
+        ages.push(i as f32 - detected);
     }
     started.store(usize::MAX / 2, Ordering::SeqCst);
     drop(front);
-    // frame 1 is handed over and waited for at frame 5 (held 4 frames), frame 5 at frame 9,
-    // ...: those frames get boxes 4 frames old, the frames between carry them (never older
-    // than 7); without the wait they would age until the detection happened to be collected
-    for (i, age) in ages.iter().enumerate() {
-        let age = age.expect("boxes on every frame");
+    ages
+}
+
+/// Frame 1 is handed over and waited for at frame 5 (held 4 frames), frame 5 at frame 9, ...:
+/// those frames get boxes 4 frames old, the frames between carry them (never older than 7);
+/// without the wait they would age until the detection happened to be collected.
+fn assert_waited_for_at_4_frames(ages: &[f32]) {
+    for (i, &age) in ages.iter().enumerate() {
         assert!(age <= 7.0, "frame {i}: boxes {age} frames old: {ages:?}");
         if i >= 5 && (i - 5) % 4 == 0 {
             assert_eq!(age, 4.0, "frame {i}: {ages:?}");
         }
     }
+}
+
+/// Live, with a person in view, a detector that falls behind is waited for once the frame it
+/// holds was handed over more than `background_detect_max_wait_s` ago: no frame goes on with
+/// older boxes (a starved machine drops frames instead of mapping the person).
+#[test]
+fn a_live_detector_that_falls_behind_is_waited_for() {
+    let settings = FrontEndSettings {
+        detector_in_background: true,
+        background_detect_every_frames: 0,
+        background_detect_interval_s: 0.0,
+        // 60 Hz: a detection held 4 frames (0.067 s) is waited for, 3 (0.05 s) is not
+        background_detect_max_wait_s: 0.06,
+        background_detect_max_wait_without_mover_s: 0.0,
+        ..Default::default()
+    };
+    assert_waited_for_at_4_frames(&box_ages_with_a_detector_behind(
+        crate::PERSON_CLASS,
+        settings,
+    ));
+}
+
+/// Live, with no mover in the newest boxes, a detector that falls behind gets a slice of each
+/// frame once the frame it holds was handed over more than
+/// `background_detect_max_wait_without_mover_s` ago (someone may have come into view): with a
+/// slice longer than the detection, the frames get the same boxes as with a mover in view.
+#[test]
+fn a_live_detector_that_falls_behind_with_no_mover_in_view_gets_its_slices() {
+    const CHAIR: u16 = 56;
+    let settings = FrontEndSettings {
+        detector_in_background: true,
+        background_detect_every_frames: 0,
+        background_detect_interval_s: 0.0,
+        background_detect_max_wait_s: 0.0,
+        background_detect_max_wait_without_mover_s: 0.06,
+        // far longer than the detection takes once frame k + 4 started: no timing in the test
+        background_detect_wait_slice_s: 60.0,
+        ..Default::default()
+    };
+    assert!(!settings.dynamic.objects.movable_classes.contains(&CHAIR));
+    assert_waited_for_at_4_frames(&box_ages_with_a_detector_behind(CHAIR, settings));
 }
 
 #[test]
