@@ -87,9 +87,11 @@ impl BackgroundDetector {
             interval_s: settings.background_detect_interval_s,
             max_wait_s: settings.background_detect_max_wait_s,
             max_wait_without_mover_s: settings.background_detect_max_wait_without_mover_s,
-            wait_slice: std::time::Duration::from_secs_f64(
+            // a setting of inf waits whole, like NaN or below 0 not at all (never a panic)
+            wait_slice: std::time::Duration::try_from_secs_f64(
                 settings.background_detect_wait_slice_s.max(0.0),
-            ),
+            )
+            .unwrap_or(std::time::Duration::MAX),
             movable_classes: settings.dynamic.objects.movable_classes.clone(),
             at_side_edge_every_frame: settings.background_detect_at_side_edge,
             schedule: (settings.background_detect_every_frames > 0).then(|| {
@@ -158,14 +160,7 @@ impl BackgroundDetector {
                         self.wait_for_detection(frame.index);
                     }
                 } else if self.busy && overdue(self.max_wait_without_mover_s) {
-                    match self.thread.recv_timeout(self.wait_slice) {
-                        Ok(Some(done)) => self.take(done),
-                        Ok(None) => {}
-                        Err(e) => {
-                            self.busy = false;
-                            tracing::warn!("frame {}: detector failed: {e}", frame.index);
-                        }
-                    }
+                    self.wait_for_detection_at_most(frame.index, Some(self.wait_slice));
                 }
             }
         }
@@ -223,8 +218,19 @@ impl BackgroundDetector {
     /// Block until the detector returns the frame it holds, and take its boxes (`waiting`: the
     /// frame that waits, for the log).
     fn wait_for_detection(&mut self, waiting: usize) {
-        match self.thread.recv() {
-            Ok(done) => self.take(done),
+        self.wait_for_detection_at_most(waiting, None);
+    }
+
+    /// As [`BackgroundDetector::wait_for_detection`], but for at most `limit` (`None`: as long
+    /// as it takes); nothing is taken when the detection does not come in time.
+    fn wait_for_detection_at_most(&mut self, waiting: usize, limit: Option<std::time::Duration>) {
+        let done = match limit {
+            None => self.thread.recv().map(Some),
+            Some(limit) => self.thread.recv_timeout(limit),
+        };
+        match done {
+            Ok(Some(done)) => self.take(done),
+            Ok(None) => {}
             Err(e) => {
                 self.busy = false;
                 tracing::warn!("frame {waiting}: detector failed: {e}");
