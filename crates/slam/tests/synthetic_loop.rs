@@ -268,7 +268,9 @@ fn a_monocular_loop_waits_for_points_placed_over_enough_parallax() {
     // The lap's first keyframes kept 8 cm apart (no keyframe culled leaving a gap over 0.5 s):
     // the points they alone see are placed by that short baseline, all wrong alike. Placed on
     // them, the loop turns the keyframe by 9 degrees where it drifted by half of one; waiting
-    // for a keyframe that sees points triangulated over 5 degrees closes it right.
+    // for a keyframe that sees points triangulated over 5 degrees closes it right. The
+    // correction is judged without global BA after it (4.6 cm against 0.9): run until it
+    // converges, as it now is, BA repairs even the wrong one on this easy lap (0.34 cm).
     let frames = LAP + LAP / 3;
     let run = |min_parallax_deg: f64| {
         run_with(
@@ -281,6 +283,7 @@ fn a_monocular_loop_waits_for_points_placed_over_enough_parallax() {
             |s| {
                 s.kf_cull_max_gap_s_monocular = 0.5;
                 s.loop_closing.min_parallax_deg_monocular = min_parallax_deg;
+                s.loop_closing.global_ba = false;
             },
         )
     };
@@ -289,11 +292,12 @@ fn a_monocular_loop_waits_for_points_placed_over_enough_parallax() {
     assert!(later > first, "loops {:?} -> {:?}", any.loops, placed.loops);
     assert!(
         any.ate > 0.02,
-        "the loop on short-baseline points: {}",
-        any.ate
+        "the loop on short-baseline points: {} (with {})",
+        any.ate,
+        placed.ate
     );
     assert!(
-        placed.ate < 0.005,
+        placed.ate < 0.01,
         "Sim(3) ATE {} -> {}",
         any.ate,
         placed.ate

@@ -111,8 +111,31 @@ fn total_cost(p: &BaProblem, active: &[bool], s: &SlamSettings, robust: bool) ->
     c
 }
 
-/// Run LM iterations on the active observations.
-fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &SlamSettings) {
+/// What a run of Levenberg-Marquardt did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LmReport {
+    /// Steps taken (the cost went down).
+    pub steps: usize,
+    /// Steps tried and undone (the cost went up, or the system could not be solved).
+    pub rejected: usize,
+    /// Robust cost before.
+    pub cost_before: f64,
+    /// Robust cost after.
+    pub cost_after: f64,
+}
+
+/// Run LM iterations on the active observations. With `trials_after_failure` 0 a rejected
+/// step uses up an iteration; with k > 0 up to k rejections in a row are retried with more
+/// damping within one iteration, and one more ends the run, as in g2o's Levenberg-Marquardt
+/// (its default is 10).
+fn lm(
+    p: &mut BaProblem,
+    active: &[bool],
+    iterations: usize,
+    robust: bool,
+    s: &SlamSettings,
+    trials_after_failure: usize,
+) -> LmReport {
     let free: Vec<Option<usize>> = {
         let mut k = 0;
         p.fixed
@@ -150,11 +173,30 @@ fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &S
         .collect();
     let mut lambda = 1e-4;
     let mut cost = total_cost(p, active, s, robust);
+    let mut report = LmReport {
+        cost_before: cost,
+        cost_after: cost,
+        ..LmReport::default()
+    };
+    // A rejected step uses up an iteration (trials_after_failure 0), or is retried until it is
+    // the (trials_after_failure + 1)-th in a row, which gives up (true).
+    let mut iteration = 0;
+    let mut failures_in_a_row = 0;
+    let rejected = |iteration: &mut usize, failures_in_a_row: &mut usize, report: &mut LmReport| {
+        report.rejected += 1;
+        *failures_in_a_row += 1;
+        if *failures_in_a_row <= trials_after_failure {
+            return false;
+        }
+        *iteration += 1;
+        *failures_in_a_row = 0;
+        trials_after_failure > 0
+    };
     // One camera-point block per observation (megabytes in a local window): allocated once;
     // every iteration writes those of the active observations by free cameras (zero where one
     // cannot be linearised), the only ones read.
     let mut w = vec![Matrix6x3::<f64>::zeros(); p.observations.len()];
-    for _ in 0..iterations {
+    while iteration < iterations {
         let mut u = vec![Matrix6::<f64>::zeros(); n_free];
         let mut bc = vec![Vector6::<f64>::zeros(); n_free];
         let mut v = vec![Matrix3::<f64>::zeros(); p.points.len()];
@@ -223,6 +265,9 @@ fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &S
                 Some(ch) => ch.solve(&rhs),
                 None => {
                     lambda *= 10.0;
+                    if rejected(&mut iteration, &mut failures_in_a_row, &mut report) {
+                        break;
+                    }
                     continue;
                 }
             }
@@ -231,6 +276,9 @@ fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &S
         };
         if !dc.iter().all(|x| x.is_finite()) {
             lambda *= 10.0;
+            if rejected(&mut iteration, &mut failures_in_a_row, &mut report) {
+                break;
+            }
             continue;
         }
         let old_poses = p.poses.clone();
@@ -256,6 +304,10 @@ fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &S
         if new_cost.is_finite() && new_cost < cost {
             let converged = (cost - new_cost) < 1e-6 * cost;
             cost = new_cost;
+            report.steps += 1;
+            report.cost_after = cost;
+            iteration += 1;
+            failures_in_a_row = 0;
             lambda = (lambda / 3.0).max(1e-9);
             if converged {
                 break;
@@ -264,11 +316,12 @@ fn lm(p: &mut BaProblem, active: &[bool], iterations: usize, robust: bool, s: &S
             p.poses = old_poses;
             p.points = old_points;
             lambda *= 4.0;
-            if lambda > 1e8 {
+            if rejected(&mut iteration, &mut failures_in_a_row, &mut report) || lambda > 1e8 {
                 break;
             }
         }
     }
+    report
 }
 
 /// `m[row.., col..] -= a * bᵀ` on the 6x6 block of the column-major `m` (`rows` rows): the
@@ -304,7 +357,7 @@ pub fn local_bundle_adjustment(p: &mut BaProblem, s: &SlamSettings) -> Vec<bool>
         return vec![false; n];
     }
     let mut active = vec![true; n];
-    lm(p, &active, s.ba_iterations[0], true, s);
+    lm(p, &active, s.ba_iterations[0], true, s, 0);
     let classify = |p: &BaProblem, o: &BaObservation| {
         chi2_of(p, o, s)
             .is_none_or(|(chi2, stereo)| chi2 > if stereo { s.chi2_stereo } else { s.chi2_mono })
@@ -312,8 +365,26 @@ pub fn local_bundle_adjustment(p: &mut BaProblem, s: &SlamSettings) -> Vec<bool>
     for (i, o) in p.observations.iter().enumerate() {
         active[i] = !classify(p, o);
     }
-    lm(p, &active, s.ba_iterations[1], false, s);
+    lm(p, &active, s.ba_iterations[1], false, s, 0);
     p.observations.iter().map(|o| classify(p, o)).collect()
+}
+
+/// Global bundle adjustment after a loop or a merge (ORB-SLAM's `GlobalBundleAdjustemnt`):
+/// `iterations` robust Levenberg-Marquardt steps over every observation, each retried with more
+/// damping up to `trials_after_failure` times in a row (g2o's way; local BA counts a rejected
+/// step as an iteration). A map just bent by the essential graph starts far from its optimum,
+/// and many first steps are rejected.
+pub fn global_bundle_adjustment(
+    p: &mut BaProblem,
+    s: &SlamSettings,
+    iterations: usize,
+    trials_after_failure: usize,
+) -> LmReport {
+    if p.observations.is_empty() || p.poses.len() != p.fixed.len() {
+        return LmReport::default();
+    }
+    let active = vec![true; p.observations.len()];
+    lm(p, &active, iterations, true, s, trials_after_failure)
 }
 
 use std::ops::AddAssign;
@@ -405,6 +476,89 @@ mod tests {
                     && p.observations[i].point.is_multiple_of(50))
         );
         assert!(!flagged.is_empty());
+    }
+
+    #[test]
+    fn global_ba_retries_rejected_steps_and_runs_to_convergence() {
+        // Monocular views (no right image) of points 2-6 m away along a 1.6 m arc, the far
+        // cameras knocked well off: LM's first undamped steps overshoot and are undone.
+        let cam = PinholeCamera::new(300.0, 300.0, 160.0, 120.0, 320, 240);
+        let s = SlamSettings::rgbd(cam, 40.0, 30.0);
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+        let truth_poses: Vec<Se3> = (0..8)
+            .map(|i| {
+                Se3::new(
+                    nalgebra::Vector3::new(-0.2 * i as f64, 0.0, 0.0),
+                    nalgebra::Vector3::new(0.0, 0.04 * i as f64, 0.0),
+                )
+            })
+            .collect();
+        let truth_points: Vec<Vec3> = (0..400)
+            .map(|_| {
+                Vec3::new(
+                    rng.random_range(-2.0..3.0),
+                    rng.random_range(-1.5..1.5),
+                    rng.random_range(2.0..6.0),
+                )
+            })
+            .collect();
+        let mut start = BaProblem {
+            poses: truth_poses.clone(),
+            fixed: (0..8).map(|i| i == 0).collect(),
+            points: truth_points.clone(),
+            observations: Vec::new(),
+        };
+        for (ci, pose) in truth_poses.iter().enumerate() {
+            for (pi, pw) in truth_points.iter().enumerate() {
+                let pc = (pose * nalgebra::Point3::from(*pw)).coords;
+                let Some(px) = cam.project_undistorted(&pc) else {
+                    continue;
+                };
+                if cam.in_image(&px, 0.0) {
+                    start.observations.push(BaObservation {
+                        camera: ci,
+                        point: pi,
+                        u: px.x + rng.random_range(-0.5..0.5),
+                        v: px.y + rng.random_range(-0.5..0.5),
+                        u_right: None,
+                        inv_sigma2: 1.0,
+                    });
+                }
+            }
+        }
+        for (i, pose) in start.poses.iter_mut().enumerate().skip(1) {
+            *pose = Se3::new(
+                nalgebra::Vector3::new(0.1 * i as f64, -0.1, 0.1 * i as f64),
+                nalgebra::Vector3::new(0.03 * i as f64, -0.02 * i as f64, 0.01),
+            ) * *pose;
+        }
+        for (k, pt) in start.points.iter_mut().enumerate() {
+            *pt *= 1.0 + 0.4 * ((k % 7) as f64 - 3.0) / 3.0;
+        }
+        // ORB-SLAM's count, a rejection using up an iteration (as local BA counts them) ...
+        let mut counted = start.clone();
+        let ten = global_bundle_adjustment(&mut counted, &s, 10, 0);
+        // ... and the default: rejections retried, steps until the cost stops falling.
+        let mut p = start.clone();
+        let lc = &s.loop_closing;
+        let report = global_bundle_adjustment(
+            &mut p,
+            &s,
+            lc.global_ba_iterations,
+            lc.global_ba_trials_after_failure,
+        );
+        assert!(
+            ten.rejected > 0 && report.rejected > 0,
+            "{ten:?} {report:?}"
+        );
+        assert_eq!(ten.steps + ten.rejected, 10, "{ten:?}");
+        assert!(report.steps > ten.steps, "{ten:?} {report:?}");
+        assert!(report.cost_after < ten.cost_after, "{ten:?} {report:?}");
+        let again = global_bundle_adjustment(&mut p.clone(), &s, 100, 10);
+        assert!(
+            again.cost_before - again.cost_after < 1e-4 * again.cost_before,
+            "{report:?} {again:?}"
+        );
     }
 
     #[test]

@@ -5,7 +5,9 @@ pub mod local_ba;
 pub mod pose;
 pub mod pose_graph;
 
-pub use local_ba::{BaObservation, BaProblem, local_bundle_adjustment};
+pub use local_ba::{
+    BaObservation, BaProblem, LmReport, global_bundle_adjustment, local_bundle_adjustment,
+};
 pub use pose::{PoseObservation, PosePrior, optimize_pose, optimize_pose_with_prior};
 pub use pose_graph::{
     Graph, GraphEdge, PoseGraph, PoseGraphEdge, PoseGraphReport, Sim3Edge, Sim3Graph,

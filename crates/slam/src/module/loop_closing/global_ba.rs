@@ -78,9 +78,19 @@ impl LoopCloser {
             (problem, kfs, pt_ids)
         };
         let before = problem.poses.clone();
-        let mut s = self.s.clone();
-        s.ba_iterations = [self.s.loop_closing.global_ba_iterations, 0];
-        crate::optimize::local_bundle_adjustment(&mut problem, &s);
+        let report = crate::optimize::global_bundle_adjustment(
+            &mut problem,
+            &self.s,
+            self.s.loop_closing.global_ba_iterations,
+            self.s.loop_closing.global_ba_trials_after_failure,
+        );
+        debug!(
+            steps = report.steps,
+            rejected = report.rejected,
+            cost_before = report.cost_before,
+            cost_after = report.cost_after,
+            "global BA solved"
+        );
         let mut m = map.lock().ok()?;
         let mut poses = BTreeMap::new();
         for (c, k) in kf_ids.iter().enumerate() {

@@ -123,8 +123,15 @@ pub struct LoopSettings {
     /// Bundle adjustment of the whole map after a correction (ORB-SLAM runs one in a thread of
     /// its own; here it runs in loop closing's thread with local mapping stopped).
     pub global_ba: bool,
-    /// Robust Levenberg-Marquardt iterations of it (ORB-SLAM: 10).
+    /// Robust Levenberg-Marquardt steps of it, at most; it stops sooner once a step lowers
+    /// the cost by less than a millionth (ORB-SLAM: 10 iterations. A monocular map just bent
+    /// by a loop sits in a flat valley: on `loop` read monocular, 320x240, the 10th step left
+    /// a loop run 4.9-9.0 cm off where the 30th, at convergence, left it 2.2-2.5: docs/maps.md).
     pub global_ba_iterations: usize,
+    /// A rejected step of it is retried with more damping up to this many times in a row
+    /// before it counts as an iteration (g2o's `maxTrialsAfterFailure`, which ORB-SLAM's 10
+    /// iterations mean: 10; 0 = a rejection uses up an iteration, as local BA counts them).
+    pub global_ba_trials_after_failure: usize,
     /// Global BA solves the reduced camera system densely: maps with more keyframes skip it.
     pub global_ba_max_keyframes: usize,
 }
@@ -160,7 +167,8 @@ impl Default for LoopSettings {
             essential_max_covisibles: 10,
             pose_graph_iterations: 20,
             global_ba: true,
-            global_ba_iterations: 10,
+            global_ba_iterations: 100,
+            global_ba_trials_after_failure: 10,
             global_ba_max_keyframes: 200,
         }
     }
