@@ -395,6 +395,42 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use stillpoint_geometry::PinholeCamera;
 
+    /// `n` points at random with x in `x`, y in -1.5..1.5 and z (depth) in 2..6 m.
+    fn random_points(rng: &mut rand_pcg::Pcg64, n: usize, x: std::ops::Range<f64>) -> Vec<Vec3> {
+        (0..n)
+            .map(|_| {
+                Vec3::new(
+                    rng.random_range(x.clone()),
+                    rng.random_range(-1.5..1.5),
+                    rng.random_range(2.0..6.0),
+                )
+            })
+            .collect()
+    }
+
+    /// One observation per point in view of each camera, made by `observe(camera, point,
+    /// exact pixel, point in the camera)`.
+    fn observations(
+        cam: &PinholeCamera,
+        poses: &[Se3],
+        points: &[Vec3],
+        mut observe: impl FnMut(usize, usize, nalgebra::Vector2<f64>, Vec3) -> BaObservation,
+    ) -> Vec<BaObservation> {
+        let mut out = Vec::new();
+        for (ci, pose) in poses.iter().enumerate() {
+            for (pi, pw) in points.iter().enumerate() {
+                let pc = (pose * nalgebra::Point3::from(*pw)).coords;
+                let Some(px) = cam.project_undistorted(&pc) else {
+                    continue;
+                };
+                if cam.in_image(&px, 0.0) {
+                    out.push(observe(ci, pi, px, pc));
+                }
+            }
+        }
+        out
+    }
+
     #[test]
     fn schur_ba_recovers_perturbed_cameras_and_points() {
         let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
@@ -408,46 +444,29 @@ mod tests {
                 )
             })
             .collect();
-        let truth_points: Vec<Vec3> = (0..300)
-            .map(|_| {
-                Vec3::new(
-                    rng.random_range(-2.0..2.0),
-                    rng.random_range(-1.5..1.5),
-                    rng.random_range(2.0..6.0),
-                )
-            })
-            .collect();
+        let truth_points = random_points(&mut rng, 300, -2.0..2.0);
         let mut p = BaProblem {
             poses: truth_poses.clone(),
             fixed: vec![true, true, false, false, false],
             points: truth_points.clone(),
             observations: Vec::new(),
         };
-        for (ci, pose) in truth_poses.iter().enumerate() {
-            for (pi, pw) in truth_points.iter().enumerate() {
-                let pc = (pose * nalgebra::Point3::from(*pw)).coords;
-                let Some(px) = cam.project_undistorted(&pc) else {
-                    continue;
-                };
-                if !cam.in_image(&px, 0.0) {
-                    continue;
-                }
-                let bad = pi % 50 == 0 && ci == 3;
-                p.observations.push(BaObservation {
-                    camera: ci,
-                    point: pi,
-                    u: px.x
-                        + if bad {
-                            30.0
-                        } else {
-                            rng.random_range(-0.3..0.3)
-                        },
-                    v: px.y + rng.random_range(-0.3..0.3),
-                    u_right: (pi % 3 != 0).then(|| px.x - s.bf / pc.z),
-                    inv_sigma2: 1.0,
-                });
+        p.observations = observations(&cam, &truth_poses, &truth_points, |ci, pi, px, pc| {
+            let bad = pi % 50 == 0 && ci == 3;
+            BaObservation {
+                camera: ci,
+                point: pi,
+                u: px.x
+                    + if bad {
+                        30.0
+                    } else {
+                        rng.random_range(-0.3..0.3)
+                    },
+                v: px.y + rng.random_range(-0.3..0.3),
+                u_right: (pi % 3 != 0).then(|| px.x - s.bf / pc.z),
+                inv_sigma2: 1.0,
             }
-        }
+        });
         for (i, pose) in p.poses.iter_mut().enumerate().skip(2) {
             *pose = Se3::new(
                 nalgebra::Vector3::new(0.01 * i as f64, -0.01, 0.02),
@@ -493,39 +512,23 @@ mod tests {
                 )
             })
             .collect();
-        let truth_points: Vec<Vec3> = (0..400)
-            .map(|_| {
-                Vec3::new(
-                    rng.random_range(-2.0..3.0),
-                    rng.random_range(-1.5..1.5),
-                    rng.random_range(2.0..6.0),
-                )
-            })
-            .collect();
+        let truth_points = random_points(&mut rng, 400, -2.0..3.0);
         let mut start = BaProblem {
             poses: truth_poses.clone(),
             fixed: (0..8).map(|i| i == 0).collect(),
             points: truth_points.clone(),
             observations: Vec::new(),
         };
-        for (ci, pose) in truth_poses.iter().enumerate() {
-            for (pi, pw) in truth_points.iter().enumerate() {
-                let pc = (pose * nalgebra::Point3::from(*pw)).coords;
-                let Some(px) = cam.project_undistorted(&pc) else {
-                    continue;
-                };
-                if cam.in_image(&px, 0.0) {
-                    start.observations.push(BaObservation {
-                        camera: ci,
-                        point: pi,
-                        u: px.x + rng.random_range(-0.5..0.5),
-                        v: px.y + rng.random_range(-0.5..0.5),
-                        u_right: None,
-                        inv_sigma2: 1.0,
-                    });
-                }
+        start.observations = observations(&cam, &truth_poses, &truth_points, |ci, pi, px, _| {
+            BaObservation {
+                camera: ci,
+                point: pi,
+                u: px.x + rng.random_range(-0.5..0.5),
+                v: px.y + rng.random_range(-0.5..0.5),
+                u_right: None,
+                inv_sigma2: 1.0,
             }
-        }
+        });
         for (i, pose) in start.poses.iter_mut().enumerate().skip(1) {
             *pose = Se3::new(
                 nalgebra::Vector3::new(0.1 * i as f64, -0.1, 0.1 * i as f64),
