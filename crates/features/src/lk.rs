@@ -147,6 +147,77 @@ impl LkPyramid {
     pub fn size(&self) -> (usize, usize) {
         self.sizes.first().copied().unwrap_or((0, 0))
     }
+
+    /// Zero-mean normalised cross-correlation of the `2 half + 1` square patches around `a` in
+    /// this image and around `b` in `other` (level 0, bilinear samples): 1 for the same
+    /// texture, whatever its brightness and contrast. `None` where a patch leaves its image or
+    /// either patch is flat (standard deviation under 1 grey level).
+    ///
+    /// ```
+    /// use stillpoint_features::{LkParams, LkPyramid};
+    /// use stillpoint_image::Gray8;
+    /// let mut a = Gray8::new(64, 64, 0);
+    /// let mut b = Gray8::new(64, 64, 0);
+    /// for y in 0..64 { for x in 0..64 {
+    ///     let v = |x: usize, y: usize| ((x * 37 + y * 91) % 97) as u8;
+    ///     a.set(x, y, v(x, y));
+    ///     b.set(x, y, v(x + 2, y).saturating_add(40)); // moved 2 px left, brighter
+    /// }}
+    /// let p = LkParams::default();
+    /// let (pa, pb) = (LkPyramid::new(&a, &p), LkPyramid::new(&b, &p));
+    /// assert!(pa.patch_ncc([30.0, 30.0], &pb, [28.0, 30.0], 3).unwrap() > 0.99);
+    /// assert!(pa.patch_ncc([30.0, 30.0], &pb, [30.0, 30.0], 3).unwrap() < 0.5);
+    /// assert_eq!(pa.patch_ncc([1.0, 30.0], &pb, [30.0, 30.0], 3), None); // off the image
+    /// ```
+    pub fn patch_ncc(
+        &self,
+        a: [f32; 2],
+        other: &LkPyramid,
+        b: [f32; 2],
+        half: usize,
+    ) -> Option<f32> {
+        let pa = self.patch(a, half)?;
+        let pb = other.patch(b, half)?;
+        let n = pa.len() as f32;
+        let (ma, mb) = (pa.iter().sum::<f32>() / n, pb.iter().sum::<f32>() / n);
+        let (mut sab, mut saa, mut sbb) = (0.0f32, 0.0f32, 0.0f32);
+        for (x, y) in pa.iter().zip(&pb) {
+            let (da, db) = (x - ma, y - mb);
+            sab += da * db;
+            saa += da * da;
+            sbb += db * db;
+        }
+        (saa >= n && sbb >= n).then(|| sab / (saa * sbb).sqrt())
+    }
+
+    /// The level-0 samples of the `2 half + 1` square patch around `c` (bilinear), or `None`
+    /// where it leaves the image.
+    fn patch(&self, c: [f32; 2], half: usize) -> Option<Vec<f32>> {
+        let (w, h) = self.size();
+        let level = self.levels.first()?;
+        let r = half as f32;
+        let inside = |v: f32, n: usize| v.is_finite() && v - r >= 0.0 && v + r <= (n - 1) as f32;
+        if !(inside(c[0], w) && inside(c[1], h)) {
+            return None;
+        }
+        let sw = w + 2 * self.border;
+        let (x0, y0) = (c[0] - r, c[1] - r);
+        let (ix, iy) = (x0.floor(), y0.floor());
+        let (fx, fy) = (x0 - ix, y0 - iy);
+        let (ix, iy) = (ix as usize + self.border, iy as usize + self.border);
+        let side = 2 * half + 1;
+        let mut out = Vec::with_capacity(side * side);
+        for dy in 0..side {
+            let row = (iy + dy) * sw + ix;
+            for dx in 0..side {
+                let i = row + dx;
+                let top = level[i] + fx * (level[i + 1] - level[i]);
+                let bottom = level[i + sw] + fx * (level[i + sw + 1] - level[i + sw]);
+                out.push(top + fy * (bottom - top));
+            }
+        }
+        Some(out)
+    }
 }
 
 /// `img` as f32 with a reflect-101 border of `bd` pixels on each side, into `out`.
