@@ -373,7 +373,7 @@ pub fn evaluate(o: &KeypointOptions) -> Result<KeypointReport, BenchError> {
             &depth_removed,
             &depth_states,
             &motion,
-            &settings.keypoint_motion,
+            &settings.keypoint_motion.rules(depth.is_none()),
         );
         if let Some(w) = dump.as_mut() {
             for (i, k) in features.keypoints.iter().enumerate() {

@@ -658,6 +658,27 @@ pub fn cull_frame(
     depth: Option<&DepthMetres>,
     s: &DynamicSettings,
 ) -> Vec<bool> {
+    cull_frame_protecting(
+        keypoints,
+        states,
+        tracked,
+        depth,
+        s,
+        s.cull.static_box_protects,
+    )
+}
+
+/// [`cull_frame`], with static boxes protecting the keypoints of dynamic ones they overlap on a
+/// frame without depth only when `static_boxes_protect` (the per-keypoint evidence may decide
+/// there instead: [`crate::EvidenceWithoutDepth::static_boxes_protect`]).
+pub(crate) fn cull_frame_protecting(
+    keypoints: &[[f32; 2]],
+    states: &mut [BoxState],
+    tracked: &[TrackedPoint],
+    depth: Option<&DepthMetres>,
+    s: &DynamicSettings,
+    static_boxes_protect: bool,
+) -> Vec<bool> {
     match depth {
         Some(depth) if s.depth.enabled && !depth.is_empty() => {
             estimate_object_depths(states, tracked, depth, s.world.camera.as_ref(), &s.depth);
@@ -677,6 +698,7 @@ pub fn cull_frame(
         None => {
             let cull = CullParams {
                 unknown_objects: s.cull.unknown_objects && s.cull.unknown_objects_without_depth,
+                static_box_protects: static_boxes_protect,
                 ..s.cull.clone()
             };
             cull_with(keypoints, states, tracked, &cull)

@@ -17,20 +17,28 @@
 //!   at the walker's depth (a wall right behind him, the floor at his feet);
 //! - keypoints that cannot be tracked keep the box decision.
 //!
-//! What is left off, and why (see [`KeypointMotionParams`]): the epipolar distance is blind to
-//! motion along the epipolar line, so only a homography's transfer error (a still or rotating
-//! camera, which sees every motion) may keep a keypoint; a seated person's moving hand often
-//! moves less than half a pixel, so a seated person's parts keep the box decision (with depth,
-//! [`crate::seated_motion`] tests them); culling kept keypoints that break the model (a 1 px
+//! What is left off with depth, and why (see [`KeypointMotionParams`]): the epipolar distance
+//! is blind to motion along the epipolar line, so only a homography's transfer error (a still
+//! or rotating camera, which sees every motion) may keep a keypoint; a seated person's moving
+//! hand often moves less than half a pixel, so a seated person's parts keep the box decision
+//! ([`crate::seated_motion`] tests them); culling kept keypoints that break the model (a 1 px
 //! rule) culls the background next to the silhouette, whose LK window holds part of the mover.
 //! Most remaining false positives on walkers are keypoints whose FAST circle straddles the
 //! silhouette: occlusion corners that do move with the person, which no motion evidence can
 //! (or should) keep. Measurements: docs/measurements.md.
+//!
+//! Without depth (monocular) the evidence is all there is to tell a mover from the room in its
+//! box; looser rules for such frames are measured and left off by default
+//! ([`crate::EvidenceWithoutDepth`]): a culled keypoint is kept
+//! within 1 px in seated parts too, a kept one (a static box protected it) is culled above
+//! 2 px, and a culled keypoint whose track is lost or unreliable (LK's coarse levels hold the
+//! mover next to a silhouette) is kept when its patch is found where the static world's
+//! motion puts it ([`EvidenceRules::patch_ncc_min`]). Measurements: docs/monocular.md.
 
-use crate::depth::cull_frame;
+use crate::depth::cull_frame_protecting;
 use crate::judge::{BoxPart, BoxState};
 use crate::motion_consistency::{MotionCheck, MotionModel};
-use crate::settings::{DynamicSettings, KeypointMotionParams};
+use crate::settings::{DynamicSettings, EvidenceRules, KeypointMotionParams};
 use serde::Serialize;
 use stillpoint_features::{LkParams, LkPyramid, track_lk_pyramids};
 use stillpoint_geometry::homography::transfer_error2;
@@ -152,6 +160,20 @@ impl Residual {
         }
     }
 
+    /// Where the static world's motion puts the current pixel `b` in the previous frame;
+    /// `None` under F (a line, not a point) or where the homography does not invert.
+    fn predict_previous(&self, b: [f32; 2]) -> Option<[f32; 2]> {
+        match self {
+            Self::Fundamental(_) => None,
+            Self::Homography(h) => {
+                let q = h.try_inverse()?
+                    * stillpoint_geometry::Vec3::new(b[0] as f64, b[1] as f64, 1.0);
+                (q.z.abs() > 1e-12).then(|| [(q.x / q.z) as f32, (q.y / q.z) as f32])
+            }
+            Self::Flow([mx, my]) => Some([b[0] - mx, b[1] - my]),
+        }
+    }
+
     fn measure(&self, a: [f32; 2], b: [f32; 2]) -> f32 {
         let v = |p: [f32; 2]| Vec2::new(p[0] as f64, p[1] as f64);
         match self {
@@ -177,8 +199,9 @@ pub fn in_dynamic_box(keypoints: &[[f32; 2]], states: &[BoxState]) -> Vec<bool> 
         .collect()
 }
 
-/// Change the culling decision `removed` where a keypoint's own evidence is clear (rules in the
-/// module docs); keypoints in no dynamic box, or without evidence, keep their decision.
+/// Change the culling decision `removed` where a keypoint's own evidence is clear under `rules`
+/// ([`KeypointMotionParams::rules`]: the frame's, with depth or without); keypoints in no
+/// dynamic box, or without evidence, keep their decision.
 ///
 /// ```
 /// use stillpoint_dynamic::{BoxPart, BoxState, KeypointMotion, KeypointMotionParams, MotionModel,
@@ -190,8 +213,9 @@ pub fn in_dynamic_box(keypoints: &[[f32; 2]], states: &[BoxState]) -> Vec<bool> 
 /// let ev = |residual| Some(KeypointMotion { prev: [0.0; 2], residual, fb_error: 0.05,
 ///     model: MotionModel::Homography });
 /// let kps = [[50.0, 50.0], [5.0, 280.0]];
+/// let rules = KeypointMotionParams::default().rules(false);
 /// let removed = apply_keypoint_motion(&kps, &[true, true], &[walker],
-///     &[ev(4.0), ev(0.1)], &KeypointMotionParams::default());
+///     &[ev(4.0), ev(0.1)], &rules);
 /// assert_eq!(removed, vec![true, false]); // the walker culled, the floor behind him kept
 /// ```
 pub fn apply_keypoint_motion(
@@ -199,7 +223,7 @@ pub fn apply_keypoint_motion(
     removed: &[bool],
     states: &[BoxState],
     motion: &[Option<KeypointMotion>],
-    p: &KeypointMotionParams,
+    rules: &EvidenceRules,
 ) -> Vec<bool> {
     keypoints
         .iter()
@@ -209,9 +233,6 @@ pub fn apply_keypoint_motion(
             let Some(m) = motion.get(i).copied().flatten() else {
                 return was;
             };
-            if m.fb_error > p.max_fb_error_px {
-                return was;
-            }
             let mut dynamic = states
                 .iter()
                 .filter(|s| s.is_dynamic() && s.bbox.contains_strict(x, y))
@@ -219,27 +240,31 @@ pub fn apply_keypoint_motion(
             if dynamic.peek().is_none() {
                 return was;
             }
-            // A seated person's hand often moves less than half a pixel between frames, and
-            // the epipolar test is blind along the epipolar line: neither keeps a keypoint.
-            let keep_allowed = dynamic.all(|s| s.part == BoxPart::Whole && p.keep_in_whole_boxes)
-                && m.model != MotionModel::Fundamental;
-            if was && keep_allowed && m.residual <= p.keep_below_px {
-                false
-            } else if !was && m.residual > p.cull_above_px {
-                true
+            if was {
+                // A seated person's hand often moves less than half a pixel between frames
+                // (with depth, `seated_motion` tests those parts), and the epipolar test is
+                // blind along the epipolar line: neither keeps a keypoint.
+                let keep_allowed = rules.may_keep(m.model)
+                    && dynamic.all(|s| match s.part {
+                        BoxPart::Whole => rules.keep_in_whole_boxes,
+                        _ => rules.keep_in_seated_parts,
+                    });
+                let fits =
+                    m.fb_error <= rules.keep_max_fb_error_px && m.residual <= rules.keep_below_px;
+                !(keep_allowed && fits)
             } else {
-                was
+                m.fb_error <= rules.cull_max_fb_error_px && m.residual > rules.cull_above_px
             }
         })
         .collect()
 }
 
-/// The whole culling step with the per-keypoint evidence: [`cull_frame`] (depth-aware on RGB-D
+/// The whole culling step with the per-keypoint evidence: [`crate::cull_frame`] (depth-aware on RGB-D
 /// frames, the paper's algorithm 3 otherwise), then, when
 /// [`KeypointMotionParams::enabled`] and the frames' LK pyramids (previous, current; both from
 /// [`LkPyramid::new`], as given to [`crate::motion_consistency_pyramids`]) are at hand,
 /// [`keypoint_motion`] on the keypoints inside dynamic boxes and [`apply_keypoint_motion`].
-/// Without pyramids this is [`cull_frame`] exactly. `true` = dynamic, remove.
+/// Without pyramids this is [`crate::cull_frame`] exactly. `true` = dynamic, remove.
 pub fn cull_frame_with_motion(
     keypoints: &[[f32; 2]],
     states: &mut [BoxState],
@@ -260,6 +285,9 @@ pub struct CulledFrame {
     pub tracked: Vec<bool>,
     /// Its evidence, per keypoint (empty when it did not run).
     pub motion: Vec<Option<KeypointMotion>>,
+    /// The frame followed the rules without depth ([`crate::EvidenceWithoutDepth`]): no depth,
+    /// and a model that sees motion in every direction (a homography or the flow).
+    pub without_depth_rules: bool,
 }
 
 /// [`cull_frame_with_motion`], also handing back the per-keypoint evidence it measured, so that
@@ -272,18 +300,30 @@ pub fn cull_frame_with_evidence(
     pyramids: Option<(&LkPyramid, &LkPyramid)>,
     s: &DynamicSettings,
 ) -> CulledFrame {
-    let removed = cull_frame(keypoints, states, &check.points, depth, s);
-    let Some((prev_pyr, cur_pyr)) = pyramids.filter(|_| s.keypoint_motion.enabled) else {
+    let km = &s.keypoint_motion;
+    let pyramids = pyramids.filter(|_| km.enabled);
+    // Without depth the looser rules, and the evidence instead of static boxes' protection,
+    // only where the model sees motion in every direction: under F the residual is blind
+    // along the epipolar line (a driving camera's frames), and the paper's rules stay.
+    let loose = depth.is_none()
+        && pyramids.is_some()
+        && km.without_depth.enabled
+        && check.model != MotionModel::Fundamental
+        && check.model != MotionModel::None;
+    let protect = s.cull.static_box_protects && (!loose || km.without_depth.static_boxes_protect);
+    let removed = cull_frame_protecting(keypoints, states, &check.points, depth, s, protect);
+    let Some((prev_pyr, cur_pyr)) = pyramids else {
         return CulledFrame {
             removed,
+            without_depth_rules: loose,
             ..CulledFrame::default()
         };
     };
     // Track only the keypoints a rule could change: culled ones, when the model may keep them;
     // kept ones, when the cull rule is on.
-    let km = &s.keypoint_motion;
-    let may_keep = km.keep_in_whole_boxes && check.model != MotionModel::Fundamental;
-    let may_cull = km.cull_above_px.is_finite();
+    let rules = km.rules(loose);
+    let may_keep = rules.may_keep(check.model);
+    let may_cull = rules.may_cull();
     let candidates: Vec<bool> = in_dynamic_box(keypoints, states)
         .iter()
         .zip(&removed)
@@ -292,10 +332,11 @@ pub fn cull_frame_with_evidence(
     if !candidates.contains(&true) {
         return CulledFrame {
             removed,
+            without_depth_rules: loose,
             ..CulledFrame::default()
         };
     }
-    let motion = keypoint_motion(
+    let mut motion = keypoint_motion(
         prev_pyr,
         cur_pyr,
         keypoints,
@@ -303,12 +344,76 @@ pub fn cull_frame_with_evidence(
         check,
         &s.keypoint_motion,
     );
+    if loose && may_keep {
+        let unsure: Vec<bool> = (0..keypoints.len())
+            .map(|i| {
+                candidates[i]
+                    && removed[i]
+                    && motion[i].is_none_or(|m| m.fb_error > rules.keep_max_fb_error_px)
+            })
+            .collect();
+        found_where_predicted(
+            prev_pyr,
+            cur_pyr,
+            keypoints,
+            &unsure,
+            check,
+            &rules,
+            &mut motion,
+        );
+    }
+    let after = apply_keypoint_motion(keypoints, &removed, states, &motion, &rules);
     CulledFrame {
-        removed: apply_keypoint_motion(keypoints, &removed, states, &motion, &s.keypoint_motion),
+        removed: after,
         tracked: candidates,
         motion,
+        without_depth_rules: loose,
     }
 }
+
+/// The fallback where a culled keypoint's track gives no reliable evidence (`unsure`: lost, or
+/// its forward-backward error over `rules.keep_max_fb_error_px`): its patch compared with the
+/// previous frame's where the static world's motion puts it ([`EvidenceRules::patch_ncc_min`];
+/// a homography or the flow: under F the place is a line). Found there, the keypoint's evidence
+/// becomes a fit: residual 0 at that place. Near a silhouette LK's coarser levels hold the mover
+/// and lose the track of the background beside it; a 7x7 patch at the predicted place does not.
+fn found_where_predicted(
+    prev_pyr: &LkPyramid,
+    cur_pyr: &LkPyramid,
+    keypoints: &[[f32; 2]],
+    unsure: &[bool],
+    check: &MotionCheck,
+    rules: &EvidenceRules,
+    motion: &mut [Option<KeypointMotion>],
+) {
+    // NaN or above 1: off.
+    if rules.patch_ncc_min.is_nan() || rules.patch_ncc_min > 1.0 || !unsure.contains(&true) {
+        return;
+    }
+    let Some(residual) = Residual::of(check) else {
+        return;
+    };
+    for (i, kp) in keypoints.iter().enumerate() {
+        if !unsure.get(i).copied().unwrap_or(false) {
+            continue;
+        }
+        let Some(prev) = residual.predict_previous(*kp) else {
+            continue;
+        };
+        let ncc = cur_pyr.patch_ncc(*kp, prev_pyr, prev, PATCH_HALF_PX);
+        if ncc.is_some_and(|c| c >= rules.patch_ncc_min) {
+            motion[i] = Some(KeypointMotion {
+                prev,
+                residual: 0.0,
+                fb_error: 0.0,
+                model: check.model,
+            });
+        }
+    }
+}
+
+/// Half side of [`found_where_predicted`]'s patches: 7x7, LK's window.
+const PATCH_HALF_PX: usize = 3;
 
 #[cfg(test)]
 mod tests {
@@ -380,11 +485,17 @@ mod tests {
         // A standing person's box around everything: the background goes back, the hand stays
         // culled. The same box as a seated part keeps the box decision (by default).
         let whole = person(BoxPart::Whole, BBox::new(100.0, 40.0, 260.0, 200.0));
-        let removed = apply_keypoint_motion(&kps, &[true; 4], &[whole], &ev, &km);
+        let removed = apply_keypoint_motion(&kps, &[true; 4], &[whole], &ev, &km.rules(false));
         assert_eq!(removed, vec![true, true, false, false]);
         let top = person(BoxPart::SeatedTop, whole.bbox);
-        let removed = apply_keypoint_motion(&kps, &[true; 4], &[top], &ev, &km);
+        let removed = apply_keypoint_motion(&kps, &[true; 4], &[top], &ev, &km.rules(false));
         assert_eq!(removed, vec![true; 4]);
+        // Without depth, with its rules on, the evidence is all there is: a seated part keeps
+        // its background too.
+        let mut loose = km.clone();
+        loose.without_depth.enabled = true;
+        let removed = apply_keypoint_motion(&kps, &[true; 4], &[top], &ev, &loose.rules(true));
+        assert_eq!(removed, vec![true, true, false, false]);
         // The whole step: only the keypoints inside the dynamic box are looked at.
         let mut states = [whole];
         let s = DynamicSettings::default();
@@ -427,7 +538,7 @@ mod tests {
         ];
         let km = KeypointMotionParams::default();
         let states = [person(BoxPart::Whole, bbox)];
-        let removed = apply_keypoint_motion(&kps, &[true; 5], &states, &motion, &km);
+        let removed = apply_keypoint_motion(&kps, &[true; 5], &states, &motion, &km.rules(false));
         assert_eq!(removed, vec![true, true, true, false, true]);
         // The optional cull rule: a kept keypoint in a dynamic box that broke the model.
         let cull = KeypointMotionParams {
@@ -435,13 +546,63 @@ mod tests {
             ..km.clone()
         };
         let moved = [ev(3.0, 0.05, MotionModel::Fundamental)];
-        let removed = apply_keypoint_motion(&kps[..1], &[false], &states, &moved, &cull);
+        let removed =
+            apply_keypoint_motion(&kps[..1], &[false], &states, &moved, &cull.rules(false));
         assert_eq!(removed, vec![true]);
+        // Without depth a kept keypoint in a dynamic box (a static box protected it) that
+        // clearly moved is culled; with an unreliable track it keeps its decision. A residual
+        // of 0.8 px keeps a culled keypoint there (0.5 px with depth).
+        let mut on = km.clone();
+        on.without_depth.enabled = true;
+        let without = on.rules(true);
+        let kept = [
+            ev(3.0, 0.05, MotionModel::Homography),
+            ev(3.0, 1.5, MotionModel::Homography),
+            ev(0.8, 1.5, MotionModel::Homography),
+        ];
+        let removed =
+            apply_keypoint_motion(&kps[..3], &[false, false, true], &states, &kept, &without);
+        assert_eq!(removed, vec![true, false, false]);
+        let removed = apply_keypoint_motion(
+            &kps[..3],
+            &[false, false, true],
+            &states,
+            &kept,
+            &km.rules(false),
+        );
+        assert_eq!(removed, vec![false, false, true]);
+        assert_eq!(km.rules(true), km.rules(false), "off by default");
         // Short or empty slices never panic.
         assert_eq!(
-            apply_keypoint_motion(&kps, &[], &states, &[], &km),
+            apply_keypoint_motion(&kps, &[], &states, &[], &km.rules(false)),
             vec![false; 5]
         );
+    }
+
+    #[test]
+    fn a_keypoint_without_a_track_is_found_where_the_static_world_puts_it_or_not() {
+        let hand = [140, 90, 200, 150];
+        let (prev, cur) = (frame(hand, [0, 0]), frame(hand, [3, 2]));
+        let g = GeometryParams::default();
+        let (pp, cp) = (LkPyramid::new(&prev, &g.lk), LkPyramid::new(&cur, &g.lk));
+        let check = motion_consistency_pyramids(&prev, &cur, &pp, &cp, &g);
+        assert_eq!(check.model, MotionModel::Homography);
+        // The background (still) and the hand (moved 3, 2), both without a track.
+        let kps = [[110.0, 60.0], [170.0, 120.0], [230.0, 180.0]];
+        let mut on = KeypointMotionParams::default();
+        on.without_depth.enabled = true;
+        let rules = on.rules(true);
+        let mut motion = vec![None; 3];
+        let unsure = [true, true, false];
+        found_where_predicted(&pp, &cp, &kps, &unsure, &check, &rules, &mut motion);
+        assert!(motion[0].is_some_and(|m| m.residual == 0.0), "{motion:?}");
+        assert_eq!(motion[1], None, "the hand's patch is elsewhere");
+        assert_eq!(motion[2], None, "not asked");
+        // With the rules with depth (the default) nothing is looked for.
+        let mut motion = vec![None; 3];
+        let off = KeypointMotionParams::default().rules(true);
+        found_where_predicted(&pp, &cp, &kps, &unsure, &check, &off, &mut motion);
+        assert_eq!(motion, vec![None; 3]);
     }
 
     #[test]

@@ -129,8 +129,8 @@ pub use seated_motion::{
     SeatedMotionParams, apply_seated_motion, camera_motion, seated_candidates, seated_residual,
 };
 pub use settings::{
-    BoxMemoryParams, CullParams, DepthParams, DynamicSettings, GeometryParams, JudgeParams,
-    KeypointMotionParams,
+    BoxMemoryParams, CullParams, DepthParams, DynamicSettings, EvidenceRules, EvidenceWithoutDepth,
+    GeometryParams, JudgeParams, KeypointMotionParams,
 };
 pub use world_motion::{
     NewPointCheck, WorldMotion, WorldMotionParams, WorldSource, judge_against_world,

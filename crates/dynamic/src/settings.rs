@@ -424,6 +424,127 @@ pub struct KeypointMotionParams {
     /// a walker's parts move by pixels, so a keypoint that fits the background model is
     /// background seen inside the box.
     pub keep_in_whole_boxes: bool,
+    /// The rules on a frame without depth (monocular), where the evidence is all there is to
+    /// tell a mover from the background in its box (ours; the fields above are the rules with
+    /// depth). Measurements: docs/monocular.md.
+    pub without_depth: EvidenceWithoutDepth,
+}
+
+/// How the per-keypoint evidence decides on a frame without depth ([`KeypointMotionParams`]).
+/// On the walking presets read monocular (`bench dynamic --no-depth --dump-keypoints`, the
+/// keypoints of moving boxes) a walker's keypoints moved 5-26 px under the frame's homography
+/// and the background seen inside the box 0.1-1 px, seated-split boxes included; the looser
+/// bounds here keep that background and cull the mover's keypoints a static box (a table the
+/// walker passes) would protect. Measurements: docs/monocular.md.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct EvidenceWithoutDepth {
+    /// Use these rules on frames without depth (off: such frames follow the rules with depth,
+    /// and ORB's budget mask is their whole boxes). On, the walking presets read monocular
+    /// (`bench dynamic --no-depth`) cull with twice the precision, but the monocular matrix's
+    /// trajectories did not gain (YOLOX rooms 2.60 -> 2.77 cm mean). Measurements:
+    /// docs/monocular.md.
+    pub enabled: bool,
+    /// A culled keypoint whose residual is at most this is kept, pixels (1.0: the geometry
+    /// module's outlier threshold).
+    pub keep_below_px: f32,
+    /// ... when its track came back within this many pixels (2.0: the residual already says
+    /// the track fits the static world's motion).
+    pub keep_max_fb_error_px: f32,
+    /// Keep in a seated person's parts too (on): without depth NHBC calls most walkers close
+    /// to the camera seated, and their boxes hold most of the background that is culled.
+    pub keep_in_seated_parts: bool,
+    /// A kept keypoint inside a dynamic box (a static box protects it, the paper's rule) whose
+    /// residual exceeds this is culled, pixels (2.0).
+    pub cull_above_px: f32,
+    /// ... when its track came back within this many pixels (1.0).
+    pub cull_max_fb_error_px: f32,
+    /// A static box (a table a walker passes) protects the keypoints of a dynamic box it
+    /// overlaps (the paper's rule; off): without depth the evidence above decides there, and
+    /// a keypoint without evidence is culled with the mover.
+    pub static_boxes_protect: bool,
+    /// A culled keypoint whose track is lost or unreliable is kept when its 7x7 patch matches
+    /// the previous frame's where the static world's motion (a homography, the flow) puts it
+    /// with at least this normalised cross-correlation (0.9; above 1: never).
+    pub patch_ncc_min: f32,
+}
+
+impl Default for EvidenceWithoutDepth {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            keep_below_px: 1.0,
+            keep_max_fb_error_px: 2.0,
+            keep_in_seated_parts: true,
+            cull_above_px: 2.0,
+            cull_max_fb_error_px: 1.0,
+            static_boxes_protect: false,
+            patch_ncc_min: 0.9,
+        }
+    }
+}
+
+/// The rules the evidence follows on one frame ([`KeypointMotionParams::rules`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EvidenceRules {
+    /// Keep a culled keypoint whose residual is at most this, pixels...
+    pub keep_below_px: f32,
+    /// ... and whose track came back within this many pixels...
+    pub keep_max_fb_error_px: f32,
+    /// ... in a whole box (standing people, other classes)...
+    pub keep_in_whole_boxes: bool,
+    /// ... or in a seated person's part.
+    pub keep_in_seated_parts: bool,
+    /// Cull a kept keypoint inside a dynamic box whose residual exceeds this, pixels...
+    pub cull_above_px: f32,
+    /// ... and whose track came back within this many pixels.
+    pub cull_max_fb_error_px: f32,
+    /// Keep a culled keypoint without a reliable track whose patch is found where the static
+    /// world's motion puts it, at least this correlated (above 1: never).
+    pub patch_ncc_min: f32,
+}
+
+impl EvidenceRules {
+    /// Whether a rule could keep a culled keypoint under `model` (the epipolar distance is blind
+    /// along the epipolar line, so F keeps nothing).
+    pub fn may_keep(&self, model: crate::MotionModel) -> bool {
+        (self.keep_in_whole_boxes || self.keep_in_seated_parts)
+            && model != crate::MotionModel::Fundamental
+    }
+
+    /// Whether a rule could cull a kept keypoint.
+    pub fn may_cull(&self) -> bool {
+        self.cull_above_px.is_finite()
+    }
+}
+
+impl KeypointMotionParams {
+    /// The rules for a frame: those without depth when `without_depth` and they are
+    /// [`EvidenceWithoutDepth::enabled`], else those with depth.
+    pub fn rules(&self, without_depth: bool) -> EvidenceRules {
+        let w = &self.without_depth;
+        if !(without_depth && w.enabled) {
+            EvidenceRules {
+                keep_below_px: self.keep_below_px,
+                keep_max_fb_error_px: self.max_fb_error_px,
+                keep_in_whole_boxes: self.keep_in_whole_boxes,
+                keep_in_seated_parts: false,
+                cull_above_px: self.cull_above_px,
+                cull_max_fb_error_px: self.max_fb_error_px,
+                patch_ncc_min: f32::INFINITY,
+            }
+        } else {
+            EvidenceRules {
+                keep_below_px: w.keep_below_px,
+                keep_max_fb_error_px: w.keep_max_fb_error_px,
+                keep_in_whole_boxes: self.keep_in_whole_boxes,
+                keep_in_seated_parts: w.keep_in_seated_parts,
+                cull_above_px: w.cull_above_px,
+                cull_max_fb_error_px: w.cull_max_fb_error_px,
+                patch_ncc_min: w.patch_ncc_min,
+            }
+        }
+    }
 }
 
 impl Default for KeypointMotionParams {
@@ -439,6 +560,7 @@ impl Default for KeypointMotionParams {
             keep_below_px: 0.5,
             cull_above_px: f32::INFINITY,
             keep_in_whole_boxes: true,
+            without_depth: EvidenceWithoutDepth::default(),
         }
     }
 }

@@ -54,6 +54,10 @@ pub struct DynamicFrontEnd {
     object_depths: Vec<(u32, ObjectDepth)>,
     /// What [`FrontEnd::measure`] found on a frame (its index), for [`FrontEnd::judge`].
     pending: Option<(usize, Measurement)>,
+    /// A frame without depth: where its movers' pixels are expected on the next frame (ORB's
+    /// budget mask is drawn around them: `FrontEndSettings::orb_exclusion_radius_px_without_depth`).
+    /// `None`: a frame with depth, or the whole boxes.
+    mover_points: Option<Vec<[f32; 2]>>,
 }
 
 impl DynamicFrontEnd {
@@ -74,6 +78,7 @@ impl DynamicFrontEnd {
             last_carried: (usize::MAX, Vec::new()),
             object_depths: Vec::new(),
             pending: None,
+            mover_points: None,
         }
     }
 
@@ -104,8 +109,13 @@ impl DynamicFrontEnd {
         let depth = &self.settings.dynamic.depth;
         let moving = self.moving_boxes();
         if self.settings.orb_exclusion {
-            out.skip_next = Regions::new(moving.clone(), depth, false)
+            let mut skip = Regions::new(moving.clone(), depth, false)
                 .with_min_yield(self.settings.orb_exclusion_min_yield);
+            if let Some(points) = &self.mover_points {
+                let radius = self.settings.orb_exclusion_radius_px_without_depth;
+                skip = skip.with_discs(points.clone(), radius);
+            }
+            out.skip_next = skip;
         }
         let erase = self.settings.erase_recent_mover_points_frames;
         if erase > 0 && !moving.is_empty() {
@@ -149,6 +159,38 @@ impl DynamicFrontEnd {
             .filter(|o| o.moving && Some(o.last_seen) == last)
             .map(|o| (self.grown(&o.bbox), self.depth_of(o.id)))
             .collect()
+    }
+
+    /// Where the movers' pixels are expected on the next frame, for a budget mask drawn as
+    /// discs: each moving corner of a dynamic box carried on by its flow, and each keypoint
+    /// culled in one. `None` for `whole_boxes` (a frame with depth, or one that did not follow
+    /// the evidence's rules without depth) or with the discs' radius 0.
+    fn expected_mover_points(
+        &self,
+        whole_boxes: bool,
+        kps: &[[f32; 2]],
+        culled: &[bool],
+        states: &[BoxState],
+        tracked: &[stillpoint_dynamic::TrackedPoint],
+    ) -> Option<Vec<[f32; 2]>> {
+        if whole_boxes || self.settings.orb_exclusion_radius_px_without_depth <= 0.0 {
+            return None;
+        }
+        let in_mover = |[x, y]: [f32; 2]| {
+            states
+                .iter()
+                .any(|s| s.is_dynamic() && s.bbox.contains_strict(x, y))
+        };
+        let moving = tracked
+            .iter()
+            .filter(|t| t.outlier && in_mover(t.cur))
+            .map(|t| [2.0 * t.cur[0] - t.prev[0], 2.0 * t.cur[1] - t.prev[1]]);
+        let culled = kps
+            .iter()
+            .zip(culled)
+            .filter(|&(&k, &c)| c && in_mover(k))
+            .map(|(&k, _)| k);
+        Some(moving.chain(culled).collect())
     }
 
     /// The depth band the culling found for object `id` in the last judged frame.

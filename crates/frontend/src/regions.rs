@@ -16,6 +16,9 @@ pub struct Regions {
     /// As ORB's budget mask: the share of the budget below which the mask drawn without depth
     /// gives way ([`Regions::min_yield`]); 0 = never.
     min_yield: f32,
+    /// Drawn without depth: only discs of this radius (pixels) around these points, inside the
+    /// boxes ([`Regions::with_discs`]); `None`: the whole boxes.
+    discs: Option<(Vec<[f32; 2]>, f32)>,
 }
 
 impl Regions {
@@ -28,7 +31,16 @@ impl Regions {
             params: params.clone(),
             up_to_far,
             min_yield: 0.0,
+            discs: None,
         }
+    }
+
+    /// The same regions, drawn without depth as discs of `radius` pixels around `points`
+    /// (where the movers' pixels are expected) inside the boxes, instead of the whole boxes:
+    /// a walker's box is mostly the room behind him.
+    pub fn with_discs(mut self, points: Vec<[f32; 2]>, radius: f32) -> Self {
+        self.discs = Some((points, radius));
+        self
     }
 
     /// The same regions, whose mask as ORB's budget mask, drawn without depth (whole boxes),
@@ -58,15 +70,46 @@ impl Regions {
     /// within its object's depth band; without, the whole boxes. `None` when there is no region.
     pub fn mask(&self, depth: Option<&DepthMetres>, width: usize, height: usize) -> Option<Gray8> {
         (!self.objects.is_empty()).then(|| {
-            mover_mask(
+            let mut mask = mover_mask(
                 &self.objects,
                 depth,
                 &self.params,
                 width,
                 height,
                 self.up_to_far,
-            )
+            );
+            if let (None, Some((points, radius))) = (depth, &self.discs) {
+                keep_discs(&mut mask, points, *radius);
+            }
+            mask
         })
+    }
+}
+
+/// Keep of `mask` only the pixels within `radius` of some point.
+fn keep_discs(mask: &mut Gray8, points: &[[f32; 2]], radius: f32) {
+    let (w, h) = (mask.width, mask.height);
+    let mut near = Gray8::new(w, h, 0);
+    let r = radius.max(0.0);
+    for &[px, py] in points
+        .iter()
+        .filter(|p| p[0].is_finite() && p[1].is_finite())
+    {
+        let clamp = |v: f32, n: usize| (v.max(0.0) as usize).min(n);
+        let (x1, x2) = (clamp((px - r).floor(), w), clamp((px + r).ceil() + 1.0, w));
+        let (y1, y2) = (clamp((py - r).floor(), h), clamp((py + r).ceil() + 1.0, h));
+        for y in y1..y2 {
+            let dy = y as f32 - py;
+            for x in x1..x2 {
+                let dx = x as f32 - px;
+                if dx * dx + dy * dy <= r * r {
+                    near.set(x, y, 255);
+                }
+            }
+        }
+    }
+    for (m, n) in mask.data.iter_mut().zip(&near.data) {
+        *m &= *n;
     }
 }
 
@@ -138,6 +181,20 @@ mod tests {
             .mask(None, 200, 200)
             .expect("a region");
         assert_eq!((whole.get(60, 100), whole.get(10, 10)), (255, 0));
+        // Without depth, with discs: only their pixels inside the box.
+        let discs = Regions::new(vec![rect], &params, false)
+            .with_discs(vec![[100.0, 100.0], [10.0, 10.0]], 8.0)
+            .mask(None, 200, 200)
+            .expect("a region");
+        assert_eq!(
+            (
+                discs.get(100, 100),
+                discs.get(106, 100),
+                discs.get(60, 100),
+                discs.get(10, 10)
+            ),
+            (255, 255, 0, 0)
+        );
         // A thin person: the box's centre is mostly wall, which the box alone takes for the
         // mover; the band the culling found (with the person's moving tracks) is kept instead.
         let mut thin = DepthMetres::new(200, 200, 4.0);

@@ -65,6 +65,14 @@ pub struct FrontEndSettings {
     /// its map for 47 frames at 400-470 keypoints a frame instead of 1,000. Measurements:
     /// docs/monocular.md.
     pub orb_exclusion_min_yield: f32,
+    /// Ours: after a frame that followed the evidence's rules without depth
+    /// (`front_end.dynamic.keypoint_motion.without_depth`, off by default), that mask is not
+    /// the whole box but discs of this radius (pixels) around where the movers' pixels are
+    /// expected on the next frame (the moving corners of their boxes carried on by their flow,
+    /// and the keypoints culled there), inside the boxes: the room seen inside a walker's box
+    /// stays open to ORB and its keypoints to the evidence (16; 0: the whole boxes).
+    /// Measurements: docs/monocular.md.
+    pub orb_exclusion_radius_px_without_depth: f32,
     /// Ours (monocular, off by default): once the map stands, a frame without depth whose
     /// culling keeps less than this share of its keypoints offers the culled ones to the map's
     /// existing points: they may be matched to map points, only as closely as keyframes match
@@ -178,6 +186,7 @@ impl Default for FrontEndSettings {
             seated_kept_make_points: false,
             orb_exclusion: true,
             orb_exclusion_min_yield: 0.75,
+            orb_exclusion_radius_px_without_depth: 16.0,
             offer_culled_to_map_below: 0.0,
             movable_hygiene: true,
             movable_hygiene_margin: 0.5,

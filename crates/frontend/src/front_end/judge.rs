@@ -151,6 +151,14 @@ impl DynamicFrontEnd {
             }
             _ => culled.removed,
         };
+        // Under F (a driving camera) the evidence keeps nothing: whole boxes.
+        self.mover_points = self.expected_mover_points(
+            frame.depth.is_some() || !culled.without_depth_rules,
+            kps,
+            &out.dynamic,
+            &states,
+            &check.points,
+        );
         let track_only = seated_kept;
         out.no_new_points = self.no_new_points(
             kps,
@@ -235,6 +243,8 @@ impl DynamicFrontEnd {
             &self.settings.dynamic,
         );
         self.remember_depths(&states, &decisions);
+        // No evidence yet: the next frame's budget mask is the whole boxes.
+        self.mover_points = None;
         out.no_new_points =
             self.no_new_points(kps, &out.dynamic, &states, &[], frame.depth.is_some());
         self.add_hygiene(&mut out, kps, &states, &decisions, frame.depth);
