@@ -160,17 +160,27 @@ impl Residual {
         }
     }
 
-    /// Where the static world's motion puts the current pixel `b` in the previous frame;
-    /// `None` under F (a line, not a point) or where the homography does not invert.
-    fn predict_previous(&self, b: [f32; 2]) -> Option<[f32; 2]> {
+    /// The motion back from the current frame to the previous one, as a map of points:
+    /// `None` under F (a pixel maps to a line, not a point) or where the homography does not
+    /// invert. Built once a frame, not once a keypoint.
+    fn backward(&self) -> Option<Self> {
+        match self {
+            Self::Fundamental(_) => None,
+            Self::Homography(h) => h.try_inverse().map(Self::Homography),
+            Self::Flow([mx, my]) => Some(Self::Flow([-mx, -my])),
+        }
+    }
+
+    /// Where this motion (a homography or the flow) takes pixel `a`; `None` under F or at
+    /// infinity.
+    fn map_point(&self, a: [f32; 2]) -> Option<[f32; 2]> {
         match self {
             Self::Fundamental(_) => None,
             Self::Homography(h) => {
-                let q = h.try_inverse()?
-                    * stillpoint_geometry::Vec3::new(b[0] as f64, b[1] as f64, 1.0);
+                let q = h * stillpoint_geometry::Vec3::new(a[0] as f64, a[1] as f64, 1.0);
                 (q.z.abs() > 1e-12).then(|| [(q.x / q.z) as f32, (q.y / q.z) as f32])
             }
-            Self::Flow([mx, my]) => Some([b[0] - mx, b[1] - my]),
+            Self::Flow([mx, my]) => Some([a[0] + mx, a[1] + my]),
         }
     }
 
@@ -390,14 +400,14 @@ fn found_where_predicted(
     if rules.patch_ncc_min.is_nan() || rules.patch_ncc_min > 1.0 || !unsure.contains(&true) {
         return;
     }
-    let Some(residual) = Residual::of(check) else {
+    let Some(back) = Residual::of(check).and_then(|r| r.backward()) else {
         return;
     };
     for (i, kp) in keypoints.iter().enumerate() {
         if !unsure.get(i).copied().unwrap_or(false) {
             continue;
         }
-        let Some(prev) = residual.predict_previous(*kp) else {
+        let Some(prev) = back.map_point(*kp) else {
             continue;
         };
         let ncc = cur_pyr.patch_ncc(*kp, prev_pyr, prev, PATCH_HALF_PX);
