@@ -298,6 +298,11 @@ pub struct MonoInitSettings {
     /// bedroom clip's turning views from the homography and its map never started). Alone it
     /// started the synthetic rooms later, so it stays 0 (docs/monocular.md).
     pub refit_rounds: usize,
+    /// Ours: where the homography is chosen but two of its motions explain the points about as
+    /// well, the fundamental matrix's motion is tried (ORB-SLAM: false, no map from that pair).
+    /// A road ahead with house fronts gives such pairs: the road dominates the homography's
+    /// score, the fronts fix F's motion (docs/measurements.md).
+    pub fundamental_when_ambiguous: bool,
     /// A two-view map that bundle adjustment leaves with too few points drops the reference
     /// frame (ORB-SLAM: true). False keeps it: a later frame, with more parallax, may pass.
     pub reset_on_rejection: bool,
@@ -366,6 +371,7 @@ impl Default for MonoInitSettings {
             min_triangulated: 50,
             min_triangulated_share: 0.9,
             refit_rounds: 0,
+            fundamental_when_ambiguous: true,
             reset_on_rejection: true,
             homography_ratio: 0.4,
             min_points_after_ba: 100,

@@ -182,6 +182,7 @@ impl MonoInitializer {
             min_triangulated: p.min_triangulated,
             min_triangulated_share: p.min_triangulated_share,
             refit_rounds: p.refit_rounds,
+            fundamental_when_ambiguous: p.fundamental_when_ambiguous,
             homography_ratio: p.homography_ratio,
             seed: 0,
         };

@@ -46,6 +46,9 @@ pub struct TwoViewParams {
     /// noisy when the baseline is short: its motion, and the parallax that decides whether
     /// the map may start, can be far from the truth either way.
     pub refit_rounds: usize,
+    /// Ours: where the homography was chosen and its motion is ambiguous, the fundamental
+    /// matrix's is tried (ORB-SLAM: false, that pair gives no map).
+    pub fundamental_when_ambiguous: bool,
     /// Seed of the sampler.
     pub seed: u64,
 }
@@ -60,6 +63,7 @@ impl Default for TwoViewParams {
             min_triangulated_share: 0.9,
             homography_ratio: 0.4,
             refit_rounds: 0,
+            fundamental_when_ambiguous: false,
             seed: 0,
         }
     }
@@ -183,8 +187,15 @@ pub fn reconstruct(
     let share = sh / (sh + sf);
     let th2 = 4.0 * params.sigma * params.sigma;
     let result = match (h, f) {
-        (Some(h), _) if share > params.homography_ratio => {
-            reconstruct_h(cam, p1, p2, &h, th2, params)
+        (Some(h), f) if share > params.homography_ratio => {
+            match (reconstruct_h(cam, p1, p2, &h, th2, params), f) {
+                (Err(e @ TwoViewRejection::Ambiguous { .. }), Some(f))
+                    if params.fundamental_when_ambiguous =>
+                {
+                    reconstruct_f(cam, p1, p2, &f, th2, params).map_err(|_| e)
+                }
+                (r, _) => r,
+            }
         }
         (_, Some(f)) => reconstruct_f(cam, p1, p2, &f, th2, params),
         (Some(h), None) => reconstruct_h(cam, p1, p2, &h, th2, params),
@@ -824,6 +835,71 @@ mod tests {
         check_motion_recovered(&r, &truth);
         let n = r.points.iter().flatten().count();
         assert!(n as f64 > 0.9 * p1.len() as f64, "{n} of {}", p1.len());
+    }
+
+    /// A car's camera 0.8 m further down a road: points on the road 1.5 m below it, 3 to 30 m
+    /// ahead, and (`facades`) a third of them on house fronts 4 m either side.
+    fn road_ahead(seed: u64, facades: bool) -> (Vec<Vec2>, Vec<Vec2>, Se3) {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+        let points: Vec<Vec3> = (0..500)
+            .map(|i| {
+                let z = rng.random_range(3.0..30.0);
+                if facades && i % 3 == 0 {
+                    let side = if i % 2 == 0 { 4.0 } else { -4.0 };
+                    Vec3::new(side, rng.random_range(-3.0..1.5), z)
+                } else {
+                    Vec3::new(rng.random_range(-0.6..0.6) * z, 1.5, z)
+                }
+            })
+            .collect();
+        let truth = Se3::new(Vec3::new(0.01, 0.0, -0.8), Vec3::new(0.0, 0.01, 0.0));
+        let (p1, p2) = views(&points, &truth, 0.7, 50 + seed);
+        (p1, p2, truth)
+    }
+
+    #[test]
+    fn a_road_with_house_fronts_ambiguous_for_the_homography_is_reconstructed_from_f() {
+        // Driving forward, the road dominates: the homography is chosen and two of its motions
+        // explain the points alike, so ORB-SLAM's way starts no map (the street presets started
+        // 16-49 frames late). The fundamental matrix, fitted to the house fronts too, has one.
+        let with_f = TwoViewParams {
+            fundamental_when_ambiguous: true,
+            ..TwoViewParams::default()
+        };
+        for seed in 0..6 {
+            let (p1, p2, truth) = road_ahead(seed, true);
+            let plain = reconstruct(&camera(), &p1, &p2, &TwoViewParams::default());
+            assert!(
+                matches!(
+                    plain,
+                    Err(TwoViewRejection::Ambiguous {
+                        model: TwoViewModel::Homography,
+                        ..
+                    })
+                ),
+                "seed {seed}: {:?}",
+                plain.map(|r| r.model)
+            );
+            let r = reconstruct(&camera(), &p1, &p2, &with_f).expect("accepted");
+            assert_eq!(r.model, TwoViewModel::Fundamental);
+            let dr = (r.pose21.rotation * truth.rotation.inverse()).angle();
+            let dt = r
+                .pose21
+                .translation
+                .vector
+                .normalize()
+                .dot(&truth.translation.vector.normalize())
+                .clamp(-1.0, 1.0)
+                .acos();
+            assert!(dr.to_degrees() < 1.0, "seed {seed}: rotation off {dr}");
+            assert!(dt.to_degrees() < 4.0, "seed {seed}: direction off {dt}");
+        }
+        // The road alone: the plane's fundamental matrix is degenerate and gives nothing.
+        for seed in 0..3 {
+            let (p1, p2, _) = road_ahead(seed, false);
+            let r = reconstruct(&camera(), &p1, &p2, &with_f);
+            assert!(r.is_err(), "seed {seed}: {:?}", r.map(|r| r.model));
+        }
     }
 
     #[test]
