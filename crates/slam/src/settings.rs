@@ -215,6 +215,16 @@ pub struct SlamSettings {
     /// Frames of failed relocalisation after which a new map is started (ORB-SLAM3 Atlas starts a
     /// new map when relocalisation keeps failing; 1 s of frames here).
     pub new_map_after_lost_frames: usize,
+    /// Ours: for this many frames after tracking is lost, the last tracked frame's matches are
+    /// searched for from where it stood before relocalisation is tried; the frame counts as
+    /// tracked when the local map then gives `recover_min_inliers` (0: ORB-SLAM's way, straight
+    /// to relocalisation). 1 s of frames.
+    pub recover_lost_frames: usize,
+    /// Inliers of the local map that search needs (a relocalisation needs `reloc_min_inliers`).
+    pub recover_min_inliers: usize,
+    /// That search's windows, as a multiple of the local map's (`local_map_search_th` 1 is
+    /// ORB-SLAM's 2.5-4 px at level 0).
+    pub recover_search_th: f64,
     /// Monocular: keep relocalising in the lost map while a new map waits for its two views
     /// (ORB-SLAM3 stops at the new map's first frame): a camera back on mapped ground within a
     /// few frames stays in one map instead of starting a second one from scratch.
@@ -465,6 +475,9 @@ impl SlamSettings {
             local_mapping_thread: false,
             background_nice: 10,
             new_map_after_lost_frames: fps.max(1.0).round() as usize,
+            recover_lost_frames: fps.max(1.0).round() as usize,
+            recover_search_th: 8.0,
+            recover_min_inliers: 30,
             relocalise_while_initialising: true,
             relocalise_in_every_map: true,
             relocalise_with_loop_database: true,

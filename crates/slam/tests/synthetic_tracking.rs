@@ -135,6 +135,27 @@ fn blank_frames_do_not_abort_and_tracking_recovers() {
 }
 
 #[test]
+fn a_camera_lost_a_moment_is_found_again_where_it_was_without_place_recognition() {
+    // Relocalisation has no keyframe to try (no candidates): after the 5 blank frames the
+    // points around the last tracked frame, searched for from where it stood, find the camera
+    // on the same map; without that search it stays lost and starts a new map.
+    let no_candidates = |recover: usize| {
+        move |s: &mut SlamSettings| {
+            s.reloc_candidates = 0;
+            s.recover_lost_frames = recover;
+        }
+    };
+    let (rmse, tracked, new_map, _) = run_with(70, |i| (30..35).contains(&i), no_candidates(30));
+    assert_eq!((tracked, new_map), (65, false));
+    assert!(rmse < 0.01, "ATE RMSE {rmse}");
+    let (_, tracked, new_map, _) = run_with(70, |i| (30..35).contains(&i), no_candidates(0));
+    assert!(
+        tracked < 65 || new_map,
+        "{tracked} tracked, new map {new_map}"
+    );
+}
+
+#[test]
 fn pose_optimiser_converges_from_a_rotated_start() {
     use stillpoint_slam::optimize::{PoseObservation, optimize_pose};
     let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);

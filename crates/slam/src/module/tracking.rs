@@ -10,7 +10,7 @@ use tracing::{debug, info, warn};
 use crate::SlamSettings;
 use crate::data::{Frame, KfId, Map, MpId};
 use crate::matching::{
-    project_in_frustum, search_by_descriptors, search_by_projection_last,
+    ProjectedPoint, project_in_frustum, search_by_descriptors, search_by_projection_last,
     search_by_projection_local,
 };
 use crate::module::initializer::MonoInitializer;
@@ -55,7 +55,8 @@ pub struct TrackOutcome {
     pub first_keyframe: Option<KfId>,
     /// A map was started with this frame.
     pub initialised: bool,
-    /// Relocalised in the same map after being lost.
+    /// Relocalised in the same map after being lost (by place recognition, or found again
+    /// around the last tracked frame).
     pub relocalised: bool,
     /// The map started is a new one (the old one was lost for good).
     pub new_map: bool,
@@ -117,6 +118,11 @@ pub struct Tracker {
     /// Where it stands after the last frame.
     pub state: TrackingState,
     last_frame: Option<Frame>,
+    /// While lost: the last frame that was tracked, whose matches are searched for from where
+    /// it stood before relocalisation is tried (`slam.recover_lost_frames`).
+    last_tracked_frame: Option<Frame>,
+    /// The motion model when tracking was lost, and the seconds it was measured over.
+    velocity_when_lost: Option<(Se3, f64)>,
     /// T_cw(current) * T_wc(last): the constant-velocity model.
     velocity: Option<Se3>,
     /// Seconds between the two frames `velocity` was measured over: a frame after dropped
@@ -151,6 +157,8 @@ impl Tracker {
             s,
             state: TrackingState::NotInitialized,
             last_frame: None,
+            last_tracked_frame: None,
+            velocity_when_lost: None,
             velocity: None,
             velocity_dt: 0.0,
             reference_kf: None,
@@ -270,7 +278,10 @@ impl Tracker {
                     self.local_map_ok(&frame, n)
                 }
             }
-            TrackingState::Lost => self.relocalise_and_track_local_map(&mut frame, map, &mut out),
+            TrackingState::Lost => {
+                self.recover_from_last_tracked(&mut frame, map, &mut out)
+                    || self.relocalise_and_track_local_map(&mut frame, map, &mut out)
+            }
         };
         if ok {
             self.state = TrackingState::Ok;
@@ -297,6 +308,7 @@ impl Tracker {
         } else if self.state != TrackingState::NotInitialized {
             if self.state == TrackingState::Ok {
                 warn!(frame = frame.index, "tracking lost; relocalising");
+                self.velocity_when_lost = self.velocity.map(|v| (v, self.velocity_dt));
             }
             self.state = TrackingState::Lost;
             self.velocity = None;
@@ -386,6 +398,115 @@ impl Tracker {
         ok
     }
 
+    /// Lost for at most `slam.recover_lost_frames` frames (ours; ORB-SLAM relocalises at once):
+    /// the points of the keyframes around the last tracked frame are searched for from where
+    /// it stood, in windows `slam.recover_search_th` times the local map's, and the frame is
+    /// tracked if the local map then gives as many inliers as a relocalisation needs. A person
+    /// who filled a monocular view for a few frames has left the room where it was, while
+    /// place recognition may need many frames to find a keyframe again.
+    fn recover_from_last_tracked(
+        &mut self,
+        frame: &mut Frame,
+        map: &mut Map,
+        out: &mut TrackOutcome,
+    ) -> bool {
+        if self.localize || self.lost_frames >= self.s.recover_lost_frames {
+            return false;
+        }
+        let Some(last) = self.last_tracked_frame.take() else {
+            return false;
+        };
+        // Where the camera would be had it kept the motion it had, then where it was.
+        let predicted = self.velocity_when_lost.and_then(|(v, dt)| {
+            let v = stillpoint_geometry::motion_over_gap(&v, dt, frame.timestamp - last.timestamp);
+            last.pose_cw.map(|p| v * p)
+        });
+        let found = predicted.into_iter().chain(last.pose_cw).any(|pose| {
+            frame.pose_cw = Some(pose);
+            frame.map_points.iter_mut().for_each(|m| *m = None);
+            let projected = self.local_points_seen_from(&last, map, &pose);
+            let n = search_by_projection_local(
+                frame,
+                &projected,
+                map,
+                self.s.recover_search_th,
+                &self.s,
+            );
+            debug!(
+                frame = frame.index,
+                projected = projected.len(),
+                matches = n,
+                "searched from the last tracked frame"
+            );
+            n >= self.s.motion_min_matches && {
+                self.optimize_frame(frame, map);
+                Self::discard_outliers(frame, map) >= 10
+            }
+        });
+        let ok = found && {
+            let n = self.track_local_map(frame, map);
+            out.inliers = n;
+            n >= self.s.recover_min_inliers
+        };
+        if ok {
+            info!(
+                frame = frame.index,
+                inliers = out.inliers,
+                lost_frames = self.lost_frames,
+                "found again from the last tracked frame"
+            );
+            out.relocalised = true;
+        } else {
+            debug!(
+                frame = frame.index,
+                found,
+                inliers = out.inliers,
+                "not found from the last tracked frame"
+            );
+            frame.pose_cw = None;
+            frame.map_points.iter_mut().for_each(|m| *m = None);
+            out.inliers = 0;
+            self.last_tracked_frame = Some(last);
+        }
+        ok
+    }
+
+    /// The points of the keyframes that share `frame`'s matches and their best covisibles,
+    /// in the current map, that project into a camera at `pose`.
+    fn local_points_seen_from(&self, frame: &Frame, map: &Map, pose: &Se3) -> Vec<ProjectedPoint> {
+        let mut local: BTreeSet<KfId> = BTreeSet::new();
+        for mp in frame.map_points.iter().flatten() {
+            if let Some(p) = map.points.get(mp) {
+                local.extend(p.observations.keys().copied());
+            }
+        }
+        let first: Vec<KfId> = local.iter().copied().collect();
+        for k in first {
+            if let Some(kf) = map.keyframes.get(&k) {
+                local.extend(kf.best_covisibles(self.s.local_neighbours));
+            }
+        }
+        let center = pose.inverse().translation.vector;
+        let mut seen: BTreeSet<MpId> = BTreeSet::new();
+        let mut projected = Vec::new();
+        for k in &local {
+            let Some(kf) = map.keyframes.get(k) else {
+                continue;
+            };
+            if kf.bad || kf.map_epoch != map.epoch {
+                continue;
+            }
+            for mp in kf.map_points.iter().flatten() {
+                if seen.insert(*mp)
+                    && let Some(pp) = project_in_frustum(map, *mp, pose, &center, &self.s)
+                {
+                    projected.push(pp);
+                }
+            }
+        }
+        projected
+    }
+
     /// Monocular, a new map pending: the lost map is still the current one until the new map
     /// starts, so a frame that relocalises in it goes on there and the new map is dropped.
     fn relocalise_in_lost_map(
@@ -406,6 +527,7 @@ impl Tracker {
 
     fn finish_frame(&mut self, mut frame: Frame, ok: bool) {
         if ok {
+            self.last_tracked_frame = None;
             self.last_good_pose = frame.pose_cw;
             for (m, o) in frame.map_points.iter_mut().zip(&frame.outliers) {
                 if *o {
@@ -415,7 +537,9 @@ impl Tracker {
             self.last_frame = Some(frame);
         } else {
             frame.pose_cw = None;
-            self.last_frame = None;
+            if let Some(last) = self.last_frame.take() {
+                self.last_tracked_frame = Some(last);
+            }
         }
     }
 
@@ -1228,15 +1352,24 @@ impl Tracker {
             from_keyframe.translation.vector *= scale;
             from_keyframe * after
         };
-        if let Some(f) = self.last_frame.as_mut()
-            && let Some(p) = f.pose_cw
+        for f in [self.last_frame.as_mut(), self.last_tracked_frame.as_mut()]
+            .into_iter()
+            .flatten()
         {
-            f.pose_cw = Some(moved(p));
+            if let Some(p) = f.pose_cw {
+                f.pose_cw = Some(moved(p));
+            }
         }
         if let Some(p) = self.last_good_pose {
             self.last_good_pose = Some(moved(p));
         }
-        if let Some(v) = self.velocity.as_mut() {
+        for v in [
+            self.velocity.as_mut(),
+            self.velocity_when_lost.as_mut().map(|(v, _)| v),
+        ]
+        .into_iter()
+        .flatten()
+        {
             v.translation.vector *= scale;
         }
     }
