@@ -400,10 +400,11 @@ impl Tracker {
 
     /// Lost for at most `slam.recover_lost_frames` frames (ours; ORB-SLAM relocalises at once):
     /// the points of the keyframes around the last tracked frame are searched for from where
-    /// it stood, in windows `slam.recover_search_th` times the local map's, and the frame is
-    /// tracked if the local map then gives as many inliers as a relocalisation needs. A person
-    /// who filled a monocular view for a few frames has left the room where it was, while
-    /// place recognition may need many frames to find a keyframe again.
+    /// its motion would put the camera, then from where it stood, in windows
+    /// `slam.recover_search_th` times the local map's, and the frame is tracked if the local
+    /// map then gives `slam.recover_min_inliers`. Once a person who filled a monocular view
+    /// for a few frames has passed, the room is where it was, while place recognition may need
+    /// many frames to find a keyframe again.
     fn recover_from_last_tracked(
         &mut self,
         frame: &mut Frame,
