@@ -2,7 +2,10 @@
 # The README tables' runs, seed 0, gt boxes and YOLOX (tract), run `--sequential`, and the SHA-256
 # of each trajectory: a change that must not move results (a refactor) keeps every line of
 # scripts/trajectory-hashes.txt. Needs ../shared (textures, model) and a release build with
-# `--features tract`.
+# `--features tract`. Best compared on the machine that recorded them (or record the base
+# first): tract picks its kernels by the CPU's vector extensions, so a YOLOX box may differ in
+# its last bits between machines. living_close_mono_s0_yolox was recorded anew on an AVX2-only
+# EPYC where it differed (ATE the same to 0.01 cm), which of machine or code not pinned.
 #   scripts/trajectory-hashes.sh          # compare with scripts/trajectory-hashes.txt
 #   scripts/trajectory-hashes.sh --write  # record them anew (after a change meant to move them)
 set -euo pipefail

@@ -487,10 +487,22 @@ impl Tracker {
                 local.extend(kf.best_covisibles(self.s.local_neighbours));
             }
         }
+        self.points_in_view(map, &local, pose, &BTreeSet::new())
+    }
+
+    /// The points of the `local` keyframes of the current map that project into a camera at
+    /// `pose`, each once, but those in `skip`.
+    fn points_in_view(
+        &self,
+        map: &Map,
+        local: &BTreeSet<KfId>,
+        pose: &Se3,
+        skip: &BTreeSet<MpId>,
+    ) -> Vec<ProjectedPoint> {
         let center = pose.inverse().translation.vector;
         let mut seen: BTreeSet<MpId> = BTreeSet::new();
         let mut projected = Vec::new();
-        for k in &local {
+        for k in local {
             let Some(kf) = map.keyframes.get(k) else {
                 continue;
             };
@@ -498,9 +510,10 @@ impl Tracker {
                 continue;
             }
             for mp in kf.map_points.iter().flatten() {
-                if seen.insert(*mp)
-                    && let Some(pp) = project_in_frustum(map, *mp, pose, &center, &self.s)
-                {
+                if skip.contains(mp) || !seen.insert(*mp) {
+                    continue;
+                }
+                if let Some(pp) = project_in_frustum(map, *mp, pose, &center, &self.s) {
                     projected.push(pp);
                 }
             }
@@ -1015,25 +1028,7 @@ impl Tracker {
         let Some(pose) = frame.pose_cw else {
             return 0;
         };
-        let center = pose.inverse().translation.vector;
-        let mut seen: BTreeSet<MpId> = BTreeSet::new();
-        let mut projected = Vec::new();
-        for k in &local {
-            let Some(kf) = map.keyframes.get(k) else {
-                continue;
-            };
-            if kf.bad || kf.map_epoch != map.epoch {
-                continue;
-            }
-            for mp in kf.map_points.iter().flatten() {
-                if in_frame.contains(mp) || !seen.insert(*mp) {
-                    continue;
-                }
-                if let Some(pp) = project_in_frustum(map, *mp, &pose, &center, &self.s) {
-                    projected.push(pp);
-                }
-            }
-        }
+        let projected = self.points_in_view(map, &local, &pose, &in_frame);
         for pp in &projected {
             if count && let Some(p) = map.points.get_mut(&pp.id) {
                 p.visible += 1;
