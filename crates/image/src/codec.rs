@@ -39,6 +39,13 @@ pub fn format_of(bytes: &[u8]) -> Option<Format> {
     }
 }
 
+/// A JPEG without its end-of-image marker: cut short (a file still being written, a full
+/// disk). It still decodes (leniently, as `image` and libjpeg do), the part its data does not
+/// reach filled in by the decoder, so the caller says so.
+pub fn jpeg_truncated(bytes: &[u8]) -> bool {
+    format_of(bytes) == Some(Format::Jpeg) && !bytes.windows(2).rev().any(|w| w == [0xFF, 0xD9])
+}
+
 /// Why bytes did not decode.
 #[derive(Debug, thiserror::Error)]
 pub enum DecodeError {
@@ -408,6 +415,31 @@ mod tests {
         assert_eq!(file_dimensions(&path).unwrap(), Some((9, 4)));
         std::fs::write(&path, b"neither").unwrap();
         assert_eq!(file_dimensions(&path).unwrap(), None);
+    }
+
+    #[test]
+    fn a_jpeg_cut_short_is_told_from_a_whole_one() {
+        let mut img = Rgb8::new(64, 64, [0, 0, 0]);
+        for (i, p) in img.data.iter_mut().enumerate() {
+            *p = [
+                (i * 37 % 251) as u8,
+                (i * 11 % 253) as u8,
+                (i % 64 * 4) as u8,
+            ];
+        }
+        let jpeg = crate::encode_jpeg(&img, 90).unwrap();
+        assert!(!jpeg_truncated(&jpeg));
+        // bytes after the end marker (a camera's padding) leave it whole
+        let mut padded = jpeg.clone();
+        padded.extend_from_slice(&[0; 16]);
+        assert!(!jpeg_truncated(&padded));
+        for cut_off in [2, 300] {
+            let cut = &jpeg[..jpeg.len() - cut_off];
+            assert!(jpeg_truncated(cut));
+            assert_eq!(decode(cut).unwrap().width, 64, "still decoded, leniently");
+        }
+        let png = encode_png8(&[0; 12], 2, 2, png::ColorType::Rgb).unwrap();
+        assert!(!jpeg_truncated(&png));
     }
 
     #[test]

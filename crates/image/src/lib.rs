@@ -228,7 +228,14 @@ fn write_err(path: &Path, e: impl std::error::Error + Send + Sync + 'static) -> 
 
 fn decode_file(path: &Path) -> Result<codec::Decoded, ImageError> {
     let bytes = std::fs::read(path).map_err(|e| read_err(path, e))?;
-    codec::decode(&bytes).map_err(|e| read_err(path, e))
+    let decoded = codec::decode(&bytes).map_err(|e| read_err(path, e))?;
+    if codec::jpeg_truncated(&bytes) {
+        tracing::warn!(
+            "{}: JPEG cut short (no end-of-image marker): decoded as far as it goes",
+            path.display()
+        );
+    }
+    Ok(decoded)
 }
 
 /// Read any PNG/JPEG as 8-bit RGB (16-bit input is scaled down, gray is replicated).
