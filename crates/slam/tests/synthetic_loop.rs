@@ -244,7 +244,8 @@ fn a_monocular_map_started_after_a_blind_stretch_merges_with_its_scale() {
 #[test]
 fn a_monocular_loop_is_closed_in_sim3_and_the_error_drops() {
     // Without depth the map drifts in scale as well as in pose over the lap (keypoints off by
-    // up to 1 px: 1 cm Sim(3) ATE); at the revisit the loop is corrected as a similarity per
+    // up to 1 px: 0.7 cm Sim(3) ATE, 1 cm
+    // with ORB-SLAM's keyframe culling); at the revisit the loop is corrected as a similarity per
     // keyframe.
     let frames = LAP + LAP / 3;
     let off = run_blind(LAP, frames, false, 0..0, true, 1.0);
@@ -254,7 +255,7 @@ fn a_monocular_loop_is_closed_in_sim3_and_the_error_drops() {
     let &(frame, loop_frame) = on.loops.first().expect("a loop closed");
     assert!(frame > loop_frame + LAP / 2, "loop {frame} -> {loop_frame}");
     assert_eq!(on.merges, 0);
-    assert!(off.ate > 0.008, "too little drift to test: {}", off.ate);
+    assert!(off.ate > 0.006, "too little drift to test: {}", off.ate);
     assert!(
         on.ate < 0.5 * off.ate,
         "Sim(3) ATE {} -> {}",
