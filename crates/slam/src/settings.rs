@@ -196,11 +196,10 @@ pub struct SlamSettings {
     /// and culling one after the other left none for 3.7 s. Measurements: docs/results.md.
     #[serde(default = "default_kf_cull_max_gap_s")]
     pub kf_cull_max_gap_s: f64,
-    /// ... the same for a monocular map (0.3 s; 0 = no limit, ORB-SLAM3). Culled to ORB-SLAM's
-    /// rule, a turning hand-held camera kept 19 keyframes of 142 over 300 frames, up to 19
-    /// degrees apart, and the map bent where it turned: 0.3 s took the monocular rooms' mean
-    /// Sim(3) ATE from 2.55 to 1.87 cm with gt boxes (docs/monocular.md). With 0.5 s, before
-    /// loop closing's parallax test, a harder monocular loop lost tracking.
+    /// ... the same for a monocular map (0 = no limit, ORB-SLAM3). A turning camera asks for a
+    /// keyframe on nearly every frame and each is redundant with its neighbours; culled one
+    /// after the other they end up degrees apart and the map bends where the camera turns
+    /// (docs/monocular.md).
     #[serde(default = "default_kf_cull_max_gap_s_monocular")]
     pub kf_cull_max_gap_s_monocular: f64,
     /// Local BA iterations before and after outlier removal (ORB-SLAM3: 5 + 10).

@@ -244,9 +244,8 @@ fn a_monocular_map_started_after_a_blind_stretch_merges_with_its_scale() {
 #[test]
 fn a_monocular_loop_is_closed_in_sim3_and_the_error_drops() {
     // Without depth the map drifts in scale as well as in pose over the lap (keypoints off by
-    // up to 1 px: 0.7 cm Sim(3) ATE, 1 cm
-    // with ORB-SLAM's keyframe culling); at the revisit the loop is corrected as a similarity per
-    // keyframe.
+    // up to 1 px: 0.7 cm Sim(3) ATE, 1 cm with ORB-SLAM's keyframe culling); at the revisit the
+    // loop is corrected as a similarity per keyframe.
     let frames = LAP + LAP / 3;
     let off = run_blind(LAP, frames, false, 0..0, true, 1.0);
     let on = run_blind(LAP, frames, true, 0..0, true, 1.0);
