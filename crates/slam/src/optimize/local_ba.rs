@@ -124,6 +124,69 @@ pub struct LmReport {
     pub cost_after: f64,
 }
 
+/// The normal equations' blocks at one state of the cameras and points: per free camera `u`
+/// (JᵀJ) and `bc` (Jᵀe), per point `v` and `bp`, and per observation by a free camera its
+/// camera-point block `w` (megabytes in a local window: allocated once per run of LM).
+struct NormalEquations {
+    u: Vec<Matrix6<f64>>,
+    bc: Vec<Vector6<f64>>,
+    v: Vec<Matrix3<f64>>,
+    bp: Vec<Vector3<f64>>,
+    w: Vec<Matrix6x3<f64>>,
+}
+
+impl NormalEquations {
+    fn new(free_cameras: usize, points: usize, observations: usize) -> Self {
+        Self {
+            u: vec![Matrix6::zeros(); free_cameras],
+            bc: vec![Vector6::zeros(); free_cameras],
+            v: vec![Matrix3::zeros(); points],
+            bp: vec![Vector3::zeros(); points],
+            w: vec![Matrix6x3::zeros(); observations],
+        }
+    }
+
+    /// Linearise the active observations at the problem's current state. Only the blocks `w` of
+    /// active observations by free cameras are written (zero where one cannot be linearised),
+    /// and only those are read.
+    fn linearise(
+        &mut self,
+        p: &BaProblem,
+        active: &[bool],
+        free: &[Option<usize>],
+        robust: bool,
+        s: &SlamSettings,
+    ) {
+        self.u.fill(Matrix6::zeros());
+        self.bc.fill(Vector6::zeros());
+        self.v.fill(Matrix3::zeros());
+        self.bp.fill(Vector3::zeros());
+        for (i, o) in p.observations.iter().enumerate() {
+            if !active[i] {
+                continue;
+            }
+            let Some(l) = linearise(p, o, s) else {
+                self.w[i] = Matrix6x3::zeros();
+                continue;
+            };
+            let d = if l.rows == 3 {
+                s.chi2_stereo
+            } else {
+                s.chi2_mono
+            }
+            .sqrt();
+            let wt = if robust { huber_weight(l.chi2, d) } else { 1.0 } * o.inv_sigma2;
+            self.v[o.point] += l.jp.transpose() * l.jp * wt;
+            self.bp[o.point] += l.jp.transpose() * l.e * wt;
+            if let Some(c) = free[o.camera] {
+                self.u[c] += l.jc.transpose() * l.jc * wt;
+                self.bc[c] += l.jc.transpose() * l.e * wt;
+                self.w[i] = l.jc.transpose() * l.jp * wt;
+            }
+        }
+    }
+}
+
 /// Run LM iterations on the active observations. With `trials_after_failure` 0 a rejected
 /// step uses up an iteration; with k > 0 up to k rejections in a row are retried with more
 /// damping within one iteration, and one more ends the run, as in g2o's Levenberg-Marquardt
@@ -192,38 +255,17 @@ fn lm(
         *failures_in_a_row = 0;
         trials_after_failure > 0
     };
-    // One camera-point block per observation (megabytes in a local window): allocated once;
-    // every iteration writes those of the active observations by free cameras (zero where one
-    // cannot be linearised), the only ones read.
-    let mut w = vec![Matrix6x3::<f64>::zeros(); p.observations.len()];
+    let mut normal = NormalEquations::new(n_free, p.points.len(), p.observations.len());
+    // A rejected step leaves the cameras and points where they were, so the next try (more
+    // damping) reuses their linearisation: the same numbers, and half of the tries in a
+    // monocular window are rejected.
+    let mut linearised = false;
     while iteration < iterations {
-        let mut u = vec![Matrix6::<f64>::zeros(); n_free];
-        let mut bc = vec![Vector6::<f64>::zeros(); n_free];
-        let mut v = vec![Matrix3::<f64>::zeros(); p.points.len()];
-        let mut bp = vec![Vector3::<f64>::zeros(); p.points.len()];
-        for (i, o) in p.observations.iter().enumerate() {
-            if !active[i] {
-                continue;
-            }
-            let Some(l) = linearise(p, o, s) else {
-                w[i] = Matrix6x3::zeros();
-                continue;
-            };
-            let d = if l.rows == 3 {
-                s.chi2_stereo
-            } else {
-                s.chi2_mono
-            }
-            .sqrt();
-            let wt = if robust { huber_weight(l.chi2, d) } else { 1.0 } * o.inv_sigma2;
-            v[o.point] += l.jp.transpose() * l.jp * wt;
-            bp[o.point] += l.jp.transpose() * l.e * wt;
-            if let Some(c) = free[o.camera] {
-                u[c] += l.jc.transpose() * l.jc * wt;
-                bc[c] += l.jc.transpose() * l.e * wt;
-                w[i] = l.jc.transpose() * l.jp * wt;
-            }
+        if !linearised {
+            normal.linearise(p, active, &free, robust, s);
+            linearised = true;
         }
+        let NormalEquations { u, bc, v, bp, w } = &normal;
         // Damped point blocks and their inverses.
         let v_inv: Vec<Matrix3<f64>> = v
             .iter()
@@ -306,6 +348,7 @@ fn lm(
             cost = new_cost;
             report.steps += 1;
             report.cost_after = cost;
+            linearised = false;
             iteration += 1;
             failures_in_a_row = 0;
             lambda = (lambda / 3.0).max(1e-9);
