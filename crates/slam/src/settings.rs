@@ -114,13 +114,22 @@ pub struct SlamSettings {
     /// right. Measurements: docs/measurements.md.
     #[serde(default = "default_settle_keyframes")]
     pub trajectory_settle_keyframes: usize,
+    /// Ours: frames settle on the map the run ends with, not `trajectory_settle_keyframes`
+    /// keyframes later: a frame's keyframes and points are refined again whenever later
+    /// keyframes see them (a hand-held camera comes back) and by loop corrections, so a pose
+    /// optimised against the final map fits the map the trajectory is read in. Past `trajectory_settle_max_pending` waiting frames
+    /// the oldest settle on the map as it is then. `false`: `trajectory_settle_keyframes`
+    /// keyframes later, the release before's rule; `trajectory_settle_keyframes = 0` turns
+    /// settling off either way. Measurements: docs/measurements.md.
+    #[serde(default = "default_settle_at_end")]
+    pub trajectory_settle_at_end: bool,
     /// ... the settled pose is kept when it has at least this many inliers (else the frame
     /// follows its keyframe as tracking left it).
     #[serde(default = "default_settle_min_inliers")]
     pub trajectory_settle_min_inliers: usize,
     /// ... and at most this many frames wait to settle: older ones settle on the map as it is
-    /// (a camera lapping a mapped room makes no keyframes, and each waiting frame's observations
-    /// hold memory). Default 100, 3.3 s at 30 Hz. Measurements: docs/measurements.md.
+    /// (each waiting frame's observations hold memory, about 20 KiB). Default 300, 10 s at 30
+    /// Hz. Measurements: docs/measurements.md.
     #[serde(default = "default_settle_max_pending")]
     pub trajectory_settle_max_pending: usize,
     /// ... and with local mapping in its own thread (real time) at most this many settle after
@@ -452,6 +461,7 @@ impl SlamSettings {
             point_max_rejections: 0,
             erase_seen_through_after: 2,
             trajectory_settle_keyframes: default_settle_keyframes(),
+            trajectory_settle_at_end: default_settle_at_end(),
             trajectory_settle_min_inliers: default_settle_min_inliers(),
             trajectory_smooth_sigma_depth: default_smooth_sigma_depth(),
             trajectory_smooth_neighbours: default_smooth_neighbours(),
@@ -517,12 +527,16 @@ fn default_settle_keyframes() -> usize {
     2
 }
 
+fn default_settle_at_end() -> bool {
+    true
+}
+
 fn default_settle_min_inliers() -> usize {
     20
 }
 
 fn default_settle_max_pending() -> usize {
-    100
+    300
 }
 
 fn default_smooth_sigma_depth() -> f64 {

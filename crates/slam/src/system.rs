@@ -614,7 +614,7 @@ impl System {
     }
 
     /// Tracked frames whose pose waits to be settled on a refined map
-    /// (`SlamSettings::trajectory_settle_keyframes`); at most `trajectory_settle_max_pending`.
+    /// (`SlamSettings::trajectory_settle_at_end`); at most `trajectory_settle_max_pending`.
     pub fn frames_waiting_to_settle(&self) -> usize {
         self.unsettled.len()
     }
@@ -686,10 +686,11 @@ impl System {
         })
     }
 
-    /// Optimise again the poses of the tracked frames that local mapping has since refined the
-    /// keyframes around (`SlamSettings::trajectory_settle_keyframes` keyframes later, mapping
-    /// idle), or all of them (`all`, at the end), against the map as it is now, and anchor each
-    /// to its reference keyframe from there.
+    /// Optimise again the poses of the tracked frames that are due against the map as it is
+    /// now, and anchor each to its reference keyframe from there: all of them at the end
+    /// (`all`), the oldest past `trajectory_settle_max_pending`, and, with
+    /// `trajectory_settle_at_end` off, those `trajectory_settle_keyframes` keyframes old once
+    /// mapping is idle.
     fn settle(&mut self, all: bool) {
         let s = &self.settings;
         let mapping_idle = match &self.mapping {
@@ -699,7 +700,7 @@ impl System {
             }
         };
         // Past `trajectory_settle_max_pending` frames the oldest settle on the map as it is:
-        // where no keyframe comes (a camera lapping a mapped room) the queue would grow with
+        // waiting for the end (or for keyframes, where none comes) the queue would grow with
         // every frame.
         let (keyframes_inserted, max_pending) =
             (self.keyframes_inserted, s.trajectory_settle_max_pending);
@@ -710,7 +711,8 @@ impl System {
         };
         let due = |u: &Unsettled, pending: usize| {
             all || pending > max_pending
-                || (mapping_idle
+                || (!s.trajectory_settle_at_end
+                    && mapping_idle
                     && u.keyframes_at + s.trajectory_settle_keyframes <= keyframes_inserted)
         };
         if !self

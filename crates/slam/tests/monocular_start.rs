@@ -85,7 +85,7 @@ fn frames_of_a_dropped_reference_are_tracked_once_the_map_stands() {
 #[test]
 fn frames_tracked_before_the_map_stood_settle_as_tracked_frames_do() {
     // Their poses are optimised again once the map around them is refined, as every tracked
-    // frame's is (`trajectory_settle_keyframes`): right after the map stands they wait, with
+    // frame's is (`trajectory_settle_at_end`): right after the map stands they wait, with
     // the frame that started it; the map's first view, a keyframe, does not.
     let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
     let mut s = SlamSettings::monocular(cam, 30.0);

@@ -324,6 +324,41 @@ fn a_camera_that_makes_no_keyframes_keeps_few_frames_waiting_to_settle() {
     assert_eq!(sys.rebuilt_trajectory().len(), 50);
 }
 
+/// Frames settle on the map the run ends with (`trajectory_settle_at_end`): every tracked frame
+/// waits for the end, however many keyframes come after it; with it off (the release before)
+/// the first settle two keyframes later.
+#[test]
+fn frames_wait_to_settle_on_the_map_the_run_ends_with() {
+    const FRAMES: usize = 120;
+    let waiting_at_the_end = |at_end: bool| {
+        let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
+        let mut s = SlamSettings::rgbd(cam, 40.0, 30.0);
+        s.local_mapping_thread = false;
+        s.trajectory_settle_at_end = at_end;
+        let sc = scene(3, 4000);
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(9);
+        let mut sys = System::new(s);
+        for i in 0..FRAMES {
+            let (f, d, depth) = observe(&sc, &truth(i), &cam, &mut rng);
+            sys.track(TrackInput::new(i, i as f64 / 30.0, &f, &d).with_depth(Some(&depth)))
+                .unwrap();
+        }
+        let waiting = (sys.frames_waiting_to_settle(), sys.keyframe_count());
+        sys.shutdown().unwrap();
+        assert_eq!(sys.frames_waiting_to_settle(), 0, "all settle at the end");
+        assert_eq!(sys.rebuilt_trajectory().len(), FRAMES);
+        waiting
+    };
+    let (at_end, keyframes) = waiting_at_the_end(true);
+    assert!(keyframes >= 4, "{keyframes} keyframes");
+    assert_eq!(at_end, FRAMES, "frames waiting at the end");
+    let (two_keyframes_later, _) = waiting_at_the_end(false);
+    assert!(
+        two_keyframes_later < FRAMES,
+        "two keyframes later, none settled before the end"
+    );
+}
+
 /// The rebuilt trajectory over 90 frames of a camera on a smooth path before a textured wall
 /// and floor, keypoints 1 px off, with `trajectory_smooth_sigma_depth` = `share`: its RMSE and
 /// its jitter (the RMS of the error's second difference, frame to frame), metres.
