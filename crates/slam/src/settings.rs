@@ -115,12 +115,13 @@ pub struct SlamSettings {
     #[serde(default = "default_settle_keyframes")]
     pub trajectory_settle_keyframes: usize,
     /// Ours: frames settle on the map the run ends with, not `trajectory_settle_keyframes`
-    /// keyframes later: a frame's keyframes and points are refined again whenever later
-    /// keyframes see them (a hand-held camera comes back) and by loop corrections, so a pose
-    /// optimised against the final map fits the map the trajectory is read in. Past `trajectory_settle_max_pending` waiting frames
-    /// the oldest settle on the map as it is then. `false`: `trajectory_settle_keyframes`
-    /// keyframes later, the release before's rule; `trajectory_settle_keyframes = 0` turns
-    /// settling off either way. Measurements: docs/measurements.md.
+    /// keyframes later: the points a frame saw are refined again whenever later keyframes see
+    /// them (a hand-held camera comes back) and by loop corrections, so a pose optimised
+    /// against the final map fits the map the trajectory is read in. Past
+    /// `trajectory_settle_max_pending` waiting frames the oldest settle on the map as it is
+    /// then. `false`: `trajectory_settle_keyframes` keyframes later (the release before's
+    /// rule); `trajectory_settle_keyframes = 0` turns settling off either way. Measurements:
+    /// docs/measurements.md.
     #[serde(default = "default_settle_at_end")]
     pub trajectory_settle_at_end: bool,
     /// ... the settled pose is kept when it has at least this many inliers (else the frame
