@@ -1,7 +1,7 @@
 //! [`System`]: tracking plus local mapping and loop closing (threaded or inline) over a shared
 //! map.
 
-use std::collections::VecDeque;
+use std::collections::{BTreeSet, VecDeque};
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -170,6 +170,8 @@ struct Unsettled {
     observations: Vec<FrameObservation>,
     /// `System::keyframes_inserted` when it was tracked.
     keyframes_at: usize,
+    /// `Map::fusions` when it was tracked: its points' later fusions are numbered from here.
+    fusions_at: u64,
 }
 
 impl System {
@@ -487,6 +489,7 @@ impl System {
                             pose_cw,
                             observations,
                             keyframes_at,
+                            fusions_at: map.fusions(),
                         });
                     }
                     self.anchors
@@ -505,11 +508,17 @@ impl System {
                         pose_cw,
                         observations: std::mem::take(&mut outcome.observations),
                         keyframes_at: self.keyframes_inserted,
+                        fusions_at: map.fusions(),
                     });
                 }
                 self.anchors
                     .push((timestamp, r, pose_cw * k.pose_cw.inverse()));
             }
+            let first_needed = self
+                .unsettled
+                .front()
+                .map_or_else(|| map.fusions(), |u| u.fusions_at);
+            map.forget_fusions_before(first_needed);
             outcome
         };
         let tracking_ms = stillpoint_core::ms_since(t0);
@@ -741,11 +750,16 @@ impl System {
             let Some(ref_cw) = map.keyframe_pose_cw(r) else {
                 continue;
             };
+            // A point fused into another since counts as the one that replaced it.
+            let mut seen = BTreeSet::new();
             let obs: Vec<PoseObservation> = u
                 .observations
                 .iter()
                 .filter_map(|o| {
-                    let p = map.points.get(&o.point).filter(|p| !p.bad)?;
+                    let (id, p) = map.point_or_its_replacement(o.point)?;
+                    if p.bad || !seen.insert(id) {
+                        return None;
+                    }
                     Some(PoseObservation {
                         world: p.position,
                         u: o.u,

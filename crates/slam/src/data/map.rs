@@ -1,6 +1,6 @@
 //! Keyframes, map points and the map with its covisibility graph and spanning tree.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
 use stillpoint_geometry::{PinholeCamera, Se3, Vec2, Vec3};
 use stillpoint_image::{DepthMetres, Gray8};
@@ -240,6 +240,14 @@ pub struct Map {
     pub epoch: u32,
     /// First keyframe of the current map (fixed in bundle adjustment: the gauge).
     pub origin_kf: Option<KfId>,
+    /// Points fused into another (dropped -> kept), so that a frame waiting to settle still
+    /// finds the points it saw (ORB-SLAM's `mpReplaced`); the oldest are forgotten once no
+    /// waiting frame can have seen them.
+    fused_into: BTreeMap<MpId, MpId>,
+    /// The dropped points of `fused_into`, oldest first; fusion number `fusions_forgotten + i`
+    /// is at `i`.
+    fusion_order: VecDeque<MpId>,
+    fusions_forgotten: u64,
 }
 
 impl Map {
@@ -358,6 +366,8 @@ impl Map {
         let Some(old) = self.points.remove(&drop) else {
             return;
         };
+        self.fused_into.insert(drop, keep);
+        self.fusion_order.push_back(drop);
         let (found, visible) = (old.found, old.visible);
         for (kf, idx) in old.observations {
             let Some(k) = self.keyframes.get_mut(&kf) else {
@@ -383,6 +393,33 @@ impl Map {
             p.visible += visible;
         }
         self.update_point(keep, &[]);
+    }
+
+    /// Fusions so far: a frame tracked now can only need the ones numbered from here on.
+    pub fn fusions(&self) -> u64 {
+        self.fusions_forgotten + self.fusion_order.len() as u64
+    }
+
+    /// Forget the fusions numbered below `first_needed`.
+    pub fn forget_fusions_before(&mut self, first_needed: u64) {
+        while self.fusions_forgotten < first_needed
+            && let Some(drop) = self.fusion_order.pop_front()
+        {
+            self.fused_into.remove(&drop);
+            self.fusions_forgotten += 1;
+        }
+    }
+
+    /// A point by id, or the point it was fused into (if that fusion is not forgotten).
+    pub fn point_or_its_replacement(&self, mut id: MpId) -> Option<(MpId, &MapPoint)> {
+        // A fused point is gone from `points` for good, so chains end; the bound is a guard.
+        for _ in 0..16 {
+            if let Some(p) = self.points.get(&id) {
+                return Some((id, p));
+            }
+            id = *self.fused_into.get(&id)?;
+        }
+        None
     }
 
     /// Recompute a point's normal, scale-invariance distances and representative descriptor.
@@ -898,6 +935,33 @@ mod tests {
         map.add_observation(mp, k2, 0);
         assert!((map.point_parallax_deg(mp).unwrap() - 90.0).abs() < 1e-9);
         assert_eq!(map.point_parallax_deg(mp + 1), None);
+    }
+
+    #[test]
+    fn a_fused_point_is_found_as_the_one_it_went_into_until_that_fusion_is_forgotten() {
+        let f = row_frame();
+        let mut map = Map::new();
+        let k = map.add_keyframe(&f).unwrap();
+        let [a, b, c] =
+            [0, 1, 2].map(|i| map.add_point(Vec3::new(i as f64, 0.0, 3.0), k, i).unwrap());
+        let before = map.fusions();
+        map.replace_point(a, b);
+        map.replace_point(b, c);
+        assert_eq!(map.fusions(), before + 2);
+        // a went into b, and b into c: both are found as c.
+        for id in [a, b, c] {
+            let (found, p) = map.point_or_its_replacement(id).unwrap();
+            assert_eq!(found, c);
+            assert_eq!(p.position, Vec3::new(2.0, 0.0, 3.0));
+        }
+        assert!(map.point_or_its_replacement(c + 1).is_none());
+        // A frame tracked after the first fusion can only have seen b or c.
+        map.forget_fusions_before(before + 1);
+        assert!(map.point_or_its_replacement(a).is_none());
+        assert_eq!(map.point_or_its_replacement(b).map(|(id, _)| id), Some(c));
+        map.forget_fusions_before(map.fusions());
+        assert!(map.point_or_its_replacement(b).is_none());
+        assert_eq!(map.fusions(), before + 2, "forgetting keeps the count");
     }
 
     #[test]
