@@ -547,7 +547,12 @@ fn describe_level(
         let angle = ic_angle(level_img, x, y, ctx.angle_patch);
         out.descriptors
             .push(steered_brief(&scratch.blurred, x, y, angle));
-        let (x0, y0) = to_image.map(x as f32, y as f32);
+        let (dx, dy) = if ctx.params.subpixel {
+            corner_offset(level_img, x, y)
+        } else {
+            (0.0, 0.0)
+        };
+        let (x0, y0) = to_image.map(x as f32 + dx, y as f32 + dy);
         out.keypoints.push(KeyPoint {
             x: x0,
             y: y0,
@@ -869,6 +874,50 @@ fn harris_at(img: &Gray8, x: usize, y: usize) -> f32 {
     ((a * b - c * c - 0.04 * (a + b) * (a + b)) * scale.powi(4)) as f32
 }
 
+/// Where the corner at pixel `(x, y)` lies below the pixel: the point `q` that the 7x7
+/// window's gradients best point away from, `sum(g g^T) q = sum(g g^T p)` (Förstner 1987;
+/// OpenCV's `cornerSubPix`, one step from the pixel), weighted towards the centre. An edge or
+/// a flat patch (an ill-conditioned system) or a point beyond the next pixel keeps the pixel.
+/// `(x, y)` must lie 4 pixels inside the image.
+fn corner_offset(img: &Gray8, x: usize, y: usize) -> (f32, f32) {
+    let w = img.width;
+    let d = &img.data;
+    let s = w as isize;
+    let (mut a, mut b, mut c, mut bx, mut by) = (0f32, 0f32, 0f32, 0f32, 0f32);
+    for (j, yy) in (y - 3..=y + 3).enumerate() {
+        for (i, xx) in (x - 3..=x + 3).enumerate() {
+            let k = (yy * w + xx) as isize;
+            let p = |o: isize| d[(k + o) as usize] as f32;
+            let ix = (p(1) - p(-1)) * 2.0 + (p(-s + 1) - p(-s - 1)) + (p(s + 1) - p(s - 1));
+            let iy = (p(s) - p(-s)) * 2.0 + (p(s - 1) - p(-s - 1)) + (p(s + 1) - p(-s + 1));
+            let (px, py) = (i as f32 - 3.0, j as f32 - 3.0);
+            let wt = CORNER_WEIGHTS[j] * CORNER_WEIGHTS[i];
+            let (gxx, gyy, gxy) = (wt * ix * ix, wt * iy * iy, wt * ix * iy);
+            a += gxx;
+            b += gyy;
+            c += gxy;
+            bx += gxx * px + gxy * py;
+            by += gxy * px + gyy * py;
+        }
+    }
+    let det = a * b - c * c;
+    let half_trace = 0.5 * (a + b);
+    // Both eigenvalues clear of zero, the smaller over a tenth of their mean: not an edge.
+    let smaller = half_trace - (0.25 * (a - b) * (a - b) + c * c).sqrt();
+    if half_trace <= 0.0 || smaller <= 0.1 * half_trace {
+        return (0.0, 0.0);
+    }
+    let qx = (b * bx - c * by) / det;
+    let qy = (a * by - c * bx) / det;
+    if qx.abs() > 1.0 || qy.abs() > 1.0 || !qx.is_finite() || !qy.is_finite() {
+        return (0.0, 0.0);
+    }
+    (qx, qy)
+}
+
+/// Gaussian weights (sigma 2 px) along one axis of [`corner_offset`]'s window.
+const CORNER_WEIGHTS: [f32; 7] = [0.3247, 0.6065, 0.8825, 1.0, 0.8825, 0.6065, 0.3247];
+
 /// Half-width of each row of the circular orientation patch of radius 15, made symmetric
 /// (ORB-SLAM3's `umax`).
 fn orientation_umax() -> Vec<usize> {
@@ -1023,6 +1072,40 @@ mod tests {
     use super::*;
 
     /// Smooth random texture (sum of blobs) so FAST finds corners everywhere.
+    /// A dark square whose corner lies between pixels, each pixel its covered share (a camera
+    /// integrating over the pixel): one step from the nearest whole pixel finds the corner within
+    /// 0.15 px, on either side; along a straight edge the pixel is kept.
+    #[test]
+    fn a_corner_between_pixels_is_found_below_the_pixel() {
+        let covered = |lo: f32, p: usize| (p as f32 + 0.5 - lo).clamp(0.0, 1.0);
+        for &(cx, cy) in &[(20.3f32, 24.6f32), (20.8, 23.2), (21.5, 24.5), (20.0, 24.0)] {
+            // Pixel p spans [p - 0.5, p + 0.5]; the bright area is x >= cx, y >= cy.
+            let data = (0..48 * 48)
+                .map(|i| {
+                    let (x, y) = (i % 48, i / 48);
+                    (40.0 + 160.0 * covered(cx, x) * covered(cy, y)).round() as u8
+                })
+                .collect();
+            let img = Gray8::from_vec(48, 48, data).unwrap();
+            let (px, py) = (cx.round() as usize, cy.round() as usize);
+            let (dx, dy) = corner_offset(&img, px, py);
+            let (ex, ey) = (px as f32 + dx - cx, py as f32 + dy - cy);
+            assert!(
+                ex.abs() < 0.15 && ey.abs() < 0.15,
+                "corner ({cx}, {cy}): off by ({ex}, {ey})"
+            );
+        }
+        let edge = Gray8::from_vec(
+            48,
+            48,
+            (0..48 * 48)
+                .map(|i| if i % 48 < 24 { 40 } else { 200 })
+                .collect(),
+        )
+        .unwrap();
+        assert_eq!(corner_offset(&edge, 24, 24), (0.0, 0.0));
+    }
+
     pub(crate) fn texture(w: usize, h: usize, seed: u32) -> Gray8 {
         let mut img = Gray8::new(w, h, 0);
         let mut rng = crate::test_rng::Lcg(seed);
@@ -1320,6 +1403,7 @@ mod tests {
             min_th_fast: 0,
             low_texture_th_fast: 0,
             noise_th_factor: f32::NAN,
+            subpixel: true,
         });
         assert!(odd.extract(&texture(100, 100, 1)).keypoints.is_empty());
     }
