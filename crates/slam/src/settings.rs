@@ -166,6 +166,17 @@ pub struct SlamSettings {
     /// Two keyframes' rays to a new point without depth must meet at an angle whose cosine is
     /// below this (ORB-SLAM3 `CreateNewMapPoints`: 0.9998, 1.15 degrees).
     pub new_point_max_cos_parallax: f64,
+    /// Monocular: test a new point's parallax at the depth its keyframe's map points round it
+    /// have (the median of a cell of the image), not at the depth of its own triangulation, and
+    /// ask of its own rays only `new_point_max_cos_parallax_measured`. A pair's noise widens
+    /// some far points' rays past the cut and narrows others', so a cut on the rays keeps those
+    /// made too near and the map's scale shrinks along a drive (docs/monocular.md).
+    #[serde(default)]
+    pub new_point_parallax_from_neighbours: bool,
+    /// With `new_point_parallax_from_neighbours`: the cosine the point's own two rays must be
+    /// below (0.99999: 0.26 degrees), which only keeps out rays that hardly meet.
+    #[serde(default = "default_new_point_max_cos_parallax_measured")]
+    pub new_point_max_cos_parallax_measured: f64,
     /// Covisibility edge weight: shared points needed for an edge (ORB-SLAM3: 15).
     pub covisibility_min_shared: usize,
     /// Neighbours taken into the local map (ORB-SLAM3 tracking: 10 per keyframe).
@@ -472,6 +483,8 @@ impl SlamSettings {
             seen_through_gap_px: 1.0,
             kf_new_points_min: 100,
             new_point_max_cos_parallax: 0.9998,
+            new_point_parallax_from_neighbours: false,
+            new_point_max_cos_parallax_measured: default_new_point_max_cos_parallax_measured(),
             covisibility_min_shared: 15,
             local_neighbours: 10,
             mapping_neighbours: default_mapping_neighbours(),
@@ -554,4 +567,8 @@ fn default_smooth_max_gap_s() -> f64 {
 
 fn default_settle_max_per_frame() -> usize {
     3
+}
+
+fn default_new_point_max_cos_parallax_measured() -> f64 {
+    0.99999
 }
