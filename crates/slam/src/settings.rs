@@ -166,15 +166,17 @@ pub struct SlamSettings {
     /// Two keyframes' rays to a new point without depth must meet at an angle whose cosine is
     /// below this (ORB-SLAM3 `CreateNewMapPoints`: 0.9998, 1.15 degrees).
     pub new_point_max_cos_parallax: f64,
-    /// Monocular: test a new point's parallax at the depth its keyframe's map points round it
-    /// have (the median of a cell of the image), not at the depth of its own triangulation, and
-    /// ask of its own rays only `new_point_max_cos_parallax_measured`. A pair's noise widens
-    /// some far points' rays past the cut and narrows others', so a cut on the rays keeps those
-    /// made too near and the map's scale shrinks along a drive (docs/monocular.md).
-    #[serde(default)]
+    /// Monocular: the parallax cut `new_point_max_cos_parallax` is also asked at the depth the
+    /// keyframe's map points round the keypoint have (the median of its cell of the image), and
+    /// of the point's own two rays `new_point_max_cos_parallax_measured`. A pair's noise widens
+    /// some far points' rays past the cut and narrows others', so a cut on the rays alone keeps
+    /// far points made too near (the map's scale shrinks along a drive); at the neighbours'
+    /// depth their noise cannot pass them (docs/monocular.md).
+    #[serde(default = "default_true")]
     pub new_point_parallax_from_neighbours: bool,
     /// With `new_point_parallax_from_neighbours`: the cosine the point's own two rays must be
-    /// below (0.99999: 0.26 degrees), which only keeps out rays that hardly meet.
+    /// below (0.9998 as the cut; 0.99999, 0.26 degrees, leaves the decision to the neighbours'
+    /// depth: measured in docs/monocular.md).
     #[serde(default = "default_new_point_max_cos_parallax_measured")]
     pub new_point_max_cos_parallax_measured: f64,
     /// Covisibility edge weight: shared points needed for an edge (ORB-SLAM3: 15).
@@ -483,7 +485,7 @@ impl SlamSettings {
             seen_through_gap_px: 1.0,
             kf_new_points_min: 100,
             new_point_max_cos_parallax: 0.9998,
-            new_point_parallax_from_neighbours: false,
+            new_point_parallax_from_neighbours: true,
             new_point_max_cos_parallax_measured: default_new_point_max_cos_parallax_measured(),
             covisibility_min_shared: 15,
             local_neighbours: 10,
@@ -570,5 +572,5 @@ fn default_settle_max_per_frame() -> usize {
 }
 
 fn default_new_point_max_cos_parallax_measured() -> f64 {
-    0.99999
+    0.9998
 }

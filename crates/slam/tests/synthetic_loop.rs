@@ -270,7 +270,9 @@ fn a_monocular_loop_waits_for_points_placed_over_enough_parallax() {
     // them, the loop turns the keyframe by 9 degrees where it drifted by half of one; waiting
     // for a keyframe that sees points triangulated over 5 degrees closes it right. The
     // correction is judged without global BA after it (4.6 cm against 0.9): run until it
-    // converges, as it now is, BA repairs even the wrong one on this easy lap (0.34 cm).
+    // converges, as it now is, BA repairs even the wrong one on this easy lap (0.34 cm). With
+    // a new point's parallax asked at its neighbours' depth too, those short-baseline points
+    // are not made at all and both runs close the same loop, so that test is off here.
     let frames = LAP + LAP / 3;
     let run = |min_parallax_deg: f64| {
         run_with(
@@ -281,6 +283,7 @@ fn a_monocular_loop_waits_for_points_placed_over_enough_parallax() {
             true,
             1.0,
             |s| {
+                s.new_point_parallax_from_neighbours = false;
                 s.kf_cull_max_gap_s_monocular = 0.5;
                 s.loop_closing.min_parallax_deg_monocular = min_parallax_deg;
                 s.loop_closing.global_ba = false;

@@ -171,7 +171,8 @@ impl LocalMapper {
     /// chi-square of both observations and at consistent scales. This is how keypoints without
     /// depth (beyond the sensor, or on a depth hole) enter the map, and, monocular, every point
     /// after initialisation. Monocular also skips neighbours too close for their scene depth
-    /// (baseline < 1 % of their median depth) and keypoints near the epipole, as ORB-SLAM3.
+    /// (baseline < 1 % of their median depth) and keypoints near the epipole, as ORB-SLAM3, and
+    /// asks the parallax also at the depth of the keyframe's points round the keypoint.
     /// Keypoints the front-end flagged `no_new_point` never found a point here either.
     fn create_new_points(&mut self, map: &SharedMap, kf: KfId) {
         let (free1, neighbours, prior) = {
@@ -407,8 +408,8 @@ impl LocalMapper {
         };
         let (c1, c2) = (stereo_cos(k1.depth[i]), stereo_cos(k2.depth[j]));
         let cos_stereo = c1.min(c2);
-        // Without depth: enough parallax, judged on the rays themselves (ORB-SLAM3) or at the
-        // depth the keyframe's points round the keypoint have, which its own noise cannot move.
+        // Without depth: enough parallax on the rays themselves (ORB-SLAM3) and, monocular, at
+        // the depth the keyframe's points round the keypoint have, which its noise cannot move.
         let parallax = || match prior {
             Some(prior) => {
                 let z = prior.at(k1.points[i].x, k1.points[i].y);
