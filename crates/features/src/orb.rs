@@ -1071,7 +1071,6 @@ fn rotated_offsets(a: f32, b: f32, width: i32, out: &mut [i32; 512]) {
 mod tests {
     use super::*;
 
-    /// Smooth random texture (sum of blobs) so FAST finds corners everywhere.
     /// A dark square whose corner lies between pixels, each pixel its covered share (a camera
     /// integrating over the pixel): one step from the nearest whole pixel finds the corner within
     /// 0.15 px, on either side; along a straight edge the pixel is kept.
@@ -1106,6 +1105,7 @@ mod tests {
         assert_eq!(corner_offset(&edge, 24, 24), (0.0, 0.0));
     }
 
+    /// Smooth random texture (sum of blobs) so FAST finds corners everywhere.
     pub(crate) fn texture(w: usize, h: usize, seed: u32) -> Gray8 {
         let mut img = Gray8::new(w, h, 0);
         let mut rng = crate::test_rng::Lcg(seed);

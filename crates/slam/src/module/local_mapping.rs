@@ -952,8 +952,8 @@ impl Drop for MapperThread {
 }
 
 /// The depth a monocular keyframe's map points have round each part of its image: the median
-/// per cell of an 8x6 grid, the keyframe's median where a cell holds fewer than 5 points (with
-/// the rays' own test there instead, living_turn seed 0 went from 0.94 to 8.4 cm).
+/// per cell of an 8x6 grid, the keyframe's median where a cell holds fewer than 5 points (a
+/// cell left to the rays alone was measured worse: docs/monocular.md).
 pub(crate) struct DepthPrior {
     cells: Vec<f64>,
     cell_w: f64,
