@@ -139,6 +139,15 @@ pub struct SlamSettings {
     /// settles every due frame at once. Measurements: docs/measurements.md.
     #[serde(default = "default_settle_max_per_frame")]
     pub trajectory_settle_max_per_frame: usize,
+    /// Monocular: a frame tracked within this many seconds of its map's start keeps its
+    /// keypoints, and settles on the points of the final map that its keyframes' neighbourhood
+    /// holds, matched again around its pose, not only on the points it was tracked against
+    /// (0 = off). A young map's first points come from two views a degree or so apart; half of
+    /// them are culled later, and a frame tracked on them settled on the rest, biased, while
+    /// the keyframes around it, seeing the better points made since, stood right.
+    /// Measurements: docs/monocular.md.
+    #[serde(default = "default_settle_rematch_seconds")]
+    pub trajectory_settle_rematch_seconds: f64,
     /// ... and the settling frame's position is held near where its neighbours in time put
     /// it (the mean of the positions interpolated between the k-th frame before and the k-th
     /// after, k = 1 to `trajectory_smooth_neighbours`, each at most
@@ -482,6 +491,7 @@ impl SlamSettings {
             trajectory_smooth_max_gap_s: default_smooth_max_gap_s(),
             trajectory_settle_max_pending: default_settle_max_pending(),
             trajectory_settle_max_per_frame: default_settle_max_per_frame(),
+            trajectory_settle_rematch_seconds: default_settle_rematch_seconds(),
             seen_through_gap_px: 1.0,
             kf_new_points_min: 100,
             new_point_max_cos_parallax: 0.9998,
@@ -565,6 +575,10 @@ fn default_smooth_neighbours() -> usize {
 
 fn default_smooth_max_gap_s() -> f64 {
     0.1
+}
+
+fn default_settle_rematch_seconds() -> f64 {
+    2.0
 }
 
 fn default_settle_max_per_frame() -> usize {

@@ -10,7 +10,7 @@ use tracing::debug;
 use stillpoint_geometry::{Se3, Vec3};
 use stillpoint_image::DepthMetres;
 
-use crate::data::{FreeSpaceCheck, KfId, Map, SharedMap};
+use crate::data::{FreeSpaceCheck, KfId, Map, MpId, SharedMap};
 use crate::map_file::{MapFile, MapSensor};
 use crate::module::local_mapping::{LocalMapper, MapperHooks, MapperThread};
 use crate::module::loop_closing::{LoopCloser, LoopStats, LoopThread, MapCorrection};
@@ -172,6 +172,8 @@ struct Unsettled {
     keyframes_at: usize,
     /// `Map::fusions` when it was tracked: its points' later fusions are numbered from here.
     fusions_at: u64,
+    /// The frame, to be matched again to the map it settles on (a young monocular map's).
+    frame: Option<Box<Frame>>,
 }
 
 impl System {
@@ -480,7 +482,7 @@ impl System {
                     .iter()
                     .flatten()
                     .count();
-            for (b, observations) in std::mem::take(&mut outcome.backfilled) {
+            for (b, observations, frame) in std::mem::take(&mut outcome.backfilled) {
                 if let Some(k) = map.keyframes.get(&b.reference) {
                     let pose_cw = b.pose_wc.inverse();
                     if self.settings.trajectory_settle_keyframes > 0 && !observations.is_empty() {
@@ -490,6 +492,7 @@ impl System {
                             observations,
                             keyframes_at,
                             fusions_at: map.fusions(),
+                            frame,
                         });
                     }
                     self.anchors
@@ -509,6 +512,7 @@ impl System {
                         observations: std::mem::take(&mut outcome.observations),
                         keyframes_at: self.keyframes_inserted,
                         fusions_at: map.fusions(),
+                        frame: outcome.kept_frame.take(),
                     });
                 }
                 self.anchors
@@ -743,32 +747,14 @@ impl System {
                 .is_some_and(|u| due(u, self.unsettled.len()))
         {
             settled += 1;
-            let Some(u) = self.unsettled.pop_front() else {
+            let Some(mut u) = self.unsettled.pop_front() else {
                 break;
             };
             let (_, r, t_cr) = self.anchors[u.anchor];
             let Some(ref_cw) = map.keyframe_pose_cw(r) else {
                 continue;
             };
-            // A point fused into another since counts as the one that replaced it.
-            let mut seen = BTreeSet::new();
-            let obs: Vec<PoseObservation> = u
-                .observations
-                .iter()
-                .filter_map(|o| {
-                    let (id, p) = map.point_or_its_replacement(o.point)?;
-                    if p.bad || !seen.insert(id) {
-                        return None;
-                    }
-                    Some(PoseObservation {
-                        world: p.position,
-                        u: o.u,
-                        v: o.v,
-                        u_right: (o.u_right > 0.0).then_some(o.u_right as f64),
-                        inv_sigma2: inv_sigma2.get(o.octave as usize).copied().unwrap_or(1.0),
-                    })
-                })
-                .collect();
+            let obs = pose_observations(&map, &u.observations, &inv_sigma2);
             if obs.len() < s.trajectory_settle_min_inliers {
                 continue;
             }
@@ -784,6 +770,35 @@ impl System {
                     (outliers.iter().filter(|&&o| !o).count(), pose)
                 })
                 .max_by_key(|(inliers, _)| *inliers);
+            // A frame of a young map: matched again to the map's points around it now, kept
+            // where that finds more inliers.
+            let best = match (best, u.frame.as_deref_mut()) {
+                (Some((inliers, pose)), Some(frame)) => {
+                    let around: Vec<MpId> = u
+                        .observations
+                        .iter()
+                        .filter_map(|o| map.point_or_its_replacement(o.point).map(|(id, _)| id))
+                        .collect();
+                    let fresh = self.tracker.rematch(frame, &map, &pose, &around);
+                    let obs = pose_observations(&map, &fresh, &inv_sigma2);
+                    let prior = self.smoothing_prior(&map, u.anchor, &pose, &obs);
+                    let mut again = pose;
+                    let outliers = optimize_pose_with_prior(&mut again, &obs, s, prior.as_ref());
+                    let more = outliers.iter().filter(|&&o| !o).count();
+                    debug!(
+                        anchor = u.anchor,
+                        before = inliers,
+                        after = more,
+                        "settling a young map's frame matched again"
+                    );
+                    Some(if more >= inliers {
+                        (more, again)
+                    } else {
+                        (inliers, pose)
+                    })
+                }
+                (best, _) => best,
+            };
             if let Some((inliers, pose)) = best
                 && inliers >= s.trajectory_settle_min_inliers
             {
@@ -898,4 +913,30 @@ fn relocalisation_database(
             db
         }
     }
+}
+
+/// A frame's observations as pose-optimisation terms on the map's points now, each point once:
+/// a point fused into another since counts as the one that replaced it, a bad one not at all.
+fn pose_observations(
+    map: &Map,
+    observations: &[FrameObservation],
+    inv_sigma2: &[f64],
+) -> Vec<PoseObservation> {
+    let mut seen = BTreeSet::new();
+    observations
+        .iter()
+        .filter_map(|o| {
+            let (id, p) = map.point_or_its_replacement(o.point)?;
+            if p.bad || !seen.insert(id) {
+                return None;
+            }
+            Some(PoseObservation {
+                world: p.position,
+                u: o.u,
+                v: o.v,
+                u_right: (o.u_right > 0.0).then_some(o.u_right as f64),
+                inv_sigma2: inv_sigma2.get(o.octave as usize).copied().unwrap_or(1.0),
+            })
+        })
+        .collect()
 }

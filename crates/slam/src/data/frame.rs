@@ -308,6 +308,35 @@ impl Frame {
         self.points.len()
     }
 
+    /// What matching the frame again to map points by projection needs (positions, levels,
+    /// descriptors, the grid), kept for later at about half the memory; the matches, flags,
+    /// angles and depths are left out. See [`Frame::ready_to_match`].
+    pub fn kept_to_match_later(&self) -> Self {
+        Self {
+            index: self.index,
+            timestamp: self.timestamp,
+            points: self.points.clone(),
+            octaves: self.octaves.clone(),
+            angles: Vec::new(),
+            descriptors: self.descriptors.clone(),
+            depth: Vec::new(),
+            u_right: self.u_right.clone(),
+            map_points: Vec::new(),
+            outliers: Vec::new(),
+            no_new_point: Vec::new(),
+            close_match_only: self.close_match_only.clone(),
+            pose_cw: self.pose_cw,
+            grid: self.grid.clone(),
+        }
+    }
+
+    /// A frame from [`Frame::kept_to_match_later`], at `pose_cw`, with no matches yet.
+    pub fn ready_to_match(&mut self, pose_cw: Se3) {
+        self.pose_cw = Some(pose_cw);
+        self.map_points = vec![None; self.points.len()];
+        self.outliers = vec![false; self.points.len()];
+    }
+
     /// No keypoints.
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()

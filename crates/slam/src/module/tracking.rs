@@ -64,11 +64,15 @@ pub struct TrackOutcome {
     /// (`MonoInitSettings::backfill_frames`), oldest first, each with its pose inliers (none
     /// for the map's first view, a keyframe).
     pub backfilled: Vec<PosedLate>,
+    /// Monocular, a frame tracked while its map is young: the frame itself, to be matched
+    /// again to the final map when it settles (`trajectory_settle_rematch_seconds`).
+    pub kept_frame: Option<Box<Frame>>,
 }
 
 /// A frame tracked late in a new monocular map, with its pose inliers (none for the map's first
-/// view, a keyframe).
-pub type PosedLate = (Backfilled, Vec<FrameObservation>);
+/// view, a keyframe) and the frame itself where it is to be matched again when it settles
+/// (`trajectory_settle_rematch_seconds`).
+pub type PosedLate = (Backfilled, Vec<FrameObservation>, Option<Box<Frame>>);
 
 /// A frame offered before its monocular map stood, tracked in that map afterwards.
 #[derive(Clone, Copy, Debug)]
@@ -84,15 +88,17 @@ pub struct Backfilled {
 }
 
 impl Backfilled {
-    /// Frame `f`, tracked at `pose_cw` against keyframe `reference`, and its pose inliers.
-    fn of(f: &Frame, pose_cw: Se3, reference: KfId) -> (Self, Vec<FrameObservation>) {
+    /// Frame `f`, tracked at `pose_cw` against keyframe `reference`, its pose inliers, and
+    /// the frame when it is to be `kept`.
+    fn of(f: &Frame, pose_cw: Se3, reference: KfId, kept: bool) -> PosedLate {
         let posed = Self {
             index: f.index,
             timestamp: f.timestamp,
             pose_wc: pose_cw.inverse(),
             reference,
         };
-        (posed, observations(f, &matched(f, true)))
+        let frame = kept.then(|| Box::new(f.kept_to_match_later()));
+        (posed, observations(f, &matched(f, true)), frame)
     }
 }
 
@@ -349,8 +355,65 @@ impl Tracker {
         }
         out.matched = matched(&frame, ok);
         out.observations = observations(&frame, &out.matched);
+        if ok && self.map_is_young_for_settling(frame.index) {
+            out.kept_frame = Some(Box::new(frame.kept_to_match_later()));
+        }
         self.finish_frame(frame, ok);
         out
+    }
+
+    /// Monocular: frame `index` comes within `trajectory_settle_rematch_seconds` of its map's
+    /// start.
+    fn map_is_young_for_settling(&self, index: usize) -> bool {
+        let young = self.s.trajectory_settle_rematch_seconds * self.s.fps;
+        self.s.monocular
+            && young > 0.0
+            && self
+                .map_started_at
+                .is_some_and(|start| (index.saturating_sub(start) as f64) < young)
+    }
+
+    /// Match `frame` again, at `pose`, to the points of the keyframes that see `around` and
+    /// of their best covisible ones, in the local-map search's windows: what a frame tracked
+    /// in a young map could not see yet. Returns the matches.
+    pub fn rematch(
+        &self,
+        frame: &mut Frame,
+        map: &Map,
+        pose: &Se3,
+        around: &[MpId],
+    ) -> Vec<FrameObservation> {
+        let mut local: BTreeSet<KfId> = BTreeSet::new();
+        for mp in around {
+            if let Some(p) = map.points.get(mp) {
+                local.extend(p.observations.keys().copied());
+            }
+        }
+        let first: Vec<KfId> = local.iter().copied().collect();
+        for k in first {
+            if let Some(kf) = map.keyframes.get(&k) {
+                local.extend(kf.best_covisibles(self.s.local_neighbours));
+            }
+        }
+        let center = pose.inverse().translation.vector;
+        let mut seen: BTreeSet<MpId> = BTreeSet::new();
+        let mut projected = Vec::new();
+        for k in &local {
+            let Some(kf) = map.keyframes.get(k).filter(|k| !k.bad) else {
+                continue;
+            };
+            for mp in kf.map_points.iter().flatten() {
+                if seen.insert(*mp)
+                    && let Some(pp) = project_in_frustum(map, *mp, pose, &center, &self.s)
+                {
+                    projected.push(pp);
+                }
+            }
+        }
+        frame.ready_to_match(*pose);
+        search_by_projection_local(frame, &projected, map, self.s.local_map_search_th, &self.s);
+        let all: Vec<bool> = frame.map_points.iter().map(Option::is_some).collect();
+        observations(frame, &all)
     }
 
     /// Whether the next frame relocalises (and so wants place recognition's candidates): lost,
@@ -668,7 +731,7 @@ impl Tracker {
         );
         tracked.extend(between);
         let between = tracked;
-        if let Some((b, _)) = between.first() {
+        if let Some((b, ..)) = between.first() {
             info!(
                 frames = between.len(),
                 first = b.index,
@@ -708,7 +771,8 @@ impl Tracker {
             pose_wc: cw1.inverse(),
             reference: kfs[0],
         };
-        let mut out = vec![(first, Vec::new())];
+        let mut out = vec![(first, Vec::new(), None)];
+        let kept = self.s.monocular && self.s.trajectory_settle_rematch_seconds > 0.0;
         let points = Self::points_of(map, &kfs);
         let (mut last_cw, mut last_index) = (cw1, i1);
         for mut f in frames {
@@ -731,7 +795,7 @@ impl Tracker {
             if inliers >= self.s.min_tracked_inliers
                 && let Some(pose) = f.pose_cw
             {
-                out.push(Backfilled::of(&f, pose, nearer));
+                out.push(Backfilled::of(&f, pose, nearer, kept));
                 (last_cw, last_index) = (pose, f.index);
             }
         }
@@ -751,15 +815,16 @@ impl Tracker {
         map: &Map,
         kfs: [KfId; 2],
     ) -> Vec<PosedLate> {
-        let Some((first_view, _)) = later.first() else {
+        let Some((first_view, ..)) = later.first() else {
             return Vec::new();
         };
+        let kept = self.s.monocular && self.s.trajectory_settle_rematch_seconds > 0.0;
         let points = Self::points_of(map, &kfs);
         // The two tracked frames nearest after the next one to track: (pose, index).
         let mut near = (first_view.pose_wc.inverse(), first_view.index);
         let mut far = later
             .get(1)
-            .map_or(second, |(b, _)| (b.pose_wc.inverse(), b.index));
+            .map_or(second, |(b, ..)| (b.pose_wc.inverse(), b.index));
         let mut out = Vec::new();
         for mut f in frames.into_iter().rev() {
             if f.index >= near.1 {
@@ -773,7 +838,7 @@ impl Tracker {
             let Some(pose) = f.pose_cw.filter(|_| inliers >= self.s.min_tracked_inliers) else {
                 break;
             };
-            out.push(Backfilled::of(&f, pose, kfs[0]));
+            out.push(Backfilled::of(&f, pose, kfs[0], kept));
             (far, near) = (near, (pose, f.index));
         }
         out.reverse();
