@@ -374,8 +374,8 @@ impl Tracker {
     }
 
     /// Match `frame` again, at `pose`, to the points of the keyframes that see `around` and
-    /// of their best covisible ones, in the local-map search's windows: what a frame tracked
-    /// in a young map could not see yet. Returns the matches.
+    /// of their best covisible ones (in the current map), in the local-map search's windows:
+    /// what a frame tracked in a young map could not see yet. Returns the matches.
     pub fn rematch(
         &self,
         frame: &mut Frame,
@@ -383,33 +383,9 @@ impl Tracker {
         pose: &Se3,
         around: &[MpId],
     ) -> Vec<FrameObservation> {
-        let mut local: BTreeSet<KfId> = BTreeSet::new();
-        for mp in around {
-            if let Some(p) = map.points.get(mp) {
-                local.extend(p.observations.keys().copied());
-            }
-        }
-        let first: Vec<KfId> = local.iter().copied().collect();
-        for k in first {
-            if let Some(kf) = map.keyframes.get(&k) {
-                local.extend(kf.best_covisibles(self.s.local_neighbours));
-            }
-        }
-        let center = pose.inverse().translation.vector;
-        let mut seen: BTreeSet<MpId> = BTreeSet::new();
-        let mut projected = Vec::new();
-        for k in &local {
-            let Some(kf) = map.keyframes.get(k).filter(|k| !k.bad) else {
-                continue;
-            };
-            for mp in kf.map_points.iter().flatten() {
-                if seen.insert(*mp)
-                    && let Some(pp) = project_in_frustum(map, *mp, pose, &center, &self.s)
-                {
-                    projected.push(pp);
-                }
-            }
-        }
+        let local = self.keyframes_seeing(map, around);
+        // The current map's: a frame of a map that never merged keeps the points it saw.
+        let projected = self.points_in_view(map, &local, pose, &BTreeSet::new());
         frame.ready_to_match(*pose);
         search_by_projection_local(frame, &projected, map, self.s.local_map_search_th, &self.s);
         let all: Vec<bool> = frame.map_points.iter().map(Option::is_some).collect();
@@ -538,8 +514,18 @@ impl Tracker {
     /// The points of the keyframes that share `frame`'s matches and their best covisibles,
     /// in the current map, that project into a camera at `pose`.
     fn local_points_seen_from(&self, frame: &Frame, map: &Map, pose: &Se3) -> Vec<ProjectedPoint> {
+        let local = self.keyframes_seeing(map, frame.map_points.iter().flatten());
+        self.points_in_view(map, &local, pose, &BTreeSet::new())
+    }
+
+    /// The keyframes that see `points`, and their best covisible ones.
+    fn keyframes_seeing<'a>(
+        &self,
+        map: &Map,
+        points: impl IntoIterator<Item = &'a MpId>,
+    ) -> BTreeSet<KfId> {
         let mut local: BTreeSet<KfId> = BTreeSet::new();
-        for mp in frame.map_points.iter().flatten() {
+        for mp in points {
             if let Some(p) = map.points.get(mp) {
                 local.extend(p.observations.keys().copied());
             }
@@ -550,7 +536,7 @@ impl Tracker {
                 local.extend(kf.best_covisibles(self.s.local_neighbours));
             }
         }
-        self.points_in_view(map, &local, pose, &BTreeSet::new())
+        local
     }
 
     /// The points of the `local` keyframes of the current map that project into a camera at
