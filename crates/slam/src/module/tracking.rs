@@ -366,11 +366,16 @@ impl Tracker {
     /// start.
     fn map_is_young_for_settling(&self, index: usize) -> bool {
         let young = self.s.trajectory_settle_rematch_seconds * self.s.fps;
-        self.s.monocular
-            && young > 0.0
+        self.keeps_frames_to_match_again()
             && self
                 .map_started_at
                 .is_some_and(|start| (index.saturating_sub(start) as f64) < young)
+    }
+
+    /// Monocular with `trajectory_settle_rematch_seconds` on: a young map's frames, and those
+    /// tracked before it stood, are kept to be matched again when they settle.
+    fn keeps_frames_to_match_again(&self) -> bool {
+        self.s.monocular && self.s.trajectory_settle_rematch_seconds * self.s.fps > 0.0
     }
 
     /// Match `frame` again, at `pose`, to the points of the keyframes that see `around` and
@@ -758,7 +763,7 @@ impl Tracker {
             reference: kfs[0],
         };
         let mut out = vec![(first, Vec::new(), None)];
-        let kept = self.s.monocular && self.s.trajectory_settle_rematch_seconds > 0.0;
+        let kept = self.keeps_frames_to_match_again();
         let points = Self::points_of(map, &kfs);
         let (mut last_cw, mut last_index) = (cw1, i1);
         for mut f in frames {
@@ -804,7 +809,7 @@ impl Tracker {
         let Some((first_view, ..)) = later.first() else {
             return Vec::new();
         };
-        let kept = self.s.monocular && self.s.trajectory_settle_rematch_seconds > 0.0;
+        let kept = self.keeps_frames_to_match_again();
         let points = Self::points_of(map, &kfs);
         // The two tracked frames nearest after the next one to track: (pose, index).
         let mut near = (first_view.pose_wc.inverse(), first_view.index);
