@@ -99,6 +99,7 @@ fn load_ort(model: &Path, s: &DetectSettings) -> Result<Box<dyn InferenceBackend
         s.threads,
         s.fallback_input_size,
         &dylib,
+        s.ort_memory_pattern,
     )?))
 }
 

@@ -58,12 +58,13 @@ pub struct OrtBackend {
 
 impl OrtBackend {
     /// Load `path` with ONNX Runtime from `dylib` (see [`resolve_dylib`]) on `threads` intra-op
-    /// threads.
+    /// threads, with or without ONNX Runtime's memory pattern (`DetectSettings::ort_memory_pattern`).
     pub fn load(
         path: &Path,
         threads: usize,
         fallback_size: (usize, usize),
         dylib: &Path,
+        memory_pattern: bool,
     ) -> Result<Self, DetectError> {
         // The same checks as tract's: ONNX Runtime refuses most bad models itself, but not a
         // huge declared size.
@@ -84,6 +85,7 @@ impl OrtBackend {
                 .and_then(|b| Ok(b.with_inter_threads(1)?))
                 // No spinning: the tracking thread shares the cores and must not be starved.
                 .and_then(|b| Ok(b.with_intra_op_spinning(false)?))
+                .and_then(|b| Ok(b.with_memory_pattern(memory_pattern)?))
                 .and_then(|mut b| b.commit_from_file(path))
                 .map_err(|e| not_onnx(e.to_string()))
         })?;
