@@ -386,6 +386,14 @@ pub struct MonoInitSettings {
     /// gets those frames placed from far-off points, 5-10 % off along the road (false: the
     /// trajectory starts at the map's first view; docs/monocular.md).
     pub backfill_before_reference: bool,
+    /// Ours: with local mapping in its own thread (live input), for this many seconds after a
+    /// monocular map starts each new keyframe is mapped before the next frame is tracked, as on
+    /// a recording (0: never). A young map holds 100-200 points and a frame tracked before the
+    /// last keyframe's points are made can lose it: a live living_turn run on a busy machine
+    /// lost its map at frame 12 and ended 5.9 cm off. Live frames that arrive meanwhile are
+    /// dropped, as when tracking is slow: at 2 s a busy machine's live runs kept 205-283 of 300
+    /// frames, at 0.5 s 295-300 (docs/realtime.md).
+    pub map_keyframes_at_once_seconds: f64,
 }
 
 impl MonoInitSettings {
@@ -424,6 +432,7 @@ impl Default for MonoInitSettings {
             thin_map_inliers: 100,
             backfill_frames: 100,
             backfill_before_reference: true,
+            map_keyframes_at_once_seconds: 0.5,
         }
     }
 }

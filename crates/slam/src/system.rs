@@ -367,6 +367,17 @@ impl System {
         })
     }
 
+    /// Whether frame `index`'s keyframe is mapped before the next frame is tracked although
+    /// local mapping has its own thread: monocular, within
+    /// `settings.mono_init.map_keyframes_at_once_seconds` of the map's start.
+    fn maps_keyframes_at_once(&self, index: usize) -> bool {
+        let seconds = self.settings.mono_init.map_keyframes_at_once_seconds;
+        self.settings.monocular
+            && self.tracker.map_started_at.is_some_and(|start| {
+                (index.saturating_sub(start) as f64) < seconds * self.settings.fps
+            })
+    }
+
     /// Track one frame: its (already filtered) features, their depth, and then the caller's
     /// map hygiene ([`TrackInput::hygiene`]). With local mapping in its own thread the hygiene
     /// runs before this frame's keyframe is handed over, as do the system's own hygiene and
@@ -548,8 +559,17 @@ impl System {
             hygiene(&mut map, pose_wc);
         }
         if !mapping_inline {
+            let mut inserted = false;
             for kf in new_keyframes.into_iter().flatten() {
                 self.insert_keyframe(kf)?;
+                inserted = true;
+            }
+            if inserted
+                && self.maps_keyframes_at_once(index)
+                && let Mapping::Thread(t) = &self.mapping
+                && !t.wait_for_queue()
+            {
+                return Err(SlamError::LocalMapping("the thread is gone".into()));
             }
         }
         Ok(FrameReport {

@@ -118,3 +118,22 @@ fn frames_of_a_young_map_settle_on_the_points_made_after_them() {
     assert_eq!(posed_on, posed_off, "the same frames have poses");
     assert!(on < 0.5 * off, "ATE {on} m matched again, {off} m not");
 }
+
+#[test]
+fn a_young_map_is_mapped_keyframe_by_keyframe_with_mapping_in_its_own_thread() {
+    // Live input maps in a thread of its own, and tracking does not wait for it; a young
+    // monocular map's keyframes are mapped before the next frame all the same
+    // (`mono_init.map_keyframes_at_once_seconds`), so that run is the recording's, where
+    // mapping runs inline after each keyframe, to the last digit.
+    let at_once = |s: &mut SlamSettings| s.mono_init.map_keyframes_at_once_seconds = 100.0;
+    let (posed_inline, inline) = run(60, at_once);
+    let (posed_thread, thread) = run(60, |s| {
+        at_once(s);
+        s.local_mapping_thread = true;
+    });
+    assert_eq!(posed_thread, posed_inline, "the same frames have poses");
+    assert_eq!(
+        thread, inline,
+        "ATE {thread} m in a thread, {inline} m inline"
+    );
+}

@@ -850,6 +850,8 @@ fn matched_points(m: &Map, kf: KfId) -> Vec<MpId> {
 /// Messages to the local-mapping thread.
 enum Msg {
     KeyFrame(KfId),
+    /// Answered once every keyframe sent before it is processed.
+    Flush(Sender<()>),
     Stop,
 }
 
@@ -902,7 +904,15 @@ impl MapperThread {
             .spawn(move || {
                 stillpoint_core::lower_this_thread_priority(mapper.s.background_nice);
                 let mut mapper = mapper;
-                while let Ok(Msg::KeyFrame(kf)) = rx.recv() {
+                loop {
+                    let kf = match rx.recv() {
+                        Ok(Msg::KeyFrame(kf)) => kf,
+                        Ok(Msg::Flush(done)) => {
+                            let _ = done.send(());
+                            continue;
+                        }
+                        Ok(Msg::Stop) | Err(_) => break,
+                    };
                     idle2.store(false, Ordering::SeqCst);
                     let busy = hooks.busy.lock().unwrap_or_else(|e| e.into_inner());
                     let t0 = Instant::now();
@@ -932,6 +942,12 @@ impl MapperThread {
         self.queued.fetch_add(1, Ordering::SeqCst);
         self.idle.store(false, Ordering::SeqCst);
         self.tx.send(Msg::KeyFrame(kf)).is_ok()
+    }
+
+    /// Wait until every keyframe sent so far is processed; false when the thread has stopped.
+    pub fn wait_for_queue(&self) -> bool {
+        let (done, processed) = channel();
+        self.tx.send(Msg::Flush(done)).is_ok() && processed.recv().is_ok()
     }
 
     /// Finish the queued keyframes and stop the thread.
