@@ -371,11 +371,11 @@ impl System {
     /// local mapping has its own thread: monocular, within
     /// `settings.mono_init.map_keyframes_at_once_seconds` of the map's start.
     fn maps_keyframes_at_once(&self, index: usize) -> bool {
-        let seconds = self.settings.mono_init.map_keyframes_at_once_seconds;
         self.settings.monocular
-            && self.tracker.map_started_at.is_some_and(|start| {
-                (index.saturating_sub(start) as f64) < seconds * self.settings.fps
-            })
+            && self.tracker.within_seconds_of_map_start(
+                index,
+                self.settings.mono_init.map_keyframes_at_once_seconds,
+            )
     }
 
     /// Track one frame: its (already filtered) features, their depth, and then the caller's

@@ -365,11 +365,15 @@ impl Tracker {
     /// Monocular: frame `index` comes within `trajectory_settle_rematch_seconds` of its map's
     /// start.
     fn map_is_young_for_settling(&self, index: usize) -> bool {
-        let young = self.s.trajectory_settle_rematch_seconds * self.s.fps;
         self.keeps_frames_to_match_again()
-            && self
-                .map_started_at
-                .is_some_and(|start| (index.saturating_sub(start) as f64) < young)
+            && self.within_seconds_of_map_start(index, self.s.trajectory_settle_rematch_seconds)
+    }
+
+    /// Whether frame `index` comes less than `seconds` (at the settings' frame rate) after the
+    /// current map started; false without a map.
+    pub fn within_seconds_of_map_start(&self, index: usize, seconds: f64) -> bool {
+        self.map_started_at
+            .is_some_and(|start| (index.saturating_sub(start) as f64) < seconds * self.s.fps)
     }
 
     /// Monocular with `trajectory_settle_rematch_seconds` on: a young map's frames, and those
