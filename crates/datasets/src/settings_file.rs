@@ -442,8 +442,9 @@ fn parse_orbslam_yaml_sized(
 }
 
 /// A settings value [`check_values`] can complain about.
-#[derive(Clone, Copy, Debug)]
-pub(crate) enum Field {
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[allow(missing_docs)] // the fields of `Settings` they name
+pub enum Field {
     Fx,
     Fy,
     Cx,
@@ -478,8 +479,9 @@ fn shown<T: std::fmt::Display + std::fmt::LowerExp + Copy + Into<f64>>(v: T) -> 
 
 /// Value ranges that parse but make nonsense (a focal length of 1e-300 px gave identity poses
 /// and exit code 0), for every way settings are read (ORB-SLAM YAML, TOML, KITTI `calib.txt`);
-/// `key` names a field as the source spells it.
-pub(crate) fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Result<(), String> {
+/// `key` names a field as the source spells it. The run's settings tree checks its values
+/// with it again once files and `--set` are laid over them.
+pub fn check_values(s: &Settings, key: impl Fn(Field) -> String) -> Result<(), String> {
     let c = &s.camera;
     let bad = |field: Field, why: &str| Err(format!("{} {why}", key(field)));
     for (field, f) in [(Field::Fx, c.fx), (Field::Fy, c.fy)] {

@@ -15,10 +15,10 @@
 //! struct Orb {
 //!     n_features: usize,
 //! }
-//! let l = layered(&Tree::default(), [], &["orb.n_features=1500".into()], &[]).unwrap();
+//! let l = layered(&Tree::default(), [], &["orb.n_features=1500".into()], &[], &[]).unwrap();
 //! assert_eq!(l.tree.orb.n_features, 1500);
 //! assert!(l.describe().contains("orb.n_features = 1500  # --set"));
-//! assert!(layered(&Tree::default(), [], &["orb.n_feature=1".into()], &[]).is_err());
+//! assert!(layered(&Tree::default(), [], &["orb.n_feature=1".into()], &[], &[]).is_err());
 //! ```
 
 use std::collections::BTreeMap;
@@ -112,6 +112,10 @@ pub enum SettingsError {
         /// What was expected.
         msg: String,
     },
+    /// A value of the right kind out of its range; the message names where it came from and
+    /// the key.
+    #[error("{0}")]
+    OutOfRange(String),
     /// An override that is not `section.key=value`.
     #[error("--set {arg}: expected section.key=value")]
     BadOverride {
@@ -173,12 +177,15 @@ pub struct Layered<T> {
 /// synthetic sequence's `settings.toml` with `[camera]`, `[orb]`, `[detect]`) gives only its
 /// `dataset_tables` (the rest of it reached the tree through the dataset already); any other
 /// key the tree lacks is an error naming the file and line (or the override), as is a key
-/// removed or moved ([`SettingsError::RemovedKey`], [`SettingsError::MovedKey`]).
+/// removed or moved ([`SettingsError::RemovedKey`], [`SettingsError::MovedKey`]), and so is a
+/// number no setting takes ([`number_problem`]; keys under a prefix in `signed` may be
+/// negative).
 pub fn layered<'a, T: Serialize + DeserializeOwned>(
     defaults: &T,
     files: impl IntoIterator<Item = (&'a Path, bool)>,
     overrides: &[String],
     dataset_tables: &[&str],
+    signed: &[&str],
 ) -> Result<Layered<T>, SettingsError> {
     let mut base = match toml::Value::try_from(defaults) {
         Ok(toml::Value::Table(t)) => t,
@@ -300,7 +307,43 @@ pub fn layered<'a, T: Serialize + DeserializeOwned>(
             }
         }
     })?;
+    // The typed tree's values (an integer given for a float is a float there).
+    if let Ok(typed) = toml::Value::try_from(&tree) {
+        for key in sources.keys() {
+            let value = key.split('.').try_fold(&typed, |v, k| v.get(k));
+            if let Some(x) = value.and_then(toml::Value::as_float)
+                && let Some(msg) = number_problem(key, x, signed)
+            {
+                return Err(SettingsError::BadValue {
+                    origin: origin_of(key),
+                    key: key.clone(),
+                    msg,
+                });
+            }
+        }
+    }
     Ok(Layered { tree, sources })
+}
+
+/// What is wrong with `value` for the setting `key`, if anything: not a number; negative (the
+/// settings are sizes, counts, times and thresholds, except those under a prefix in `signed`);
+/// or, for a share, fraction, ratio or confidence (keys so named), outside 0 to 1. A value
+/// that parses but no setting takes ran silently before (`--set slam.fps=nan`).
+pub fn number_problem(key: &str, value: f64, signed: &[&str]) -> Option<String> {
+    let name = key.rsplit('.').next().unwrap_or(key);
+    let unit = ["ratio", "share", "fraction", "confidence"]
+        .iter()
+        .any(|s| name.ends_with(s))
+        || matches!(name, "conf_threshold" | "nms_threshold");
+    if value.is_nan() {
+        Some("not a number".into())
+    } else if value < 0.0 && !signed.iter().any(|p| key.starts_with(p)) {
+        Some(format!("{value} is negative; this setting is 0 or more"))
+    } else if unit && value > 1.0 {
+        Some(format!("{value} is over 1; this setting is 0 to 1"))
+    } else {
+        None
+    }
 }
 
 impl<T: Serialize> Layered<T> {
@@ -450,4 +493,31 @@ fn line_of(text: &str, key: &str) -> usize {
         }
     }
     1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::number_problem;
+
+    #[test]
+    fn numbers_no_setting_takes_are_named() {
+        assert_eq!(
+            number_problem("a.b_px", f64::NAN, &[]).as_deref(),
+            Some("not a number")
+        );
+        assert!(number_problem("a.b_px", -1.0, &[]).is_some());
+        assert!(number_problem("cam.distortion.k1", -1.0, &["cam.distortion."]).is_none());
+        assert!(number_problem("a.b_px", f64::INFINITY, &[]).is_none());
+        for key in [
+            "a.ratio",
+            "a.kf_ref_ratio",
+            "a.min_share",
+            "a.side_fraction",
+            "d.conf_threshold",
+        ] {
+            assert!(number_problem(key, 1.5, &[]).is_some(), "{key}");
+            assert!(number_problem(key, 1.0, &[]).is_none(), "{key}");
+        }
+        assert!(number_problem("a.max_aspect", 3.0, &[]).is_none());
+    }
 }

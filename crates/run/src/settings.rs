@@ -273,8 +273,55 @@ impl SettingsTree {
         files: impl IntoIterator<Item = (&'a Path, bool)>,
         overrides: &[String],
     ) -> Result<Layered, SettingsError> {
-        settings::layered(&self, files, overrides, &["detect"])
+        let layered = settings::layered(
+            &self,
+            files,
+            overrides,
+            &["detect"],
+            &["slam.camera.distortion."],
+        )?;
+        check_ranges(&layered)?;
+        Ok(layered)
     }
+}
+
+/// The camera, frame rate and ORB values every dataset reader checks
+/// ([`check_values`]), checked again once files and `--set` are laid over them: `--set
+/// slam.fps=0` or `--set orb.scale_factor=0.5` ran before and made nonsense.
+fn check_ranges(l: &Layered) -> Result<(), SettingsError> {
+    use stillpoint_datasets::settings_file::{Field, check_values};
+    let t = &l.tree;
+    let mut s = stillpoint_datasets::Settings::with_camera(
+        stillpoint_datasets::Sensor::Mono,
+        t.slam.camera,
+    );
+    s.fps = t.slam.fps;
+    s.th_depth = t.slam.th_depth;
+    s.orb = t.orb.clone();
+    let key = |field: Field| {
+        let key = match field {
+            Field::Fx => "slam.camera.fx",
+            Field::Fy => "slam.camera.fy",
+            Field::Cx => "slam.camera.cx",
+            Field::Cy => "slam.camera.cy",
+            Field::Fps => "slam.fps",
+            Field::Bf => "slam.bf",
+            Field::ThDepth => "slam.th_depth",
+            Field::ScaleFactor => "orb.scale_factor",
+            Field::NFeatures => "orb.n_features",
+            Field::NLevels => "orb.n_levels",
+            Field::NoiseThFactor => "orb.noise_th_factor",
+            Field::Size => "slam.camera.width x height",
+            // not part of the tree (a dataset's own setting, checked where it is read)
+            Field::DepthFactor => "depth_factor",
+        };
+        let origin = l
+            .sources
+            .get(key)
+            .map_or_else(|| "the dataset's settings".to_string(), |s| s.to_string());
+        format!("{origin}: `{key}`")
+    };
+    check_values(&s, key).map_err(SettingsError::OutOfRange)
 }
 
 #[cfg(test)]
@@ -400,6 +447,77 @@ mod tests {
             tree().layered(&[], &["orb.n_features".into()]),
             Err(SettingsError::BadOverride { .. })
         ));
+    }
+
+    #[test]
+    fn a_number_no_setting_takes_is_an_error_naming_the_key() {
+        let err = |set: &str| {
+            tree()
+                .layered(&[], &[set.to_string()])
+                .unwrap_err()
+                .to_string()
+        };
+        assert_eq!(
+            err("slam.fps=0"),
+            "--set: `slam.fps` = 0: frames per second must be positive"
+        );
+        assert_eq!(
+            err("slam.fps=nan"),
+            "--set slam.fps=nan: `slam.fps`: not a number"
+        );
+        assert_eq!(
+            err("slam.mono_init.window_px=-10"),
+            "--set slam.mono_init.window_px=-10: `slam.mono_init.window_px`: -10 is negative; \
+             this setting is 0 or more"
+        );
+        assert_eq!(
+            err("detect.conf_threshold=2"),
+            "--set detect.conf_threshold=2: `detect.conf_threshold`: 2 is over 1; this setting \
+             is 0 to 1"
+        );
+        assert!(err("orb.n_levels=0").starts_with("--set: `orb.n_levels` = 0: "));
+        // from a file: its line
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.toml");
+        std::fs::write(&path, "[orb]\nn_features = 1000\nscale_factor = 0.5\n").unwrap();
+        let e = tree().layered(&[&path], &[]).unwrap_err().to_string();
+        assert!(
+            e.starts_with(&format!("{}:3: `orb.scale_factor` = 0.5: ", path.display())),
+            "{e}"
+        );
+        // what may be negative or unbounded stays allowed
+        let ok = [
+            "slam.camera.distortion.k1=-0.2",
+            "front_end.dynamic.keypoint_motion.cull_above_px=inf",
+            "front_end.background_detect_nice=-2",
+        ];
+        let l = tree().layered(&[], &ok.map(String::from)).unwrap();
+        assert_eq!(l.tree.slam.camera.distortion.k1, -0.2);
+    }
+
+    #[test]
+    fn every_default_set_again_is_taken() {
+        for ds in [
+            stillpoint_datasets::Sensor::Rgbd,
+            stillpoint_datasets::Sensor::Mono,
+            stillpoint_datasets::Sensor::Stereo,
+        ] {
+            let camera =
+                stillpoint_geometry::PinholeCamera::new(535.4, 539.2, 320.1, 247.6, 640, 480);
+            let base =
+                SettingsTree::from_dataset(&stillpoint_datasets::Settings::with_camera(ds, camera));
+            let sets: Vec<String> = base
+                .clone()
+                .layered(&[], &[])
+                .unwrap()
+                .entries()
+                .into_iter()
+                .map(|(key, value, _)| format!("{key}={value}"))
+                .collect();
+            if let Err(e) = base.layered(&[], &sets) {
+                panic!("{ds:?}: {e}");
+            }
+        }
     }
 
     #[test]
