@@ -311,14 +311,24 @@ fn check_ranges(l: &Layered) -> Result<(), SettingsError> {
             Field::NFeatures => "orb.n_features",
             Field::NLevels => "orb.n_levels",
             Field::NoiseThFactor => "orb.noise_th_factor",
-            Field::Size => "slam.camera.width x height",
+            // the message gives both as WxH; named by the one set, if one was
+            Field::Size if l.sources.contains_key("slam.camera.height") => "slam.camera.height",
+            Field::Size => "slam.camera.width",
             // not part of the tree (a dataset's own setting, checked where it is read)
             Field::DepthFactor => "depth_factor",
         };
-        let origin = l
-            .sources
-            .get(key)
-            .map_or_else(|| "the dataset's settings".to_string(), |s| s.to_string());
+        // as the layering's own errors name them: the file and line, or the whole `--set`
+        let origin = match l.sources.get(key) {
+            None => "the dataset's settings".to_string(),
+            Some(settings::Source::CommandLine) => {
+                let value = l.entries().into_iter().find(|(k, ..)| k == key);
+                format!(
+                    "--set {key}={}",
+                    value.map(|(_, v, _)| v).unwrap_or_default()
+                )
+            }
+            Some(source) => source.to_string(),
+        };
         format!("{origin}: `{key}`")
     };
     check_values(&s, key).map_err(SettingsError::OutOfRange)
@@ -459,7 +469,7 @@ mod tests {
         };
         assert_eq!(
             err("slam.fps=0"),
-            "--set: `slam.fps` = 0: frames per second must be positive"
+            "--set slam.fps=0.0: `slam.fps` = 0: frames per second must be positive"
         );
         assert_eq!(
             err("slam.fps=nan"),
@@ -475,7 +485,7 @@ mod tests {
             "--set detect.conf_threshold=2: `detect.conf_threshold`: 2 is over 1; this setting \
              is 0 to 1"
         );
-        assert!(err("orb.n_levels=0").starts_with("--set: `orb.n_levels` = 0: "));
+        assert!(err("orb.n_levels=0").starts_with("--set orb.n_levels=0: `orb.n_levels` = 0: "));
         // from a file: its line
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("s.toml");
