@@ -78,6 +78,15 @@ def test_settings_errors_name_the_key_and_the_file(tmp_path):
         slam(config=bad)
     with pytest.raises(stillpoint.Error, match="missing.toml"):
         slam(config=tmp_path / "missing.toml")
+    # numbers no setting takes: not a number, negative, a ratio over 1, a frame rate of 0
+    with pytest.raises(stillpoint.Error, match="`slam.fps`: not a number"):
+        slam(settings={"slam.fps": float("nan")})
+    with pytest.raises(stillpoint.Error, match="`slam.mono_init.window_px`: -10 is negative"):
+        slam(settings={"slam.mono_init.window_px": -10})
+    with pytest.raises(stillpoint.Error, match="`front_end.dynamic.judge.ata_ratio`: 1.5 is over 1"):
+        slam(settings={"front_end.dynamic.judge.ata_ratio": 1.5})
+    with pytest.raises(stillpoint.Error, match="`slam.fps` = 0: frames per second must be positive"):
+        slam(settings={"slam.fps": 0})
     s = slam(settings={"orb.n_features": 700, "front_end.dynamic.world.enabled": False})
     assert len(s.track(RGB, 0.0, depth=DEPTH).keypoints) <= 700
 
