@@ -442,7 +442,7 @@ fn parse_orbslam_yaml_sized(
 }
 
 /// A settings value [`check_values`] can complain about.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug)]
 #[allow(missing_docs)] // the fields of `Settings` they name
 pub enum Field {
     Fx,

@@ -246,6 +246,14 @@ pub fn layered<'a, T: Serialize + DeserializeOwned>(
     };
     // Unknown keys: those serde ignores while building the tree.
     let mut unknown = Vec::new();
+    // A number no setting takes, found before the tree is built (merging made an integer given
+    // for a float a float) and reported after the unknown keys and wrong kinds.
+    let number_error = sources.keys().find_map(|key| {
+        let mut path = key.split('.');
+        let first = base.get(path.next()?);
+        let x = path.try_fold(first?, |v, k| v.get(k))?.as_float()?;
+        number_problem(key, x, signed).map(|msg| (key.clone(), msg))
+    });
     let value = toml::Value::Table(base);
     let tree: Result<T, _> =
         serde_ignored::deserialize(value, |path| unknown.push(path.to_string()));
@@ -307,20 +315,12 @@ pub fn layered<'a, T: Serialize + DeserializeOwned>(
             }
         }
     })?;
-    // The typed tree's values (an integer given for a float is a float there).
-    if let Ok(typed) = toml::Value::try_from(&tree) {
-        for key in sources.keys() {
-            let value = key.split('.').try_fold(&typed, |v, k| v.get(k));
-            if let Some(x) = value.and_then(toml::Value::as_float)
-                && let Some(msg) = number_problem(key, x, signed)
-            {
-                return Err(SettingsError::BadValue {
-                    origin: origin_of(key),
-                    key: key.clone(),
-                    msg,
-                });
-            }
-        }
+    if let Some((key, msg)) = number_error {
+        return Err(SettingsError::BadValue {
+            origin: origin_of(&key),
+            key,
+            msg,
+        });
     }
     Ok(Layered { tree, sources })
 }
