@@ -131,32 +131,188 @@ fn mover_mask(
         let (x1, y1) = (clamp(r[0], width), clamp(r[1], height));
         let (x2, y2) = (clamp(r[2], width), clamp(r[3], height));
         let bbox = stillpoint_geometry::BBox::new(r[0], r[1], r[2], r[3]);
+        if x1 >= x2 {
+            continue;
+        }
         let object = depth.and_then(|z| {
             known.or_else(|| {
                 stillpoint_dynamic::depth::object_depth(&bbox, &[], z, None, f32::INFINITY, d)
             })
         });
+        // Row by row on slices: this runs on every frame over boxes that can hold half the
+        // image, and pixel by pixel it was 5 % of a live run's tracking thread.
         for y in y1..y2 {
-            for x in x1..x2 {
-                let on_mover = match (object, depth) {
-                    (Some(o), Some(z)) => z.get_checked(x as isize, y as isize).is_some_and(|v| {
-                        (o.holds(v) || (up_to_far && v > 0.0 && v <= o.far))
-                            && !o.on_support(x as f32, y as f32, v)
-                    }),
-                    _ => true,
-                };
-                if on_mover {
-                    mask.set(x, y, 255);
-                }
+            let row = &mut mask.data[y * width..][x1..x2];
+            let (Some(o), Some(z)) = (object, depth) else {
+                row.fill(255);
+                continue;
+            };
+            // Past the depth image's edge nothing is a mover (no depth to say so).
+            if y >= z.height {
+                continue;
             }
+            let z_row = &z.row(y)[x1.min(z.width)..];
+            let n = row.len().min(z_row.len());
+            mark_movers_in_row(&mut row[..n], &z_row[..n], x1, y, &o, up_to_far);
         }
     }
     mask
 }
 
+/// Sets `row[i]` (column `x0 + i` of row `y`) to 255 where its depth `z[i]` is the mover's:
+/// in `o`'s band (or, `up_to_far`, in front of its far end) and not on the plane it stands on.
+/// The same tests as [`ObjectDepth::holds`] and [`ObjectDepth::on_support`], in their order of
+/// operations, without branches, so the loop runs eight pixels at a time where the CPU has AVX2.
+fn mark_movers_in_row(
+    row: &mut [u8],
+    z: &[f32],
+    x0: usize,
+    y: usize,
+    o: &ObjectDepth,
+    up_to_far: bool,
+) {
+    #[inline(always)]
+    fn inner(row: &mut [u8], z: &[f32], x0: usize, y: usize, o: &ObjectDepth, up_to_far: bool) {
+        let (near, far, yf) = (o.near, o.far, y as f32);
+        let in_band = |v: f32| (v >= near) & (v <= far) | (up_to_far & (v > 0.0) & (v <= far));
+        let pixels = row.iter_mut().zip(z);
+        match o.support.filter(|s| yf >= s.from_row) {
+            None => {
+                for (m, &v) in pixels {
+                    *m |= 0u8.wrapping_sub(in_band(v) as u8);
+                }
+            }
+            Some(s) => {
+                for (i, (m, &v)) in pixels.enumerate() {
+                    let distance = (v * (s.a * (x0 + i) as f32 + s.b * yf + s.c) + s.d).abs();
+                    let on_support =
+                        (v > 0.0) & (distance <= s.tolerance_m.max(s.tolerance_relative * v));
+                    *m |= 0u8.wrapping_sub((in_band(v) & !on_support) as u8);
+                }
+            }
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2")]
+        unsafe fn avx2(
+            row: &mut [u8],
+            z: &[f32],
+            x0: usize,
+            y: usize,
+            o: &ObjectDepth,
+            up_to_far: bool,
+        ) {
+            inner(row, z, x0, y, o, up_to_far)
+        }
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, the one feature `avx2` is compiled for.
+            return unsafe { avx2(row, z, x0, y, o, up_to_far) };
+        }
+    }
+    inner(row, z, x0, y, o, up_to_far)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use stillpoint_dynamic::depth::{ObjectDepth, SupportPlane};
+
+    /// The rule the mask draws, pixel by pixel: every pixel of a box without depth (or without
+    /// a band); with both, one whose depth the band holds (or, `up_to_far`, anything in front
+    /// of its far end) and that is not on the plane the object stands on.
+    fn mask_pixel_by_pixel(
+        rects: &[([f32; 4], Option<ObjectDepth>)],
+        depth: Option<&DepthMetres>,
+        width: usize,
+        height: usize,
+        up_to_far: bool,
+    ) -> Gray8 {
+        let mut mask = Gray8::new(width, height, 0);
+        for (r, object) in rects {
+            let clamp = |v: f32, hi: usize| (v.max(0.0) as usize).min(hi);
+            let (x1, y1) = (clamp(r[0], width), clamp(r[1], height));
+            let (x2, y2) = (clamp(r[2], width), clamp(r[3], height));
+            for y in y1..y2 {
+                for x in x1..x2 {
+                    let on_mover = match (object, depth) {
+                        (Some(o), Some(z)) => {
+                            z.get_checked(x as isize, y as isize).is_some_and(|v| {
+                                (o.holds(v) || (up_to_far && v > 0.0 && v <= o.far))
+                                    && !o.on_support(x as f32, y as f32, v)
+                            })
+                        }
+                        _ => true,
+                    };
+                    if on_mover {
+                        mask.set(x, y, 255);
+                    }
+                }
+            }
+        }
+        mask
+    }
+
+    #[test]
+    fn the_mask_drawn_by_rows_is_the_pixel_by_pixel_rule() {
+        // Depth smaller than the image (its last columns and rows have none), a floor the
+        // object stands on in its lower rows, a band, holes.
+        let (w, h) = (90, 70);
+        let mut depth = DepthMetres::new(80, 60, 0.0);
+        for y in 0..60 {
+            for x in 0..80 {
+                let z = match (x * 7 + y * 13) % 11 {
+                    0 => 0.0,
+                    k => 0.8 + 0.35 * k as f32,
+                };
+                depth.set(x, y, z);
+            }
+        }
+        let support = SupportPlane {
+            a: 0.0,
+            b: 0.01,
+            c: -0.2,
+            d: -0.1,
+            from_row: 40.0,
+            tolerance_m: 0.4,
+            tolerance_relative: 0.05,
+        };
+        let band = |support| ObjectDepth {
+            metres: 2.0,
+            near: 1.5,
+            far: 2.6,
+            samples: 100,
+            central_share: 0.8,
+            outliers_with_depth: 0,
+            outliers_in_band: 0,
+            support,
+        };
+        let rects = vec![
+            ([10.0, 5.0, 50.0, 65.0], Some(band(Some(support)))),
+            ([-5.0, 30.0, 95.0, 80.0], Some(band(None))),
+            ([60.0, 10.0, 40.0, 20.0], Some(band(None))),
+            ([70.0, 50.0, 88.5, 69.5], Some(band(Some(support)))),
+        ];
+        let params = stillpoint_dynamic::DepthParams::default();
+        for up_to_far in [false, true] {
+            for z in [Some(&depth), None] {
+                let drawn = Regions::new(rects.clone(), &params, up_to_far)
+                    .mask(z, w, h)
+                    .expect("regions");
+                let expected = mask_pixel_by_pixel(&rects, z, w, h, up_to_far);
+                assert_eq!(
+                    drawn,
+                    expected,
+                    "up_to_far {up_to_far}, depth {}",
+                    z.is_some()
+                );
+            }
+        }
+        // The rule draws some pixels of the boxes and leaves others.
+        let some = mask_pixel_by_pixel(&rects, Some(&depth), w, h, false);
+        let set = some.data.iter().filter(|&&m| m == 255).count();
+        assert!(set > 100 && set < 3000, "{set} pixels set");
+    }
 
     #[test]
     fn the_orb_mask_covers_a_mover_but_not_the_background_in_its_box() {
