@@ -69,6 +69,72 @@ fn sized(v: &mut Vec<f32>, n: usize) -> &mut [f32] {
     v
 }
 
+/// One image row's Sobel products, each box-summed along the row: the buffers of
+/// [`corner_response`]'s row step.
+struct SobelRows {
+    /// [1 2 1] vertical smoothing, for dx (one sample of border each side).
+    sm: Vec<i16>,
+    /// Vertical difference, for dy (the same border).
+    df: Vec<i16>,
+    /// gx², gx gy, gy² of the row.
+    products: [Vec<f32>; 3],
+    /// A product row with its reflect-101 border, `block - 1` samples wide.
+    pad: Vec<f32>,
+}
+
+impl SobelRows {
+    /// Row `y`'s Sobel products (gradients times `scale`), each box-summed along the row over
+    /// the block (`pad`'s width less the row's, plus one; reflect-101) into `out`. Inlined
+    /// into its caller, so that it runs with the caller's vector extensions (a closure there
+    /// was compiled without them).
+    #[inline(always)]
+    fn fill(&mut self, img: &Gray8, y: usize, scale: f32, out: [&mut [f32]; 3]) {
+        let (w, h) = (img.width, img.height);
+        let block = self.pad.len() - w;
+        let half = (block / 2) as isize;
+        let (sm, df) = (&mut self.sm, &mut self.df);
+        let up = img.row(reflect101(y as isize - 1, h));
+        let mid = img.row(y);
+        let down = img.row(reflect101(y as isize + 1, h));
+        {
+            let (s, d) = (&mut sm[1..w + 1], &mut df[1..w + 1]);
+            for x in 0..w {
+                s[x] = up[x] as i16 + 2 * mid[x] as i16 + down[x] as i16;
+                d[x] = down[x] as i16 - up[x] as i16;
+            }
+        }
+        let (l, r) = (reflect101(-1, w) + 1, reflect101(w as isize, w) + 1);
+        sm[0] = sm[l];
+        df[0] = df[l];
+        sm[w + 1] = sm[r];
+        df[w + 1] = df[r];
+        let [pxx, pxy, pyy] = &mut self.products;
+        for x in 0..w {
+            let gx = (sm[x + 2] - sm[x]) as f32 * scale;
+            let gy = (df[x] + 2 * df[x + 1] + df[x + 2]) as f32 * scale;
+            pxx[x] = gx * gx;
+            pxy[x] = gx * gy;
+            pyy[x] = gy * gy;
+        }
+        let pad = &mut self.pad;
+        for (row, out) in self.products.iter().zip(out) {
+            // reflect-101 only on the `half` border samples; the middle is a copy
+            let hb = half as usize;
+            pad[hb..hb + w].copy_from_slice(row);
+            for i in (0..hb).chain(hb + w..w + block) {
+                pad[i] = row[reflect101(i as isize - half, w)];
+            }
+            out.copy_from_slice(&pad[..w]);
+            // shifted whole-row adds (vectorised), not a small sum per pixel
+            for d in 1..block {
+                for (o, &v) in out.iter_mut().zip(&pad[d..d + w]) {
+                    *o += v;
+                }
+            }
+        }
+    }
+}
+
 simd_fn! {
 /// Corner response of every pixel into `s.resp`: Sobel 3x3 gradients (scaled like OpenCV's
 /// `cornerHarris` on 8-bit input), products summed over `block` x `block` (reflect-101), then
@@ -87,53 +153,13 @@ fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32, s: &mut Resp
     let (rxx, rxy, ryy) = (sized(rxx, block * w), sized(rxy, block * w), sized(ryy, block * w));
     ring_rows.clear();
     ring_rows.resize(block, usize::MAX);
-    let mut sm = vec![0i16; w + 2]; // [1 2 1] vertical smoothing, for dx
-    let mut df = vec![0i16; w + 2]; // vertical difference, for dy
-    let mut products = [vec![0f32; w], vec![0f32; w], vec![0f32; w]];
-    let mut pad = vec![0f32; w + block];
-    let mut sums = [vec![0f32; w], vec![0f32; w], vec![0f32; w]];
-    // Row `y`'s Sobel products, each box-summed along the row (reflect-101) into `slot`.
-    let mut fill_row = |y: usize, slot: usize, rings: [&mut [f32]; 3]| {
-        let up = img.row(reflect101(y as isize - 1, h));
-        let mid = img.row(y);
-        let down = img.row(reflect101(y as isize + 1, h));
-        {
-            let (s, d) = (&mut sm[1..w + 1], &mut df[1..w + 1]);
-            for x in 0..w {
-                s[x] = up[x] as i16 + 2 * mid[x] as i16 + down[x] as i16;
-                d[x] = down[x] as i16 - up[x] as i16;
-            }
-        }
-        let (l, r) = (reflect101(-1, w) + 1, reflect101(w as isize, w) + 1);
-        sm[0] = sm[l];
-        df[0] = df[l];
-        sm[w + 1] = sm[r];
-        df[w + 1] = df[r];
-        let [pxx, pxy, pyy] = &mut products;
-        for x in 0..w {
-            let gx = (sm[x + 2] - sm[x]) as f32 * scale;
-            let gy = (df[x] + 2 * df[x + 1] + df[x + 2]) as f32 * scale;
-            pxx[x] = gx * gx;
-            pxy[x] = gx * gy;
-            pyy[x] = gy * gy;
-        }
-        for (row, ring) in products.iter().zip(rings) {
-            // reflect-101 only on the `half` border samples; the middle is a copy
-            let hb = half as usize;
-            pad[hb..hb + w].copy_from_slice(row);
-            for i in (0..hb).chain(hb + w..w + block) {
-                pad[i] = row[reflect101(i as isize - half, w)];
-            }
-            let out = &mut ring[slot * w..(slot + 1) * w];
-            out.copy_from_slice(&pad[..w]);
-            // shifted whole-row adds (vectorised), not a small sum per pixel
-            for d in 1..block {
-                for (o, &v) in out.iter_mut().zip(&pad[d..d + w]) {
-                    *o += v;
-                }
-            }
-        }
+    let mut sobel = SobelRows {
+        sm: vec![0i16; w + 2],
+        df: vec![0i16; w + 2],
+        products: [vec![0f32; w], vec![0f32; w], vec![0f32; w]],
+        pad: vec![0f32; w + block],
     };
+    let mut sums = [vec![0f32; w], vec![0f32; w], vec![0f32; w]];
     // Unnormalised box sums over block x block, a row at a time: the rows output row `y` adds
     // (reflect-101) lie within `block` consecutive rows, so `r % block` never collides.
     for y in 0..h {
@@ -142,7 +168,7 @@ fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32, s: &mut Resp
             let r = rows(dy);
             let slot = r % block;
             if ring_rows[slot] != r {
-                fill_row(r, slot, [&mut *rxx, &mut *rxy, &mut *ryy]);
+                sobel.fill(img, r, scale, [&mut rxx[slot * w..][..w], &mut rxy[slot * w..][..w], &mut ryy[slot * w..][..w]]);
                 ring_rows[slot] = r;
             }
         }
