@@ -474,8 +474,7 @@ fn suppress_row(rows: [&[u8]; 3], kept: &mut [u8]) {
 unsafe fn suppress_row_avx2(rows: [&[u8]; 3], kept: &mut [u8]) -> usize {
     use std::arch::x86_64::*;
     let n = kept.len();
-    let mut j = 0;
-    while j + L <= n {
+    let block = |j: usize, kept: &mut [u8]| {
         // SAFETY: `j + L + 2 <= n + 2`: every load lies in its row, the store in `kept`.
         unsafe {
             let at =
@@ -492,7 +491,19 @@ unsafe fn suppress_row_avx2(rows: [&[u8]; 3], kept: &mut [u8]) -> usize {
             let out = _mm256_andnot_si256(not_above, s);
             _mm256_storeu_si256(kept.as_mut_ptr().add(j).cast::<__m256i>(), out);
         }
+    };
+    let mut j = 0;
+    while j + L <= n {
+        block(j, kept);
         j += L;
+    }
+    // The last columns as one more block ending at the row's end, over some done already
+    // (each column depends on the rows alone, so it is written the same again): ORB's cells
+    // are a few columns over one block wide, and those columns one at a time cost more than
+    // the block.
+    if j < n && n >= L {
+        block(n - L, kept);
+        j = n;
     }
     j
 }
@@ -558,7 +569,10 @@ pub(crate) fn detect(
                 score: kept[j],
             });
         });
-        rows.rotate_left(1);
+        // previous <- current <- next <- the old previous, to be filled (two swaps of three
+        // vectors, not `rotate_left`'s copy through a buffer)
+        rows.swap(0, 1);
+        rows.swap(1, 2);
     }
 }
 }
@@ -680,18 +694,22 @@ mod tests {
 
     #[test]
     fn simd_pretest_finds_the_same_corners_as_brute_force() {
-        let (w, h) = (97, 61);
-        let img = crate::test_rng::Lcg(12345).noise_image(w, h);
-        for t in [7u8, 20, 60] {
-            let mut got = vec![];
-            detect(&img, [0, 0, w, h], t, &mut got, &mut FastScratch::default());
-            let got: Vec<_> = got
-                .iter()
-                .map(|c| (c.x as usize, c.y as usize, c.score))
-                .collect();
-            let want = brute_force(&img, t);
-            assert!(!want.is_empty());
-            assert_eq!(got, want, "threshold {t}");
+        // Rows of 31 to 91 columns inside the border: under one vector block, exactly one,
+        // one and a few more (ORB's cells), two, two and most of a third.
+        for w in [37, 38, 39, 41, 70, 97] {
+            let h = 61;
+            let img = crate::test_rng::Lcg(12345 + w as u32).noise_image(w, h);
+            for t in [7u8, 20, 60] {
+                let mut got = vec![];
+                detect(&img, [0, 0, w, h], t, &mut got, &mut FastScratch::default());
+                let got: Vec<_> = got
+                    .iter()
+                    .map(|c| (c.x as usize, c.y as usize, c.score))
+                    .collect();
+                let want = brute_force(&img, t);
+                assert!(!want.is_empty());
+                assert_eq!(got, want, "width {w}, threshold {t}");
+            }
         }
     }
 
