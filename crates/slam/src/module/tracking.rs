@@ -2,7 +2,7 @@
 //! (monocular), constant-velocity motion model, reference-keyframe fallback, local-map tracking,
 //! keyframe decision, relocalisation and a new map when relocalisation keeps failing.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, HashSet};
 
 use stillpoint_geometry::Se3;
 use tracing::{debug, info, warn};
@@ -558,7 +558,15 @@ impl Tracker {
         skip: &BTreeSet<MpId>,
     ) -> Vec<ProjectedPoint> {
         let center = pose.inverse().translation.vector;
-        let mut seen: BTreeSet<MpId> = BTreeSet::new();
+        // Only asked whether a point came before (the order is the keyframes'): a hash set,
+        // not a tree, for the ten thousand points of a local map each frame.
+        let mut seen: HashSet<MpId> = HashSet::with_capacity(
+            local
+                .iter()
+                .filter_map(|k| map.keyframes.get(k))
+                .map(|kf| kf.map_points.len())
+                .sum(),
+        );
         let mut projected = Vec::new();
         for k in local {
             let Some(kf) = map.keyframes.get(k) else {
