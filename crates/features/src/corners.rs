@@ -78,13 +78,13 @@ struct SobelRows {
     df: Vec<i16>,
     /// gx², gx gy, gy² of the row.
     products: [Vec<f32>; 3],
-    /// A product row with its reflect-101 border, `block - 1` samples wide.
+    /// A product row with `block` samples of reflect-101 border around it.
     pad: Vec<f32>,
 }
 
 impl SobelRows {
     /// Row `y`'s Sobel products (gradients times `scale`), each box-summed along the row over
-    /// the block (`pad`'s width less the row's, plus one; reflect-101) into `out`. Inlined
+    /// the block (as many samples as `pad` is wider than the row; reflect-101) into `out`. Inlined
     /// into its caller, so that it runs with the caller's vector extensions (a closure there
     /// was compiled without them).
     #[inline(always)]
@@ -168,7 +168,16 @@ fn corner_response(img: &Gray8, block: usize, harris: bool, k: f32, s: &mut Resp
             let r = rows(dy);
             let slot = r % block;
             if ring_rows[slot] != r {
-                sobel.fill(img, r, scale, [&mut rxx[slot * w..][..w], &mut rxy[slot * w..][..w], &mut ryy[slot * w..][..w]]);
+                sobel.fill(
+                    img,
+                    r,
+                    scale,
+                    [
+                        &mut rxx[slot * w..][..w],
+                        &mut rxy[slot * w..][..w],
+                        &mut ryy[slot * w..][..w],
+                    ],
+                );
                 ring_rows[slot] = r;
             }
         }
