@@ -5,7 +5,10 @@
 use stillpoint_image::Gray8;
 
 /// Define `fn $name` that runs its body compiled for AVX2+FMA when the CPU has them, and the
-/// baseline build otherwise. The body must not capture generics.
+/// baseline build otherwise (the same arithmetic: Rust fuses no multiply-add on its own, so both
+/// give the same bits). The body must not capture generics. Exported for the crates above that
+/// vectorise a per-pixel loop of their own (the front-end's mover mask).
+#[macro_export]
 macro_rules! simd_fn {
     ($(#[$m:meta])* $vis:vis fn $name:ident($($arg:ident : $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block) => {
         $(#[$m])* $vis fn $name($($arg: $ty),*) $(-> $ret)? {
@@ -24,7 +27,7 @@ macro_rules! simd_fn {
         }
     };
 }
-pub(crate) use simd_fn;
+pub(crate) use crate::simd_fn;
 
 /// OpenCV's BORDER_REFLECT_101 index (`gfedcb|abcdefgh|gfedcba`), valid for any `i`.
 #[inline]

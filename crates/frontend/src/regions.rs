@@ -127,9 +127,7 @@ fn mover_mask(
 ) -> Gray8 {
     let mut mask = Gray8::new(width, height, 0);
     for (r, known) in rects {
-        let clamp = |v: f32, hi: usize| (v.max(0.0) as usize).min(hi);
-        let (x1, y1) = (clamp(r[0], width), clamp(r[1], height));
-        let (x2, y2) = (clamp(r[2], width), clamp(r[3], height));
+        let [x1, y1, x2, y2] = pixel_span(r, width, height);
         let bbox = stillpoint_geometry::BBox::new(r[0], r[1], r[2], r[3]);
         if x1 >= x2 {
             continue;
@@ -159,6 +157,19 @@ fn mover_mask(
     mask
 }
 
+/// The pixels a box `[x1, y1, x2, y2]` covers in an image `width` x `height`, as column and
+/// row ranges `[x1, y1, x2, y2]` (ends excluded, clipped to the image; empty when inverted).
+fn pixel_span(r: &[f32; 4], width: usize, height: usize) -> [usize; 4] {
+    let clamp = |v: f32, hi: usize| (v.max(0.0) as usize).min(hi);
+    [
+        clamp(r[0], width),
+        clamp(r[1], height),
+        clamp(r[2], width),
+        clamp(r[3], height),
+    ]
+}
+
+stillpoint_features::simd_fn! {
 /// Sets `row[i]` (column `x0 + i` of row `y`) to 255 where its depth `z[i]` is the mover's:
 /// in `o`'s band (or, `up_to_far`, in front of its far end) and not on the plane it stands on.
 /// The same tests as [`ObjectDepth::holds`] and [`ObjectDepth::on_support`], in their order of
@@ -171,46 +182,25 @@ fn mark_movers_in_row(
     o: &ObjectDepth,
     up_to_far: bool,
 ) {
-    #[inline(always)]
-    fn inner(row: &mut [u8], z: &[f32], x0: usize, y: usize, o: &ObjectDepth, up_to_far: bool) {
-        let (near, far, yf) = (o.near, o.far, y as f32);
-        let in_band = |v: f32| (v >= near) & (v <= far) | (up_to_far & (v > 0.0) & (v <= far));
-        let pixels = row.iter_mut().zip(z);
-        match o.support.filter(|s| yf >= s.from_row) {
-            None => {
-                for (m, &v) in pixels {
-                    *m |= 0u8.wrapping_sub(in_band(v) as u8);
-                }
+    let (near, far, yf) = (o.near, o.far, y as f32);
+    let in_band = |v: f32| (v >= near) & (v <= far) | (up_to_far & (v > 0.0) & (v <= far));
+    let pixels = row.iter_mut().zip(z);
+    match o.support.filter(|s| yf >= s.from_row) {
+        None => {
+            for (m, &v) in pixels {
+                *m |= 0u8.wrapping_sub(in_band(v) as u8);
             }
-            Some(s) => {
-                for (i, (m, &v)) in pixels.enumerate() {
-                    let distance = (v * (s.a * (x0 + i) as f32 + s.b * yf + s.c) + s.d).abs();
-                    let on_support =
-                        (v > 0.0) & (distance <= s.tolerance_m.max(s.tolerance_relative * v));
-                    *m |= 0u8.wrapping_sub((in_band(v) & !on_support) as u8);
-                }
+        }
+        Some(s) => {
+            for (i, (m, &v)) in pixels.enumerate() {
+                let distance = (v * (s.a * (x0 + i) as f32 + s.b * yf + s.c) + s.d).abs();
+                let on_support =
+                    (v > 0.0) & (distance <= s.tolerance_m.max(s.tolerance_relative * v));
+                *m |= 0u8.wrapping_sub((in_band(v) & !on_support) as u8);
             }
         }
     }
-    #[cfg(target_arch = "x86_64")]
-    {
-        #[target_feature(enable = "avx2")]
-        unsafe fn avx2(
-            row: &mut [u8],
-            z: &[f32],
-            x0: usize,
-            y: usize,
-            o: &ObjectDepth,
-            up_to_far: bool,
-        ) {
-            inner(row, z, x0, y, o, up_to_far)
-        }
-        if std::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2, the one feature `avx2` is compiled for.
-            return unsafe { avx2(row, z, x0, y, o, up_to_far) };
-        }
-    }
-    inner(row, z, x0, y, o, up_to_far)
+}
 }
 
 #[cfg(test)]
@@ -230,9 +220,7 @@ mod tests {
     ) -> Gray8 {
         let mut mask = Gray8::new(width, height, 0);
         for (r, object) in rects {
-            let clamp = |v: f32, hi: usize| (v.max(0.0) as usize).min(hi);
-            let (x1, y1) = (clamp(r[0], width), clamp(r[1], height));
-            let (x2, y2) = (clamp(r[2], width), clamp(r[3], height));
+            let [x1, y1, x2, y2] = pixel_span(r, width, height);
             for y in y1..y2 {
                 for x in x1..x2 {
                     let on_mover = match (object, depth) {
