@@ -73,16 +73,14 @@ pub struct FrontEndSettings {
     /// stays open to ORB and its keypoints to the evidence (16; 0: the whole boxes).
     /// Measurements: docs/monocular.md.
     pub orb_exclusion_radius_px_without_depth: f32,
-    /// Ours (monocular, off by default): once the map stands, a frame without depth whose
-    /// culling keeps less than this share of its keypoints offers the culled ones to the map's
-    /// existing points: they may be matched to map points, only as closely as keyframes match
-    /// each other (`slam.th_low`), and make none (1: whenever any is culled; 0: never). Without
-    /// depth the culling takes whole boxes, and a walker close to the camera takes most of the
-    /// view's static keypoints with his box (living_close seed 1 read monocular with YOLOX
-    /// lost its map for 14 frames; at 1 every room run tracks every frame). Off: the mean
-    /// accuracy did not gain, single runs moved both ways, and map points on movers rose on
-    /// some (a 120-frame street 2 -> 12, made from a car judged static, not from the offered
-    /// keypoints). Measurements: docs/monocular.md.
+    /// Ours (monocular): once the map stands, a frame without depth whose culling keeps less
+    /// than this share of its keypoints offers the culled ones to the map's existing points:
+    /// they may be matched to map points, only as closely as keyframes match each other
+    /// (`slam.th_low`), and make none (1: whenever any is culled; 0: never). Without depth the
+    /// culling takes whole boxes, and a walker close to the camera takes most of the view's
+    /// static keypoints with his box. 0.6: the monocular rooms track every frame and gain on
+    /// average; a street's cars never take that much, so it is left as it was (at 0.8 and 1 it
+    /// was worse). Measurements: docs/monocular.md.
     pub offer_culled_to_map_below: f32,
     /// Ours (map hygiene): kept keypoints inside the box of a movable object not proven still
     /// for `ObjectParams::still_frames_to_map` frames create no map points, unless their depth
@@ -187,7 +185,7 @@ impl Default for FrontEndSettings {
             orb_exclusion: true,
             orb_exclusion_min_yield: 0.75,
             orb_exclusion_radius_px_without_depth: 16.0,
-            offer_culled_to_map_below: 0.0,
+            offer_culled_to_map_below: 0.6,
             movable_hygiene: true,
             movable_hygiene_margin: 0.5,
             orb_exclusion_margin: 0.05,
