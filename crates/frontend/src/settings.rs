@@ -78,9 +78,8 @@ pub struct FrontEndSettings {
     /// they may be matched to map points, only as closely as keyframes match each other
     /// (`slam.th_low`), and make none (1: whenever any is culled; 0: never). Without depth the
     /// culling takes whole boxes, and a walker close to the camera takes most of the view's
-    /// static keypoints with his box. 0.6: the monocular rooms track every frame and gain on
-    /// average; a street's cars never take that much, so it is left as it was (at 0.8 and 1 it
-    /// was worse). Measurements: docs/monocular.md.
+    /// static keypoints with his box; at 0.6 such a walker offers, a street's cars do not.
+    /// Measurements: docs/monocular.md.
     pub offer_culled_to_map_below: f32,
     /// Ours (map hygiene): kept keypoints inside the box of a movable object not proven still
     /// for `ObjectParams::still_frames_to_map` frames create no map points, unless their depth
