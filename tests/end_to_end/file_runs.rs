@@ -122,3 +122,15 @@ fn an_rgbd_file_run_with_the_front_end_on_a_busy_machine_is_the_sequential_run()
         "{threaded}"
     );
 }
+
+#[test]
+fn a_stereo_file_run_with_the_front_end_on_a_busy_machine_is_the_sequential_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("walking");
+    // The KITTI-layout pair beside the TUM folder; `--kind kitti` reads it as stereo, the
+    // generator's boxes from the same folder.
+    synth_walking(&seq, 60, &["--stereo"]);
+    let summary = same_as_sequential_under_load(&seq, &["--kind", "kitti", "--detector", "gt"]);
+    assert_eq!(summary["sensor"], "stereo", "{summary}");
+    assert_eq!(summary["tracked"], 60, "{summary}");
+}
