@@ -230,6 +230,9 @@ pub struct Finished {
     pub mapping_ms: Vec<f64>,
     /// Loop closing's statistics (`None` when it is off).
     pub loops: Option<LoopStats>,
+    /// Frames given a pose only at the end ([`System::frames_placed_at_end`]): in the
+    /// trajectory, in no frame's report.
+    pub placed_at_end: usize,
     /// The stopped system: its map, for saving ([`System::map_file`]) or inspection.
     pub system: System,
 }
@@ -677,7 +680,8 @@ impl Pipeline {
             main,
             frames: by_map.iter().map(|(k, (s, _))| (*k, s.len())).collect(),
         };
-        let (trajectory, other_maps) = if rebuilt.len() < self.stamps.len() {
+        let placed_at_end = self.system.frames_placed_at_end();
+        let (trajectory, other_maps) = if rebuilt.len() < self.stamps.len() + placed_at_end {
             // A frame whose keyframe is gone: keep what tracking returned rather than lose it.
             tracing::warn!(
                 rebuilt = rebuilt.len(),
@@ -725,6 +729,7 @@ impl Pipeline {
             map_points: self.system.map_point_count(),
             mapping_ms: self.system.mapping_times_ms(),
             loops,
+            placed_at_end,
             system: self.system,
         })
     }

@@ -281,7 +281,7 @@ pub fn run_source(
         name: seq.name(),
         sensor: ds.sensor,
         frames: if live { tally.frames_read } else { n },
-        tracked: tally.tracked,
+        tracked: tally.tracked + fin.placed_at_end,
         keyframes: fin.keyframes,
         map_points: fin.map_points,
         relocalisations: tally.relocalisations,

@@ -386,6 +386,12 @@ pub struct MonoInitSettings {
     /// gets those frames placed from far-off points, 5-10 % off along the road (false: the
     /// trajectory starts at the map's first view; docs/monocular.md).
     pub backfill_before_reference: bool,
+    /// Ours: the frames before a map stood that its first two views could not track (their
+    /// points too few by then: a car driving forward sees the map's ground small and far) are
+    /// tracked once more at the end of the run, back from the map's first tracked frame until
+    /// one fails, in the map as it ended, whose later keyframes hold many more points there
+    /// (false: they stay without a pose). Measurements: docs/monocular.md.
+    pub place_before_map_at_end: bool,
     /// Ours: with local mapping in its own thread (live input), for this many seconds after a
     /// monocular map starts each new keyframe is mapped before the next frame is tracked, as on
     /// a recording (0: never). A young map holds 100-200 points and a frame tracked before the
@@ -432,6 +438,7 @@ impl Default for MonoInitSettings {
             thin_map_inliers: 100,
             backfill_frames: 100,
             backfill_before_reference: true,
+            place_before_map_at_end: true,
             map_keyframes_at_once_seconds: 0.5,
         }
     }

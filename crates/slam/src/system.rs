@@ -14,7 +14,7 @@ use crate::data::{FreeSpaceCheck, KfId, Map, MpId, SharedMap};
 use crate::map_file::{MapFile, MapSensor};
 use crate::module::local_mapping::{LocalMapper, MapperHooks, MapperThread};
 use crate::module::loop_closing::{LoopCloser, LoopStats, LoopThread, MapCorrection};
-use crate::module::tracking::{FrameObservation, Tracker};
+use crate::module::tracking::{FrameObservation, Tracker, carried_back};
 use crate::optimize::{PoseObservation, PosePrior, optimize_pose_with_prior};
 use crate::place::{KeyFrameDatabase, Vocabulary};
 use crate::{Descriptor, Feature, Frame, KeypointDepth, SlamError, SlamSettings, TrackingState};
@@ -148,6 +148,9 @@ pub struct System {
     localize: bool,
     /// Loop edges of a loaded map (the loop closer holds them too when it runs).
     loaded_loop_edges: std::collections::BTreeSet<(KfId, KfId)>,
+    /// Monocular: frames placed at the end of the run that no map's first views could track
+    /// (`MonoInitSettings::place_before_map_at_end`).
+    placed_at_end: usize,
 }
 
 /// What to do with a map loaded from a file.
@@ -305,6 +308,7 @@ impl System {
             mapping_ms,
             looping,
             anchors: Vec::new(),
+            placed_at_end: 0,
             unsettled: VecDeque::new(),
             keyframes_inserted: 0,
             reloc_db,
@@ -643,7 +647,74 @@ impl System {
             t.finish()?;
         }
         self.settle(true);
+        self.placed_at_end = self.place_frames_before_maps();
         Ok(())
+    }
+
+    /// Frames tracked only at the end of the run: those before a monocular map stood that its
+    /// first views could not track (`MonoInitSettings::place_before_map_at_end`).
+    pub fn frames_placed_at_end(&self) -> usize {
+        self.placed_at_end
+    }
+
+    /// Monocular, at the end: the frames before a map stood that its first views could not
+    /// track, placed in the map as it ended, newest first, each from the motion of the two
+    /// frames after it, until one fails; anchored to the reference keyframe of the frame
+    /// after it. Returns how many were placed.
+    fn place_frames_before_maps(&mut self) -> usize {
+        let frames = self.tracker.take_unplaced();
+        if frames.is_empty() {
+            return 0;
+        }
+        let map = self.map.clone();
+        let Ok(map) = map.lock() else {
+            return 0;
+        };
+        // (time, world-to-camera, reference keyframe) of every frame with a pose, in time order
+        let mut posed: Vec<(f64, Se3, KfId)> = self
+            .anchors
+            .iter()
+            .filter_map(|&(t, r, t_cr)| Some((t, t_cr * map.keyframe_pose_cw(r)?, r)))
+            .collect();
+        let epoch = |r: &KfId| map.keyframes.get(r).map(|k| k.map_epoch);
+        // Frames that failed: nothing before one is placed from the frames after it.
+        let mut failed: Vec<f64> = Vec::new();
+        let mut placed = 0;
+        for mut f in frames {
+            let next = posed.partition_point(|p| p.0 <= f.timestamp);
+            let Some(&(t_near, near, r)) = posed.get(next) else {
+                continue;
+            };
+            if failed.iter().any(|&b| f.timestamp < b && b < t_near) {
+                failed.push(f.timestamp);
+                continue;
+            }
+            let prior = match posed.get(next + 1) {
+                Some(&(t_far, far, r_far)) if epoch(&r_far) == epoch(&r) => {
+                    carried_back((near, t_near), (far, t_far), f.timestamp)
+                }
+                _ => near,
+            };
+            let (Some(pose), Some(ref_cw)) = (
+                self.tracker.place_late(&mut f, prior, r, &map),
+                map.keyframe_pose_cw(r),
+            ) else {
+                failed.push(f.timestamp);
+                continue;
+            };
+            posed.insert(next, (f.timestamp, pose, r));
+            let at = self.anchors.partition_point(|a| a.0 <= f.timestamp);
+            self.anchors
+                .insert(at, (f.timestamp, r, pose * ref_cw.inverse()));
+            placed += 1;
+        }
+        if placed > 0 {
+            tracing::info!(
+                frames = placed,
+                "frames before a monocular map stood placed at the end"
+            );
+        }
+        placed
     }
 
     /// Tracked frames whose pose waits to be settled on a refined map

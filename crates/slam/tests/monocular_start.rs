@@ -29,11 +29,21 @@ fn truth(i: usize) -> Se3 {
 /// more bits of each descriptor flipped: too far for initialisation's matching, near enough for
 /// tracking's). Returns the frames the trajectory has a pose for and its Sim(3) ATE (m).
 fn run(frames: usize, adjust: impl Fn(&mut SlamSettings)) -> (Vec<usize>, f64) {
+    run_along(frames, truth, 16_000, adjust)
+}
+
+/// [`run`] along the path `truth` in a room of `points` points.
+fn run_along(
+    frames: usize,
+    truth: impl Fn(usize) -> Se3,
+    points: usize,
+    adjust: impl Fn(&mut SlamSettings),
+) -> (Vec<usize>, f64) {
     let cam = PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
     let mut s = SlamSettings::monocular(cam, 30.0);
     s.local_mapping_thread = false;
     adjust(&mut s);
-    let sc = room(5, 16_000);
+    let sc = room(5, points);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
     let mut sys = System::new(s);
     for i in 0..frames {
@@ -80,6 +90,47 @@ fn frames_of_a_dropped_reference_are_tracked_once_the_map_stands() {
     let (posed, ate) = run(30, |_| {});
     assert_eq!(posed, (0..30).collect::<Vec<_>>(), "every frame has a pose");
     assert!(ate < 0.01, "ATE {ate} m");
+}
+
+#[test]
+fn frames_the_first_views_cannot_track_are_placed_in_the_map_the_run_ends_with() {
+    // The camera turns in from the side over its first frames (24 degrees at frame 0, 8 a
+    // frame), and a frame counts as tracked only with 600 inliers (a view here holds ~1,500
+    // points): frame 0 shares too few with the map's first two views, and tracking back from
+    // them stops at it. The keyframes made as the camera goes on round map that side, and at
+    // the end of the run it is tracked in the map as it ended.
+    let turned_in = |i: usize| {
+        let yaw = (3.0 - i.min(3) as f64) * 8f64.to_radians();
+        truth(i)
+            * Se3::from_parts(
+                nalgebra::Translation3::identity(),
+                nalgebra::UnitQuaternion::from_euler_angles(0.0, -yaw, 0.0),
+            )
+    };
+    let (posed_off, off) = run_along(60, turned_in, 16_000, |s| {
+        s.mono_init.place_before_map_at_end = false;
+        s.min_tracked_inliers = 600;
+    });
+    let (posed, on) = run_along(60, turned_in, 16_000, |s| s.min_tracked_inliers = 600);
+    assert!(
+        !posed_off.contains(&0),
+        "frame 0 tracked back: {posed_off:?}"
+    );
+    let placed: Vec<usize> = posed
+        .iter()
+        .copied()
+        .filter(|i| !posed_off.contains(i))
+        .collect();
+    assert_eq!(placed, [0], "placed at the end");
+    assert_eq!(
+        posed.len(),
+        posed_off.len() + 1,
+        "the other frames are the same"
+    );
+    assert!(
+        on < 0.005 && on < 1.5 * off,
+        "ATE {on} m placed, {off} m not"
+    );
 }
 
 #[test]

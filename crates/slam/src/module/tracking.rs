@@ -102,6 +102,15 @@ impl Backfilled {
     }
 }
 
+/// A pose for the frame at `at` before two tracked ones, `near` (the nearer) and `far`, as
+/// (world-to-camera, time or index): the motion from `far` to `near` carried on back from
+/// `near`, at most one such step.
+pub(crate) fn carried_back(near: (Se3, f64), far: (Se3, f64), at: f64) -> Se3 {
+    let step = near.0 * far.0.inverse();
+    let share = ((near.1 - at) / (far.1 - near.1)).min(1.0);
+    Se3::identity().lerp_slerp(&step, share) * near.0
+}
+
 /// One pose inlier of a tracked frame.
 #[derive(Clone, Copy, Debug)]
 pub struct FrameObservation {
@@ -153,6 +162,10 @@ pub struct Tracker {
     pub map_started_at: Option<usize>,
     /// Map points the last frame's pose kept (0 when it was not tracked).
     pub last_inliers: usize,
+    /// Monocular: frames offered before a map stood that its first two views could not track
+    /// (`MonoInitSettings::place_before_map_at_end`), kept to be placed in the map the run
+    /// ends with.
+    unplaced: Vec<Frame>,
 }
 
 impl Tracker {
@@ -179,6 +192,7 @@ impl Tracker {
             reloc_candidates: Vec::new(),
             map_started_at: None,
             last_inliers: 0,
+            unplaced: Vec::new(),
         }
     }
 
@@ -725,13 +739,17 @@ impl Tracker {
             [first, kf],
             second,
         );
-        let mut tracked = self.track_before(
+        let (mut tracked, unplaced) = self.track_before(
             std::mem::take(&mut init.before),
             &between,
             second,
             map,
             [first, kf],
         );
+        if self.s.mono_init.place_before_map_at_end {
+            self.unplaced
+                .extend(unplaced.iter().map(Frame::kept_to_match_later));
+        }
         tracked.extend(between);
         let between = tracked;
         if let Some((b, ..)) = between.first() {
@@ -808,8 +826,9 @@ impl Tracker {
     /// Monocular: the frames offered before the new map's first view (earlier references that
     /// were dropped for too few matches, and their frames), tracked in it newest first from the
     /// first view back, each from the pose the motion of the two frames after it gives, until
-    /// one does not track (the view it came from is not the map's); returned oldest first.
-    /// `later` is what `track_between` returned (the first view first).
+    /// one does not track (the view it came from is not the map's); returned oldest first,
+    /// with the frames before that were not tracked. `later` is what `track_between` returned
+    /// (the first view first).
     fn track_before(
         &self,
         frames: Vec<Frame>,
@@ -817,9 +836,9 @@ impl Tracker {
         second: (Se3, usize),
         map: &Map,
         kfs: [KfId; 2],
-    ) -> Vec<PosedLate> {
+    ) -> (Vec<PosedLate>, Vec<Frame>) {
         let Some((first_view, ..)) = later.first() else {
-            return Vec::new();
+            return (Vec::new(), Vec::new());
         };
         let kept = self.keeps_frames_to_match_again();
         let points = Self::points_of(map, &kfs);
@@ -829,23 +848,75 @@ impl Tracker {
             .get(1)
             .map_or(second, |(b, ..)| (b.pose_wc.inverse(), b.index));
         let mut out = Vec::new();
-        for mut f in frames.into_iter().rev() {
+        let mut untracked = Vec::new();
+        let mut newest_first = frames.into_iter().rev();
+        for mut f in newest_first.by_ref() {
             if f.index >= near.1 {
                 continue;
             }
-            // The motion from `far` to `near`, carried on as far before `near` again.
-            let step = near.0 * far.0.inverse();
-            let share = ((near.1 - f.index) as f64 / (far.1 - near.1) as f64).min(1.0);
-            let prior = Se3::identity().lerp_slerp(&step, share) * near.0;
+            let prior = carried_back(
+                (near.0, near.1 as f64),
+                (far.0, far.1 as f64),
+                f.index as f64,
+            );
             let inliers = self.track_in_first_views(&mut f, prior, &points, map, kfs[0]);
             let Some(pose) = f.pose_cw.filter(|_| inliers >= self.s.min_tracked_inliers) else {
+                untracked.push(f);
                 break;
             };
             out.push(Backfilled::of(&f, pose, kfs[0], kept));
             (far, near) = (near, (pose, f.index));
         }
+        untracked.extend(newest_first);
         out.reverse();
-        out
+        (out, untracked)
+    }
+
+    /// Monocular: the frames offered before a map stood that its first two views could not
+    /// track, newest first, to be placed in the map the run ends with
+    /// ([`Tracker::place_late`]); the tracker keeps none after.
+    pub fn take_unplaced(&mut self) -> Vec<Frame> {
+        let mut frames = std::mem::take(&mut self.unplaced);
+        frames.sort_by_key(|f| std::cmp::Reverse(f.index));
+        frames
+    }
+
+    /// A frame kept by [`Frame::kept_to_match_later`], tracked at the end of the run from
+    /// `prior` in the map as it ended: the points of `reference`'s neighbourhood (the
+    /// keyframes that see its points and their best covisible ones) projected in wide windows,
+    /// pose optimisation, a narrow projection and pose optimisation again. The pose, when it
+    /// keeps as many inliers as a tracked frame.
+    pub fn place_late(
+        &self,
+        frame: &mut Frame,
+        prior: Se3,
+        reference: KfId,
+        map: &Map,
+    ) -> Option<Se3> {
+        let seen: Vec<MpId> = map
+            .keyframes
+            .get(&reference)?
+            .map_points
+            .iter()
+            .flatten()
+            .copied()
+            .collect();
+        let points = Self::points_of(map, &Vec::from_iter(self.keyframes_seeing(map, &seen)));
+        frame.ready_to_match(prior);
+        if self.project_points(frame, &points, map, 5.0) < MIN_DESCRIPTOR_MATCHES {
+            return None;
+        }
+        self.optimize_frame(frame, map);
+        Self::discard_outliers(frame, map);
+        self.project_points(frame, &points, map, self.s.local_map_search_th);
+        let inliers = self.optimize_frame(frame, map);
+        debug!(
+            frame = frame.index,
+            inliers, "frame before its map stood, placed at the end"
+        );
+        frame
+            .pose_cw
+            .filter(|_| inliers >= self.s.min_tracked_inliers)
     }
 
     /// The map points keyframes `kfs` see.
