@@ -842,7 +842,8 @@ impl Slam {
             })
         })?;
         let (fin, map) = done.map_err(|e| error(&e))?;
-        Run::of(py, &fin, map, frames, tracked)
+        // Frames placed only at the end are in the trajectory, not in any frame's result.
+        Run::of(py, &fin, map, frames, tracked + fin.placed_at_end)
     }
 
     /// The camera this Slam was made with.
