@@ -164,7 +164,7 @@ pub struct Tracker {
     pub last_inliers: usize,
     /// Monocular: frames offered before a map stood that its first two views could not track
     /// (`MonoInitSettings::place_before_map_at_end`), kept to be placed in the map the run
-    /// ends with.
+    /// ends with; the newest `MonoInitSettings::backfill_frames` at most.
     unplaced: Vec<Frame>,
 }
 
@@ -749,6 +749,14 @@ impl Tracker {
         if self.s.mono_init.place_before_map_at_end {
             self.unplaced
                 .extend(unplaced.iter().map(Frame::kept_to_match_later));
+            // As many as the initialiser keeps, the newest: a long live run that starts
+            // several maps holds no more.
+            let over = self
+                .unplaced
+                .len()
+                .saturating_sub(self.s.mono_init.backfill_frames);
+            self.unplaced.sort_by_key(|f| f.index);
+            self.unplaced.drain(..over);
         }
         tracked.extend(between);
         let between = tracked;
