@@ -670,19 +670,17 @@ impl System {
         let Ok(map) = map.lock() else {
             return 0;
         };
-        // (time, world-to-camera, reference keyframe) of every frame with a pose, in time order
-        let mut posed: Vec<(f64, Se3, KfId)> = self
-            .anchors
-            .iter()
-            .filter_map(|&(t, r, t_cr)| Some((t, t_cr * map.keyframe_pose_cw(r)?, r)))
+        // (time, world-to-camera, reference keyframe, map) of every frame with a pose, in
+        // time order
+        let mut posed: Vec<(f64, Se3, KfId, u32)> = (0..self.anchors.len())
+            .filter_map(|i| self.anchor_pose_cw(&map, i))
             .collect();
-        let epoch = |r: &KfId| map.keyframes.get(r).map(|k| k.map_epoch);
         // Frames that failed: nothing before one is placed from the frames after it.
         let mut failed: Vec<f64> = Vec::new();
         let mut placed = 0;
         for mut f in frames {
             let next = posed.partition_point(|p| p.0 <= f.timestamp);
-            let Some(&(t_near, near, r)) = posed.get(next) else {
+            let Some(&(t_near, near, r, epoch)) = posed.get(next) else {
                 continue;
             };
             if failed.iter().any(|&b| f.timestamp < b && b < t_near) {
@@ -690,7 +688,7 @@ impl System {
                 continue;
             }
             let prior = match posed.get(next + 1) {
-                Some(&(t_far, far, r_far)) if epoch(&r_far) == epoch(&r) => {
+                Some(&(t_far, far, _, far_epoch)) if far_epoch == epoch => {
                     carried_back((near, t_near), (far, t_far), f.timestamp)
                 }
                 _ => near,
@@ -702,7 +700,7 @@ impl System {
                 failed.push(f.timestamp);
                 continue;
             };
-            posed.insert(next, (f.timestamp, pose, r));
+            posed.insert(next, (f.timestamp, pose, r, epoch));
             let at = self.anchors.partition_point(|a| a.0 <= f.timestamp);
             self.anchors
                 .insert(at, (f.timestamp, r, pose * ref_cw.inverse()));
@@ -726,9 +724,16 @@ impl System {
     /// Anchor `i`'s time, camera-to-world pose (through its keyframe as the map has it now) and
     /// map.
     fn anchor_pose_wc(&self, map: &Map, i: usize) -> Option<(f64, Se3, u32)> {
+        let (t, pose_cw, _, epoch) = self.anchor_pose_cw(map, i)?;
+        Some((t, pose_cw.inverse(), epoch))
+    }
+
+    /// Anchor `i`'s time, world-to-camera pose (through its keyframe as the map has it now),
+    /// that keyframe and its map.
+    fn anchor_pose_cw(&self, map: &Map, i: usize) -> Option<(f64, Se3, KfId, u32)> {
         let (t, r, t_cr) = *self.anchors.get(i)?;
-        let pose_wc = (t_cr * map.keyframe_pose_cw(r)?).inverse();
-        Some((t, pose_wc, map.keyframes.get(&r)?.map_epoch))
+        let pose_cw = t_cr * map.keyframe_pose_cw(r)?;
+        Some((t, pose_cw, r, map.keyframes.get(&r)?.map_epoch))
     }
 
     /// Where anchor `a`'s neighbours in time put it: the mean of the positions interpolated at
