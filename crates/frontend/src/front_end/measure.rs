@@ -52,10 +52,11 @@ impl DynamicFrontEnd {
             ));
             return Measurement(Measured::First);
         };
-        if frame.own_boxes
-            && let Some(bg) = self.background.as_mut()
-        {
-            bg.detect_own(frame);
+        if let Some(bg) = self.background.as_mut() {
+            if frame.own_boxes {
+                bg.detect_own(frame);
+            }
+            bg.send_if_due(frame);
         }
         let detector = &mut self.detector;
         let geometry = &self.settings.dynamic.geometry;
