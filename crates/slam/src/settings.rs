@@ -325,8 +325,17 @@ pub struct MonoInitSettings {
     /// street with YOLOX started from frame 3 and drifted twice as far), a slow one that holds
     /// one reference without parallax enough at the finest level gets the second try.
     pub fallback_after_frames: usize,
-    /// Fewer matches than this drop the reference frame (ORB-SLAM: 100).
+    /// Fewer matches than this drop the reference frame (ORB-SLAM: 100) ...
     pub min_matches: usize,
+    /// ... unless they fell below this share of the previous frame's matches at once and the
+    /// next frame matches the reference again (ours: 0.8; 0, ORB-SLAM's rule: the frame after
+    /// the short one becomes the reference). A walker's box (culled, and kept off by ORB's
+    /// budget) that sweeps over the reference's ground takes a third of the matches in one
+    /// frame while the view is still there; a camera that moves on loses them a few at a time
+    /// and drops the reference as ORB-SLAM does, and one that stays short after a sudden fall
+    /// too, on the next frame, which then becomes the reference as ORB-SLAM's rule makes it.
+    /// The short frame is kept for tracking once the map stands.
+    pub keep_reference_over_sudden_fall: f64,
     /// RANSAC iterations of 8 points for H and F (ORB-SLAM: 200).
     pub ransac_iterations: usize,
     /// Parallax needed, degrees (ORB-SLAM: 1).
@@ -423,6 +432,7 @@ impl Default for MonoInitSettings {
             fallback_max_octave: 2,
             fallback_after_frames: 10,
             min_matches: 100,
+            keep_reference_over_sudden_fall: 0.8,
             ransac_iterations: 200,
             min_parallax_deg: 1.0,
             min_triangulated: 50,

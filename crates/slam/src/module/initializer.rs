@@ -63,6 +63,11 @@ pub struct MonoInitializer {
     /// Frames offered before the reference: earlier references dropped because the view moved
     /// on, and their frames (a plain room may drop two before one starts the map).
     before: VecDeque<Frame>,
+    /// The last frame offered had too few matches to the reference, which was kept for the
+    /// next ([`MonoInitSettings::keep_reference_over_sudden_fall`]).
+    last_short: bool,
+    /// The last frame's matches to the reference.
+    last_matches: usize,
 }
 
 impl MonoInitializer {
@@ -74,6 +79,7 @@ impl MonoInitializer {
         self.prev_matched_coarse.clear();
         self.between.clear();
         self.before.clear();
+        self.last_short = false;
     }
 
     /// Drop the reference frame (the next frame with enough keypoints becomes it) but keep it,
@@ -87,6 +93,20 @@ impl MonoInitializer {
         }
         self.prev_matched.clear();
         self.prev_matched_coarse.clear();
+        self.last_short = false;
+    }
+
+    /// `frame` becomes the reference.
+    fn start_reference(&mut self, frame: &Frame) {
+        self.last_matches = 0;
+        self.prev_matched = frame.points.clone();
+        self.prev_matched_coarse = frame.points.clone();
+        self.reference = Some(frame.clone());
+        debug!(
+            frame = frame.index,
+            keypoints = frame.len(),
+            "initialisation reference"
+        );
     }
 
     /// Keep `frame` for tracking once the map stands (the newest `keep` only).
@@ -119,14 +139,7 @@ impl MonoInitializer {
             if frame.len() <= p.min_keypoints {
                 self.reset();
             } else {
-                self.prev_matched = frame.points.clone();
-                self.prev_matched_coarse = frame.points.clone();
-                self.reference = Some(frame.clone());
-                debug!(
-                    frame = frame.index,
-                    keypoints = frame.len(),
-                    "initialisation reference"
-                );
+                self.start_reference(frame);
             }
             return None;
         };
@@ -160,15 +173,37 @@ impl MonoInitializer {
         // much for this reference. A reference kept on the coarser levels' count was held for
         // 150 frames without a reconstruction where a fresh one would have started the map.
         if finest.len() < p.min_matches {
+            let sudden = (finest.len() as f64)
+                < p.keep_reference_over_sudden_fall * self.last_matches as f64;
+            if sudden && !self.last_short {
+                debug!(
+                    frame = frame.index,
+                    reference = reference.index,
+                    matches = finest.len(),
+                    "too few matches: reference kept for the next frame"
+                );
+                self.remember(frame, p.backfill_frames);
+                self.last_short = true;
+                return None;
+            }
             debug!(
                 frame = frame.index,
                 reference = reference.index,
                 matches = finest.len(),
                 "too few matches: reference dropped"
             );
+            let after_short = self.last_short;
             self.drop_reference(frame, p.frames_kept_before());
+            if after_short {
+                // The frame after the first short one is the reference, as when that one had
+                // dropped it: this frame, taken back from the frames before.
+                self.before.pop_back();
+                self.start_reference(frame);
+            }
             return None;
         }
+        self.last_short = false;
+        self.last_matches = finest.len();
         // The coarser levels' own search, with its own last positions (kept on every frame),
         // so that the finest levels' matches stay exactly ORB-SLAM's; tried once the reference
         // has been held long enough.
@@ -501,6 +536,70 @@ mod tests {
         assert!(got.points.len() >= 150, "{} points", got.points.len());
         let dir = got.pose21.translation.vector.normalize();
         assert!((dir - truth21.translation.vector.normalize()).norm() < 1e-2);
+    }
+
+    #[test]
+    fn one_frame_short_of_matches_keeps_the_reference() {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let (b, b_desc) = scene(16);
+        let (a, a_desc) = scene(17);
+        let truth21 = Se3::new(Vec3::new(-0.35, 0.02, -0.05), Vec3::new(0.0, 0.04, 0.01));
+        // Frame 1 sees the reference's view again; frame 2 only 60 of its points, the rest
+        // hidden at once (a walker's box culled, other keypoints around it); frame 3 sees them
+        // all again, from a view with parallax.
+        let mut hidden: Vec<Vec3> = b[..60].to_vec();
+        hidden.extend_from_slice(&a[..100]);
+        let mut hidden_desc: Vec<Descriptor> = b_desc[..60].to_vec();
+        hidden_desc.extend_from_slice(&a_desc[..100]);
+        let start = |keep_reference_over_sudden_fall: f64| {
+            let mut s = SlamSettings::monocular(cam, 30.0);
+            s.mono_init.keep_reference_over_sudden_fall = keep_reference_over_sudden_fall;
+            let mut init = MonoInitializer::default();
+            let frames = [
+                view(0, &Se3::identity(), &b, &b_desc, &s),
+                view(1, &Se3::identity(), &b, &b_desc, &s),
+                view(2, &Se3::identity(), &hidden, &hidden_desc, &s),
+                view(3, &truth21, &b, &b_desc, &s),
+            ];
+            let got = frames.iter().find_map(|f| init.add_frame(f, &s));
+            (got, init.reference_index())
+        };
+        let (got, _) = start(0.8);
+        let got = got.expect("initialised over the short frame");
+        assert_eq!(got.reference.index, 0);
+        assert_eq!(
+            got.between.iter().map(|f| f.index).collect::<Vec<_>>(),
+            [1, 2]
+        );
+        // ORB-SLAM's rule: the short frame drops the reference, and frame 3 becomes the next.
+        let (got, reference) = start(0.0);
+        assert!(got.is_none());
+        assert_eq!(reference, Some(3));
+        // A view that stays short drops it on its second frame, which becomes the reference
+        // as under ORB-SLAM's rule, the first short frame one of the frames before; a fall
+        // a few matches at a time drops it at once.
+        let s = SlamSettings::monocular(cam, 30.0);
+        let mut init = MonoInitializer::default();
+        init.add_frame(&view(0, &Se3::identity(), &b, &b_desc, &s), &s);
+        init.add_frame(&view(1, &Se3::identity(), &b, &b_desc, &s), &s);
+        for i in 2..=3 {
+            init.add_frame(&view(i, &Se3::identity(), &hidden, &hidden_desc, &s), &s);
+            assert_eq!(init.reference_index(), Some(if i == 2 { 0 } else { 3 }));
+        }
+        let kept: Vec<usize> = init.before.iter().map(|f| f.index).collect();
+        assert_eq!(kept, [0, 1, 2]);
+        let mut init = MonoInitializer::default();
+        init.add_frame(&view(0, &Se3::identity(), &b, &b_desc, &s), &s);
+        init.add_frame(
+            &view(1, &Se3::identity(), &b[..105], &b_desc[..105], &s),
+            &s,
+        );
+        let mut fewer: Vec<Vec3> = b[..90].to_vec();
+        fewer.extend_from_slice(&a[..100]);
+        let mut fewer_desc: Vec<Descriptor> = b_desc[..90].to_vec();
+        fewer_desc.extend_from_slice(&a_desc[..100]);
+        init.add_frame(&view(2, &Se3::identity(), &fewer, &fewer_desc, &s), &s);
+        assert_eq!(init.reference_index(), None);
     }
 
     #[test]
