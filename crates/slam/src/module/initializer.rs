@@ -83,11 +83,12 @@ impl MonoInitializer {
     }
 
     /// Drop the reference frame (the next frame with enough keypoints becomes it) but keep it,
-    /// its frames and `frame` as frames before the next reference (the newest `keep` in all).
-    fn drop_reference(&mut self, frame: &Frame, keep: usize) {
+    /// its frames and `frame`, when given, as frames before the next reference (the newest
+    /// `keep` in all).
+    fn drop_reference(&mut self, frame: Option<&Frame>, keep: usize) {
         self.before.extend(self.reference.take());
         self.before.extend(self.between.drain(..));
-        self.before.push_back(frame.clone());
+        self.before.extend(frame.cloned());
         while self.before.len() > keep {
             self.before.pop_front();
         }
@@ -192,13 +193,13 @@ impl MonoInitializer {
                 matches = finest.len(),
                 "too few matches: reference dropped"
             );
-            let after_short = self.last_short;
-            self.drop_reference(frame, p.frames_kept_before());
-            if after_short {
-                // The frame after the first short one is the reference, as when that one had
-                // dropped it: this frame, taken back from the frames before.
-                self.before.pop_back();
+            if self.last_short {
+                // As if the first short frame had dropped it (ORB-SLAM's rule): the frame after
+                // it, this one, is the next reference.
+                self.drop_reference(None, p.frames_kept_before());
                 self.start_reference(frame);
+            } else {
+                self.drop_reference(Some(frame), p.frames_kept_before());
             }
             return None;
         }
@@ -268,7 +269,7 @@ impl MonoInitializer {
                 "initial map rejected after bundle adjustment"
             );
             if p.reset_on_rejection {
-                self.drop_reference(frame, p.frames_kept_before());
+                self.drop_reference(Some(frame), p.frames_kept_before());
             } else {
                 self.remember(frame, p.backfill_frames);
             }
