@@ -7,7 +7,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use crate::common::{assert_ok, path_str, stillpoint, synth_walking};
+use crate::common::{assert_ok, path_str, shared, stillpoint, synth_walking};
 use crate::slam_mono::synth_mono;
 
 /// Threads that spin until dropped: one per core, so the run under test shares them.
@@ -67,7 +67,11 @@ fn run(seq: &Path, traj: &Path, extra: &[&str]) -> (Vec<u8>, serde_json::Value) 
 
 /// The default run under load against `--sequential` on an idle machine, `extra` for both.
 fn same_as_sequential_under_load(seq: &Path, extra: &[&str]) -> serde_json::Value {
-    let dir = seq.parent().unwrap();
+    same_as_sequential_under_load_in(seq, seq.parent().unwrap(), extra)
+}
+
+/// [`same_as_sequential_under_load`], the trajectories written to `dir`.
+fn same_as_sequential_under_load_in(seq: &Path, dir: &Path, extra: &[&str]) -> serde_json::Value {
     let mut sequential = vec!["--sequential"];
     sequential.extend_from_slice(extra);
     let (expected, _) = run(seq, &dir.join("sequential.txt"), &sequential);
@@ -90,6 +94,31 @@ fn a_monocular_file_run_on_a_busy_machine_is_the_sequential_run() {
     let summary = same_as_sequential_under_load(&seq, &["--detector", "none"]);
     assert_eq!(summary["sensor"], "mono", "{summary}");
     assert!(summary["tracked"].as_u64().unwrap() >= 30, "{summary}");
+}
+
+/// Real hand-held video with people (SAM 2's bedroom frames, monocular) and YOLOX: the reader
+/// hands each frame on the detector's schedule to the detector as it decodes it, ahead of
+/// tracking, and the boxes wait for their frame's turn; `--sequential` reads each frame only
+/// when its turn comes. The map starts on frames that wait for their own boxes, among them.
+#[test]
+#[ignore = "needs ../shared/data"]
+fn a_monocular_recording_with_yolox_on_a_busy_machine_is_the_sequential_run() {
+    let seq = shared().join("data/video/sam2_bedroom/rgb");
+    let model = shared().join("models/yolox_nano_480x640.onnx");
+    assert!(model.is_file(), "needs the YOLOX model {}", model.display());
+    let tmp = tempfile::tempdir().unwrap();
+    let summary = same_as_sequential_under_load_in(
+        &seq,
+        tmp.path(),
+        &["--frames", "45", "--model", path_str(&model)],
+    );
+    assert_eq!(summary["sensor"], "mono", "{summary}");
+    assert!(summary["tracked"].as_u64().unwrap() >= 40, "{summary}");
+    // People are boxed: the front-end culls their keypoints.
+    assert!(
+        summary["culled_per_frame"]["mean"].as_f64().unwrap() > 0.0,
+        "{summary}"
+    );
 }
 
 #[test]

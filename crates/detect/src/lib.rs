@@ -33,7 +33,7 @@ pub use detector::{YoloxDetector, open_detector};
 pub use error::DetectError;
 pub use gt::{GtDetector, GtDetectorParams, NoDetector};
 pub use settings::{Backend, DetectSettings};
-pub use thread::{DetectOutput, DetectorThread};
+pub use thread::{DetectOutput, DetectorThread, JobQueue};
 
 // The detection type and the classes live in `stillpoint-detection` (no inference backend), so
 // that the box judgement builds without one; these paths stay for users of this crate.

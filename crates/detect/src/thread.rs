@@ -3,9 +3,9 @@
 //! the caller blocks on `recv` (no polling); dropping the handle stops and joins the thread.
 
 use crate::{DetectError, DetectInput, Detection, Detector};
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::Duration;
 use stillpoint_image::Rgb8;
@@ -30,7 +30,7 @@ struct Job {
 /// assert!(boxes.unwrap().is_empty());
 /// ```
 pub struct DetectorThread {
-    jobs: Option<Sender<Job>>,
+    jobs: JobQueue,
     results: Receiver<DetectOutput>,
     stop: Arc<AtomicBool>,
     handle: Option<JoinHandle<()>>,
@@ -92,7 +92,7 @@ impl DetectorThread {
             }
         };
         Ok(Self {
-            jobs: Some(job_tx),
+            jobs: JobQueue(Arc::new(Mutex::new(Some(job_tx)))),
             results: out_rx,
             stop,
             handle: Some(handle),
@@ -107,16 +107,14 @@ impl DetectorThread {
         timestamp: f64,
         rgb: impl Into<Arc<Rgb8>>,
     ) -> Result<(), DetectError> {
-        let job = Job {
-            index,
-            timestamp,
-            rgb: rgb.into(),
-        };
-        self.jobs
-            .as_ref()
-            .ok_or_else(|| DetectError::ThreadStopped("shut down".into()))?
-            .send(job)
-            .map_err(|_| DetectError::ThreadStopped("the detector thread has exited".into()))
+        self.jobs.send(index, timestamp, rgb.into())
+    }
+
+    /// A handle that queues frames from another thread (a recording's reader, frames ahead of
+    /// the caller); their boxes come back through [`Self::recv`] among the caller's. It queues
+    /// nothing once this handle is dropped.
+    pub fn queue(&self) -> JobQueue {
+        self.jobs.clone()
     }
 
     /// Wait for the next result (in the order frames were sent).
@@ -148,11 +146,44 @@ impl DetectorThread {
     }
 }
 
+/// Frames into a [`DetectorThread`], from any thread ([`DetectorThread::queue`]).
+#[derive(Clone)]
+pub struct JobQueue(Arc<Mutex<Option<Sender<Job>>>>);
+
+impl JobQueue {
+    /// Queue a frame; an error once the detector thread is stopped.
+    pub fn send(&self, index: usize, timestamp: f64, rgb: Arc<Rgb8>) -> Result<(), DetectError> {
+        let job = Job {
+            index,
+            timestamp,
+            rgb,
+        };
+        self.0
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .as_ref()
+            .ok_or_else(|| DetectError::ThreadStopped("shut down".into()))?
+            .send(job)
+            .map_err(|_| DetectError::ThreadStopped("the detector thread has exited".into()))
+    }
+
+    /// Close the queue for every handle: the thread ends after its frame in progress.
+    fn close(&self) {
+        self.0.lock().unwrap_or_else(PoisonError::into_inner).take();
+    }
+}
+
+impl std::fmt::Debug for JobQueue {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("JobQueue")
+    }
+}
+
 impl Drop for DetectorThread {
     /// Skip queued frames, close the queue and wait for the frame in progress to finish.
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Relaxed);
-        self.jobs.take();
+        self.jobs.close();
         if let Some(handle) = self.handle.take()
             && handle.join().is_err()
         {

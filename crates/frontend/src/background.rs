@@ -1,6 +1,11 @@
 //! The detector on its own thread, and the boxes it finished carried to the current frame.
 
-use stillpoint_detect::{DetectError, Detection, Detector, DetectorThread};
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+
+use stillpoint_detect::{DetectError, Detection, Detector, DetectorThread, JobQueue};
+use stillpoint_image::{Gray8, Rgb8};
 
 use crate::{FrameInput, FrontEndSettings};
 
@@ -42,6 +47,53 @@ pub(crate) struct BackgroundDetector {
     /// Corner tracks into each recent frame (frame index, tracks), to carry boxes detected on
     /// an earlier frame.
     tracks: std::collections::VecDeque<(usize, Vec<stillpoint_dynamic::TrackedPoint>)>,
+    /// [`FrontEndSettings::background_detect_ahead`].
+    ahead: bool,
+    /// On a schedule: frames already queued with the thread, by [`DetectionPrefetch`] (a
+    /// recording's reader, frames ahead) or by this; shared with the prefetch.
+    queued: Arc<Mutex<BTreeSet<usize>>>,
+    /// Frames ask for their own boxes (a monocular map starting): the prefetch holds back,
+    /// since each of those frames would wait behind the scheduled frames queued ahead.
+    asking_own: Arc<AtomicBool>,
+    /// On a schedule: the frame whose boxes the next wait takes.
+    in_flight: Option<usize>,
+    /// On a schedule: boxes the thread returned before their frame's turn, by frame.
+    early: BTreeMap<usize, Result<Vec<Detection>, DetectError>>,
+}
+
+/// The scheduled frames of a recording handed to the detector's thread as soon as they are
+/// decoded, ahead of tracking ([`crate::DynamicFrontEnd::detection_prefetch`]): the detector
+/// then works while the frames before are tracked and mapped, and each frame's boxes are
+/// waiting when its turn comes. A frame's boxes depend on nothing but the frame, and they are
+/// taken at the same frame as without it, so the run is the same, only sooner.
+#[derive(Clone, Debug)]
+pub struct DetectionPrefetch {
+    queue: JobQueue,
+    queued: Arc<Mutex<BTreeSet<usize>>>,
+    asking_own: Arc<AtomicBool>,
+    every: usize,
+}
+
+impl DetectionPrefetch {
+    /// Queue frame `index` with the detector when it is on the schedule and not queued yet:
+    /// the same image the front-end would hand it (`rgb`, else `gray` as colour).
+    pub fn offer(&self, index: usize, timestamp: f64, gray: &Gray8, rgb: Option<&Rgb8>) {
+        if !index.is_multiple_of(self.every) || self.asking_own.load(Ordering::Relaxed) {
+            return;
+        }
+        let mut queued = self.queued.lock().unwrap_or_else(PoisonError::into_inner);
+        if queued.contains(&index) {
+            return;
+        }
+        let rgb = match rgb {
+            Some(rgb) => rgb.clone(),
+            None => stillpoint_image::gray_to_rgb(gray),
+        };
+        // A stopped detector: the front-end hears of it when it hands over a frame.
+        if self.queue.send(index, timestamp, Arc::new(rgb)).is_ok() {
+            queued.insert(index);
+        }
+    }
 }
 
 /// Boxes detected on frame `detected`, moved to frame `at`.
@@ -102,7 +154,38 @@ impl BackgroundDetector {
             own: None,
             latest: None,
             tracks: std::collections::VecDeque::new(),
+            ahead: settings.background_detect_ahead,
+            queued: Arc::default(),
+            asking_own: Arc::default(),
+            in_flight: None,
+            early: BTreeMap::new(),
         })
+    }
+
+    /// On a schedule of frames (and `background_detect_ahead`), a handle that queues scheduled
+    /// frames ahead of tracking.
+    pub(crate) fn prefetch(&self) -> Option<DetectionPrefetch> {
+        let (every, _) = self.schedule.filter(|_| self.ahead)?;
+        Some(DetectionPrefetch {
+            queue: self.thread.queue(),
+            queued: Arc::clone(&self.queued),
+            asking_own: Arc::clone(&self.asking_own),
+            every,
+        })
+    }
+
+    /// On a schedule, at frame `index`: forget what was queued or returned for frames before
+    /// it (none of them is handed over again), but the frame whose boxes are awaited.
+    fn forget_before(&mut self, index: usize) {
+        if self.schedule.is_none() {
+            return;
+        }
+        let keep = self.in_flight;
+        self.early.retain(|&i, _| i >= index || Some(i) == keep);
+        self.queued
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .retain(|&i| i >= index || Some(i) == keep);
     }
 
     /// On a schedule of frames: hand the thread `frame` now, after taking the detection it
@@ -113,6 +196,7 @@ impl BackgroundDetector {
         if self.schedule.is_none() {
             return;
         }
+        self.forget_before(frame.index);
         if self.busy {
             self.pending = None;
             self.wait_for_detection(frame.index);
@@ -129,6 +213,8 @@ impl BackgroundDetector {
     /// hand it this frame after the check, the thread as idle: nothing takes or sends between),
     /// only sooner, and the frame that takes them waits less.
     pub(crate) fn send_if_due(&mut self, frame: &FrameInput) {
+        self.forget_before(frame.index);
+        self.asking_own.store(frame.own_boxes, Ordering::Relaxed);
         if self.schedule.is_some() && !self.busy && self.due(frame) {
             self.send(frame);
             if self.busy {
@@ -155,6 +241,7 @@ impl BackgroundDetector {
         frame: &FrameInput,
         tracks: &[stillpoint_dynamic::TrackedPoint],
     ) -> Vec<Detection> {
+        self.forget_before(frame.index);
         self.tracks.push_back((frame.index, tracks.to_vec()));
         while self.tracks.len() > MAX_DETECTION_AGE + 1 {
             self.tracks.pop_front();
@@ -243,6 +330,25 @@ impl BackgroundDetector {
     /// As [`BackgroundDetector::wait_for_detection`], but for at most `limit` (`None`: as long
     /// as it takes); nothing is taken when the detection does not come in time.
     fn wait_for_detection_at_most(&mut self, waiting: usize, limit: Option<std::time::Duration>) {
+        if let Some(want) = self.in_flight.take() {
+            // On a schedule (never a limit): the thread may return frames queued ahead first.
+            loop {
+                if let Some(result) = self.early.remove(&want) {
+                    self.take((want, result));
+                    return;
+                }
+                match self.thread.recv() {
+                    Ok((index, result)) => {
+                        self.early.insert(index, result);
+                    }
+                    Err(e) => {
+                        self.busy = false;
+                        tracing::warn!("frame {waiting}: detector failed: {e}");
+                        return;
+                    }
+                }
+            }
+        }
         let done = match limit {
             None => self.thread.recv().map(Some),
             Some(limit) => self.thread.recv_timeout(limit),
@@ -272,16 +378,38 @@ impl BackgroundDetector {
     }
 
     fn send(&mut self, frame: &FrameInput) {
+        let handed = if self.schedule.is_some() {
+            // The thread may have the frame already (queued ahead): then its boxes come
+            // back, or have come, among the others.
+            let queued = Arc::clone(&self.queued);
+            let mut queued = queued.lock().unwrap_or_else(PoisonError::into_inner);
+            let handed = queued.contains(&frame.index) || self.hand_over(frame);
+            if handed {
+                queued.insert(frame.index);
+                self.in_flight = Some(frame.index);
+            }
+            handed
+        } else {
+            self.hand_over(frame)
+        };
+        if handed {
+            self.busy = true;
+            self.last_sent = Some(frame.timestamp);
+        }
+    }
+
+    /// Queue `frame` with the thread; false (and a warning) when it cannot take it.
+    fn hand_over(&self, frame: &FrameInput) -> bool {
         let rgb = match frame.rgb {
             Some(rgb) => rgb.clone(),
             None => stillpoint_image::gray_to_rgb(frame.gray),
         };
         match self.thread.send(frame.index, frame.timestamp, rgb) {
-            Ok(()) => {
-                self.busy = true;
-                self.last_sent = Some(frame.timestamp);
+            Ok(()) => true,
+            Err(e) => {
+                tracing::warn!("frame {}: {e}", frame.index);
+                false
             }
-            Err(e) => tracing::warn!("frame {}: {e}", frame.index),
         }
     }
 

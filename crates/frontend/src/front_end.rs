@@ -292,4 +292,9 @@ impl FrontEnd for DynamicFrontEnd {
         }
         out
     }
+
+    /// On a schedule of frames (a recording), the background detector's prefetch.
+    fn detection_prefetch(&self) -> Option<crate::DetectionPrefetch> {
+        self.background.as_ref()?.prefetch()
+    }
 }

@@ -21,6 +21,11 @@ pub trait FrontEnd: Send {
     /// A frame's second call, with the keypoints (level-0 pixels) ORB found on it: the
     /// judgement. Works without [`FrontEnd::measure`] too.
     fn judge(&mut self, frame: &FrameInput, keypoints: &[[f32; 2]]) -> Judgement;
+    /// A handle that hands a recording's frames to the detector as soon as they are decoded,
+    /// ahead of these calls (`None`: the front-end has no use for them).
+    fn detection_prefetch(&self) -> Option<crate::DetectionPrefetch> {
+        None
+    }
 }
 
 /// One frame as the front-end gets it: its images and what tracking made of the frame before.

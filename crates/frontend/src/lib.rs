@@ -48,6 +48,7 @@ mod settings;
 #[cfg(test)]
 mod tests;
 
+pub use background::DetectionPrefetch;
 pub use front_end::DynamicFrontEnd;
 pub use interface::{EraseRecent, FrameInput, FrontEnd, Judgement, PreviousPose, SceneObjects};
 pub use regions::{ObjectRegion, Regions};

@@ -167,6 +167,17 @@ pub struct FrontEndSettings {
     /// five seeds 6.6 -> 5.6 cm mean Sim(3) ATE, the rooms 3.06 -> 2.95) for a run ~20 %
     /// slower; RGB-D did not gain (docs/monocular.md).
     pub background_detect_lag_frames_monocular: usize,
+    /// Ours, on a recording's schedule of frames: the reader hands each scheduled frame to the
+    /// detector as it decodes it, up to `read.ahead_frames` before tracking gets there, so the
+    /// detector works while the frames before are tracked and mapped; the boxes are taken at
+    /// the same frames, so the trajectory is the same. Off on RGB-D and stereo: with boxes
+    /// taken two frames later the frames rarely wait, and on two cores the detector and
+    /// tracking already fill them (no gain on living_cross, 3 MB more at the peak).
+    pub background_detect_ahead: bool,
+    /// ... the same on a monocular recording, in place of `background_detect_ahead`: boxes
+    /// taken one frame later and a keyframe mapped every second frame leave frames waiting
+    /// for them (living_cross monocular with YOLOX on tract: 25.1 -> 22.5 s, docs/realtime.md).
+    pub background_detect_ahead_monocular: bool,
 }
 
 impl Default for FrontEndSettings {
@@ -202,6 +213,8 @@ impl Default for FrontEndSettings {
             background_detect_every_frames: 3,
             background_detect_lag_frames: 2,
             background_detect_lag_frames_monocular: 1,
+            background_detect_ahead: false,
+            background_detect_ahead_monocular: true,
         }
     }
 }

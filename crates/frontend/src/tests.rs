@@ -245,6 +245,7 @@ fn on_a_schedule(detector: impl Detector + 'static) -> DynamicFrontEnd {
         detector_in_background: true,
         background_detect_every_frames: 3,
         background_detect_lag_frames: 2,
+        background_detect_ahead: true,
         ..Default::default()
     };
     DynamicFrontEnd::new(Box::new(detector), settings)
@@ -327,6 +328,61 @@ fn a_frame_that_needs_its_own_boxes_waits_for_them_on_a_schedule() {
         .chain((18..30).step_by(3))
         .collect();
     assert_eq!(seen, expected);
+}
+
+/// A recording's reader offers each frame to the detector as it decodes it, ahead of the
+/// front-end: every frame gets the boxes it gets without the offers, frames that ask for their
+/// own included, however far ahead the offers come.
+#[test]
+fn frames_offered_ahead_get_the_boxes_they_get_without() {
+    use std::sync::{Arc, Mutex};
+    let run = |ahead: Option<usize>| {
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let mut front = on_a_schedule(MarkedChair(Arc::clone(&seen), |input, _| input.index));
+        let prefetch = front.detection_prefetch();
+        assert!(prefetch.is_some());
+        let gray = Gray8::new(96, 64, 0);
+        let own = 10..17;
+        let mut boxes = Vec::new();
+        for i in 0..40 {
+            if let (Some(p), Some(ahead)) = (&prefetch, ahead) {
+                for j in i..=i + ahead {
+                    p.offer(j, j as f64 / 30.0, &gray, None);
+                }
+            }
+            let judged = front.judge(&plain_frame(i, &gray, own.contains(&i)), &[]);
+            boxes.push(judged.objects.tracked.first().map(|o| o.bbox.x1));
+        }
+        drop(front);
+        let seen = seen.lock().unwrap().clone();
+        (boxes, seen)
+    };
+    let (without, seen_without) = run(None);
+    assert!(without.iter().all(Option::is_some), "{without:?}");
+    for ahead in [0, 1, 2, 5] {
+        let (with, seen_with) = run(Some(ahead));
+        assert_eq!(with, without, "offered {ahead} ahead");
+        // Each frame detected once; the scheduled ones the front-end skipped (12, 15: frames
+        // asking for their own held the detector) are detected too, ahead.
+        let mut once = seen_with.clone();
+        once.sort_unstable();
+        once.dedup();
+        assert_eq!(
+            once.len(),
+            seen_with.len(),
+            "offered {ahead} ahead: {seen_with:?}"
+        );
+        // (What was handed over for frames after the last one taken may be skipped when the
+        // front-end is dropped.)
+        let taken = |f: &&usize| **f + 2 < 40;
+        assert!(
+            seen_without
+                .iter()
+                .filter(taken)
+                .all(|f| seen_with.contains(f)),
+            "offered {ahead} ahead: {seen_with:?} against {seen_without:?}"
+        );
+    }
 }
 
 /// Ages (in frames) of the boxes each of 30 live frames at 60 Hz gets from a background

@@ -71,6 +71,22 @@ pub enum PipelineError {
     Trajectory(#[from] TrajectoryError),
 }
 
+/// Frames offered ahead of [`Pipeline::track`] ([`Pipeline::frame_prefetch`]), from any thread.
+#[derive(Clone, Debug)]
+pub struct FramePrefetch(stillpoint_frontend::DetectionPrefetch);
+
+impl FramePrefetch {
+    /// `frame`, decoded and not tracked yet.
+    pub fn offer(&self, frame: &Frame) {
+        self.0.offer(
+            frame.index,
+            frame.timestamp,
+            &frame.gray,
+            frame.rgb.as_ref(),
+        );
+    }
+}
+
 /// Everything the pipeline needs besides a front-end and a vocabulary.
 #[derive(Clone, Debug)]
 pub struct PipelineSettings {
@@ -360,6 +376,17 @@ impl Pipeline {
     /// The SLAM system (map, keyframe count, state) while the pipeline runs.
     pub fn system(&self) -> &System {
         &self.system
+    }
+
+    /// A handle for a recording's reader: each frame it decodes, offered before the frame's
+    /// turn, lets the detector start on it while the frames before are tracked (the same
+    /// boxes at the same frames: the run's result does not change). `None` without a detector
+    /// on a schedule of frames.
+    pub fn frame_prefetch(&self) -> Option<FramePrefetch> {
+        self.front_end
+            .as_ref()?
+            .detection_prefetch()
+            .map(FramePrefetch)
     }
 
     /// Track one frame: features, the front-end's judgement, depth, pose.

@@ -8,6 +8,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant;
 
 use stillpoint_datasets::{DatasetError, Frame, GroundTruthFormat, Sequence, Settings};
+use stillpoint_pipeline::FramePrefetch;
 
 use crate::replay::Arrival;
 
@@ -72,6 +73,7 @@ impl ReadAhead {
         seq: Box<dyn Sequence>,
         n: usize,
         ahead: usize,
+        prefetch: Option<FramePrefetch>,
     ) -> (Option<Self>, Box<dyn Sequence>) {
         if ahead == 0 {
             return (None, seq);
@@ -98,6 +100,9 @@ impl ReadAhead {
                         .lock()
                         .unwrap_or_else(PoisonError::into_inner)
                         .frame(i);
+                    if let (Some(p), Ok(frame)) = (&prefetch, &frame) {
+                        p.offer(frame);
+                    }
                     let ended = matches!(frame, Err(DatasetError::Ended { .. }));
                     // A closed channel: the run stopped early.
                     if tx.send((i, frame)).is_err() || ended {
@@ -137,7 +142,7 @@ mod tests {
     fn frames_come_in_order_each_read_once_and_never_more_than_ahead_of_the_run() {
         for ahead in [1, 2, 3] {
             let (seq, reads) = tiny(20);
-            let (reader, seq) = ReadAhead::start(seq, 20, ahead);
+            let (reader, seq) = ReadAhead::start(seq, 20, ahead, None);
             let mut reader = reader.expect("a reader thread");
             for taken in 1..=20 {
                 let (i, frame, _) = reader.next().expect("a frame");
@@ -163,7 +168,7 @@ mod tests {
     #[test]
     fn no_reader_when_nothing_is_to_be_read_ahead() {
         let (seq, reads) = tiny(5);
-        let (reader, seq) = ReadAhead::start(seq, 5, 0);
+        let (reader, seq) = ReadAhead::start(seq, 5, 0, None);
         assert!(reader.is_none());
         assert_eq!(reads.load(Ordering::SeqCst), 0);
         assert_eq!(seq.frame(2).unwrap().index, 2);
@@ -172,7 +177,7 @@ mod tests {
     #[test]
     fn the_reader_stops_at_the_end_of_the_source() {
         let (seq, reads) = tiny_ending(20, 5);
-        let (reader, _seq) = ReadAhead::start(seq, 20, 2);
+        let (reader, _seq) = ReadAhead::start(seq, 20, 2, None);
         let mut reader = reader.expect("a reader thread");
         for i in 0..5 {
             assert!(reader.next().unwrap().1.is_ok(), "frame {i}");

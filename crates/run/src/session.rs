@@ -175,8 +175,6 @@ pub fn run_source(
     } else {
         tree.read.ahead_frames
     };
-    let (reader, seq) = ReadAhead::start(seq, n, ahead);
-    let mut feed = Feed::start(o, seq.as_ref(), n, &tree, reader)?;
     let mut map_files = MapFilesReport::default();
     let mut pipeline = match loaded {
         Some((path, file, report)) => {
@@ -191,6 +189,9 @@ pub fn run_source(
         }
         None => Pipeline::new(settings, front, vocabulary),
     };
+    // The reader hands each scheduled frame to the detector as it decodes it.
+    let (reader, seq) = ReadAhead::start(seq, n, ahead, pipeline.frame_prefetch());
+    let mut feed = Feed::start(o, seq.as_ref(), n, &tree, reader)?;
     let mut tally = Tally::new(n, feed.is_replay());
     let mut ended = None;
     let mut asked = Instant::now();
@@ -416,6 +417,7 @@ fn open_front_end(
         && (!monocular || settings.detect_monocular_recordings_on_schedule);
     if monocular {
         settings.background_detect_lag_frames = settings.background_detect_lag_frames_monocular;
+        settings.background_detect_ahead = settings.background_detect_ahead_monocular;
     }
     let in_background = settings.detector_in_background || o.realtime || on_schedule;
     let front = DynamicFrontEnd::new(detector, settings);
