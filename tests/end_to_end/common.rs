@@ -46,6 +46,13 @@ pub fn shared() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
 }
 
+/// The shared YOLOX-nano 480x640 model, for a test that cannot do without it.
+pub fn shared_yolox() -> PathBuf {
+    let model = shared().join("models/yolox_nano_480x640.onnx");
+    assert!(model.is_file(), "needs the YOLOX model {}", model.display());
+    model
+}
+
 /// `stillpoint synth --preset static --frames N --seed S --out DIR`; must succeed.
 pub fn synth_static(dir: &Path, frames: usize, seed: u64) {
     let st = stillpoint()

@@ -7,7 +7,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use crate::common::{assert_ok, path_str, shared, stillpoint, synth_walking};
+use crate::common::{assert_ok, path_str, shared, shared_yolox, stillpoint, synth_walking};
 use crate::slam_mono::synth_mono;
 
 /// Threads that spin until dropped: one per core, so the run under test shares them.
@@ -104,8 +104,7 @@ fn a_monocular_file_run_on_a_busy_machine_is_the_sequential_run() {
 #[ignore = "needs ../shared/data"]
 fn a_monocular_recording_with_yolox_on_a_busy_machine_is_the_sequential_run() {
     let seq = shared().join("data/video/sam2_bedroom/rgb");
-    let model = shared().join("models/yolox_nano_480x640.onnx");
-    assert!(model.is_file(), "needs the YOLOX model {}", model.display());
+    let model = shared_yolox();
     let tmp = tempfile::tempdir().unwrap();
     let summary = same_as_sequential_under_load_in(
         &seq,

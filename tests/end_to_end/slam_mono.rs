@@ -105,7 +105,7 @@ fn monocular_static_sequence_initialises_tracks_and_matches_the_truth_up_to_scal
     assert!(rmse < 0.012, "ATE {rmse} m");
 }
 
-use crate::common::{ok_json, path_str, shared, stillpoint};
+use crate::common::{ok_json, path_str, shared, shared_yolox, stillpoint};
 
 /// `stillpoint synth --preset static --frames N` into `dir`, then depth.txt removed: a TUM folder
 /// that reads as monocular.
@@ -307,8 +307,7 @@ fn kitti_01_first_51_left_frames_track_monocular() {
 #[ignore = "needs ../shared/data"]
 fn walkers_sweeping_over_the_first_view_do_not_stop_a_monocular_map_from_starting() {
     let seq = shared().join("data/tum/fr3_walking_halfsphere_first10_rgb");
-    let model = shared().join("models/yolox_nano_480x640.onnx");
-    assert!(model.is_file(), "needs the YOLOX model {}", model.display());
+    let model = shared_yolox();
     let tmp = tempfile::tempdir().unwrap();
     let traj = tmp.path().join("traj.txt");
     let summary = ok_json(
