@@ -68,7 +68,8 @@ impl ReadAhead {
     /// Start reading `seq`'s first `n` frames on a thread; the sequence comes back shared with
     /// that thread, for everything else the run asks of it. `None` when `ahead` is 0 (the
     /// sequence as it was) or the thread cannot be started (the sequence shared, with no one):
-    /// the run then reads inline.
+    /// the run then reads inline. Each frame decoded is offered to `prefetch` (the detector's
+    /// schedule) before it is handed over.
     pub(crate) fn start(
         seq: Box<dyn Sequence>,
         n: usize,
