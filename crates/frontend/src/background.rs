@@ -62,7 +62,7 @@ pub(crate) struct BackgroundDetector {
 }
 
 /// The scheduled frames of a recording handed to the detector's thread as soon as they are
-/// decoded, ahead of tracking ([`crate::DynamicFrontEnd::detection_prefetch`]): the detector
+/// decoded, ahead of tracking ([`crate::FrontEnd::detection_prefetch`]): the detector
 /// then works while the frames before are tracked and mapped, and each frame's boxes are
 /// waiting when its turn comes. A frame's boxes depend on nothing but the frame, and they are
 /// taken at the same frame as without it, so the run is the same, only sooner.
