@@ -85,14 +85,20 @@ impl DetectionPrefetch {
         if queued.contains(&index) {
             return;
         }
-        let rgb = match rgb {
-            Some(rgb) => rgb.clone(),
-            None => stillpoint_image::gray_to_rgb(gray),
-        };
+        let rgb = detector_image(gray, rgb);
         // A stopped detector: the front-end hears of it when it hands over a frame.
         if self.queue.send(index, timestamp, Arc::new(rgb)).is_ok() {
             queued.insert(index);
         }
+    }
+}
+
+/// What the detector looks at: the colour image, else the gray one as colour. One place for
+/// the front-end and the prefetch, which must hand it the same image.
+fn detector_image(gray: &Gray8, rgb: Option<&Rgb8>) -> Rgb8 {
+    match rgb {
+        Some(rgb) => rgb.clone(),
+        None => stillpoint_image::gray_to_rgb(gray),
     }
 }
 
@@ -174,8 +180,9 @@ impl BackgroundDetector {
         })
     }
 
-    /// On a schedule, at frame `index`: forget what was queued or returned for frames before
-    /// it (none of them is handed over again), but the frame whose boxes are awaited.
+    /// On a schedule, at frame `index` (once a frame, from `boxes_for`): forget what was queued
+    /// or returned for frames before it (none of them is handed over again), but the frame
+    /// whose boxes are awaited.
     fn forget_before(&mut self, index: usize) {
         if self.schedule.is_none() {
             return;
@@ -196,7 +203,6 @@ impl BackgroundDetector {
         if self.schedule.is_none() {
             return;
         }
-        self.forget_before(frame.index);
         if self.busy {
             self.pending = None;
             self.wait_for_detection(frame.index);
@@ -213,7 +219,6 @@ impl BackgroundDetector {
     /// hand it this frame after the check, the thread as idle: nothing takes or sends between),
     /// only sooner, and the frame that takes them waits less.
     pub(crate) fn send_if_due(&mut self, frame: &FrameInput) {
-        self.forget_before(frame.index);
         self.asking_own.store(frame.own_boxes, Ordering::Relaxed);
         if self.schedule.is_some() && !self.busy && self.due(frame) {
             self.send(frame);
@@ -400,10 +405,7 @@ impl BackgroundDetector {
 
     /// Queue `frame` with the thread; false (and a warning) when it cannot take it.
     fn hand_over(&self, frame: &FrameInput) -> bool {
-        let rgb = match frame.rgb {
-            Some(rgb) => rgb.clone(),
-            None => stillpoint_image::gray_to_rgb(frame.gray),
-        };
+        let rgb = detector_image(frame.gray, frame.rgb);
         match self.thread.send(frame.index, frame.timestamp, rgb) {
             Ok(()) => true,
             Err(e) => {
