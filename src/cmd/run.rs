@@ -286,6 +286,8 @@ pub fn summary_json(scored: &ScoredRun) -> serde_json::Value {
         "timing": timing,
         "wall_s": s.wall_s,
         "frames_per_second": (s.wall_s > 0.0).then(|| s.frames as f64 / s.wall_s),
+        // The whole process's peak: for `run` (one run a process) the run's own.
+        "peak_memory_mib": stillpoint_core::memory_mib().1,
         "moving_keypoints_kept_per_frame": scored.moving_kept_stats().map(|(m, med, p90)| {
             serde_json::json!({"mean": m, "median": med, "p90": p90})
         }),
@@ -344,8 +346,11 @@ pub fn print_summary(scored: &ScoredRun) {
         s.detector
     );
     if s.wall_s > 0.0 {
+        let peak = stillpoint_core::memory_mib()
+            .1
+            .map_or(String::new(), |m| format!(", peak memory {m:.0} MiB"));
         println!(
-            "{} frames in {:.1} s ({:.1} frames a second)",
+            "{} frames in {:.1} s ({:.1} frames a second{peak})",
             s.frames,
             s.wall_s,
             s.frames as f64 / s.wall_s

@@ -133,6 +133,12 @@ fn an_rgbd_file_run_with_the_front_end_on_a_busy_machine_is_the_sequential_run()
     let per_second = summary["frames_per_second"].as_f64().unwrap();
     assert!(wall_s > 0.0, "{summary}");
     assert!((per_second * wall_s - 90.0).abs() < 1e-6, "{summary}");
+    // And what it took of memory (Linux: the process's peak resident size).
+    #[cfg(target_os = "linux")]
+    assert!(
+        summary["peak_memory_mib"].as_f64().unwrap() > 1.0,
+        "{summary}"
+    );
     // The mapping thread is still there for whoever asks for it (a camera, `--realtime`).
     let (_, threaded) = run(
         &seq,

@@ -76,20 +76,7 @@ impl SoakReport {
     }
 }
 
-/// Resident and peak resident memory of this process in MiB, from `/proc/self/status`.
-pub fn memory_mib() -> (Option<f64>, Option<f64>) {
-    let Ok(status) = std::fs::read_to_string("/proc/self/status") else {
-        return (None, None);
-    };
-    let field = |name: &str| {
-        status
-            .lines()
-            .find_map(|l| l.strip_prefix(name))
-            .and_then(|v| v.split_whitespace().next()?.parse::<f64>().ok())
-            .map(|kib| kib / 1024.0)
-    };
-    (field("VmRSS:"), field("VmHWM:"))
-}
+pub use stillpoint_core::memory_mib;
 
 /// Run the soak; `progress(sample)` after each sample.
 pub fn run_soak(

@@ -1,7 +1,8 @@
 //! stillpoint-core: what every layer of stillpoint shares, one definition each: a frame as
 //! the system receives it ([`Frame`]), what a sequence's images are ([`Sensor`], [`Settings`]:
 //! the camera, frame rate, depth factor and the ORB extractor's sizes, [`OrbParams`]), summary
-//! statistics of per-frame numbers ([`stats`]), a stage's time ([`ms_since`]), a background
+//! statistics of per-frame numbers ([`stats`]), a stage's time ([`ms_since`]), the process's
+//! memory ([`memory_mib`]), a background
 //! thread's priority ([`lower_this_thread_priority`]) and the program's allocator (`alloc`,
 //! Linux). Readers (`stillpoint-datasets`) sit above
 //! it; the system (`stillpoint-pipeline`) takes its frames and settings from here.
@@ -20,6 +21,22 @@ pub use orb::OrbParams;
 pub use sensor::{Sensor, Settings};
 
 use std::time::Instant;
+
+/// Resident and peak resident memory of this process in MiB (`VmRSS`, `VmHWM` of
+/// `/proc/self/status`; `None` where there is none): what a run reports as its memory.
+pub fn memory_mib() -> (Option<f64>, Option<f64>) {
+    let Ok(status) = std::fs::read_to_string("/proc/self/status") else {
+        return (None, None);
+    };
+    let field = |name: &str| {
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix(name))
+            .and_then(|v| v.split_whitespace().next()?.parse::<f64>().ok())
+            .map(|kib| kib / 1024.0)
+    };
+    (field("VmRSS:"), field("VmHWM:"))
+}
 
 /// Milliseconds since `t`: how long a stage took.
 pub fn ms_since(t: Instant) -> f64 {
