@@ -168,3 +168,43 @@ fn a_stereo_file_run_with_the_front_end_on_a_busy_machine_is_the_sequential_run(
     assert_eq!(summary["sensor"], "stereo", "{summary}");
     assert_eq!(summary["tracked"], 60, "{summary}");
 }
+
+#[test]
+fn bench_recording_runs_the_program_idle_and_loaded_and_finds_one_trajectory() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("walking");
+    synth_walking(&seq, 40, &[]);
+    let out = stillpoint()
+        .args(["bench", "recording", "--dataset", path_str(&seq)])
+        .args([
+            "--detector",
+            "gt",
+            "--rounds",
+            "1",
+            "--busy",
+            "--json",
+            "--out",
+        ])
+        .arg(tmp.path().join("runs"))
+        .output()
+        .unwrap();
+    assert_ok(&out);
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let runs = report["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2, "{report}");
+    assert_eq!(runs[0]["busy"], false, "{report}");
+    assert_eq!(runs[1]["busy"], true, "{report}");
+    for r in runs {
+        assert_eq!(r["tracked"], 40, "{report}");
+        assert_eq!(r["same_trajectory"], true, "{report}");
+        // The generator's frames are 30 a second apart.
+        assert!(
+            (r["footage_fps"].as_f64().unwrap() - 30.0).abs() < 0.1,
+            "{report}"
+        );
+        #[cfg(target_os = "linux")]
+        assert!(r["peak_memory_mib"].as_f64().unwrap() > 1.0, "{report}");
+    }
+    // Both trajectories are there to compare by hand.
+    assert!(tmp.path().join("runs/default_busy_0.txt").is_file());
+}

@@ -8,7 +8,9 @@
 //!   ours, two baselines) against the generator's masks;
 //! - [`features`]: the feature front-end's speed against OpenCV, measured in the same run;
 //! - [`detector`]: detector latency per backend, thread count and model;
-//! - [`soak`]: one long lapping run, memory and time per frame along it.
+//! - [`soak`]: one long lapping run, memory and time per frame along it;
+//! - [`recording`]: a recording run as users run it, per backend, idle and loaded: frames a
+//!   second, peak memory, ATE, the same trajectory every run.
 //!
 //! Runs go through `stillpoint-run`, measurements through `stillpoint-eval`.
 //!
@@ -32,6 +34,7 @@ pub mod features;
 pub mod keypoints;
 pub mod matrix;
 pub mod realtime;
+pub mod recording;
 pub mod soak;
 pub mod tum;
 

@@ -6,6 +6,7 @@ pub mod dynamic;
 pub mod features;
 pub mod matrix;
 pub mod realtime;
+pub mod recording;
 pub mod soak;
 pub mod tum;
 
@@ -26,6 +27,10 @@ pub enum BenchCommand {
     /// A sequence replayed as a live camera at a given rate on a given number of CPUs, N
     /// times: frames processed, latency, ATE, map points on movers per run.
     Realtime(realtime::Args),
+    /// A recording run as users run it, per detector backend, idle and with a busy thread
+    /// beside it, N rounds: frames a second, times real time, peak memory, ATE, and the same
+    /// trajectory every run.
+    Recording(recording::Args),
 }
 
 /// The shared data folder: `$STILLPOINT_SHARED`, else `../shared` (the benches' default inputs).
@@ -44,5 +49,6 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Matrix(a) => matrix::run(a),
         BenchCommand::Soak(a) => soak::run(a),
         BenchCommand::Realtime(a) => realtime::run(a),
+        BenchCommand::Recording(a) => recording::run(a),
     }
 }
