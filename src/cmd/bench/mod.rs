@@ -33,6 +33,28 @@ pub enum BenchCommand {
     Recording(recording::Args),
 }
 
+/// The detector flags of the benchmarks that run whole sequences (`realtime`, `recording`), as
+/// `run` spells them.
+#[derive(clap::Args)]
+pub struct DetectorArgs {
+    /// Object detector: yolox, gt or none.
+    #[arg(long, default_value = "yolox")]
+    pub detector: String,
+    /// Turn the dynamic front-end off.
+    #[arg(long)]
+    pub no_dynamic: bool,
+    /// YOLOX ONNX model (else the default search).
+    #[arg(long)]
+    pub model: Option<std::path::PathBuf>,
+}
+
+impl DetectorArgs {
+    /// The detector to run, `None` with the front-end off.
+    pub fn detector(&self) -> Option<String> {
+        (!self.no_dynamic).then(|| self.detector.clone())
+    }
+}
+
 /// The shared data folder: `$STILLPOINT_SHARED`, else `../shared` (the benches' default inputs).
 fn shared_dir() -> std::path::PathBuf {
     std::env::var_os("STILLPOINT_SHARED")

@@ -25,15 +25,8 @@ pub struct Args {
     /// Replays.
     #[arg(long, default_value_t = 3)]
     pub runs: usize,
-    /// Object detector: yolox, gt or none.
-    #[arg(long, default_value = "yolox")]
-    pub detector: String,
-    /// Turn the dynamic front-end off.
-    #[arg(long)]
-    pub no_dynamic: bool,
-    /// YOLOX ONNX model (else the default search).
-    #[arg(long)]
-    pub model: Option<PathBuf>,
+    #[command(flatten)]
+    pub detection: super::DetectorArgs,
     #[command(flatten)]
     pub layers: crate::cmd::run::SettingsArgs,
     /// Print JSON instead of a table.
@@ -57,8 +50,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let o = RealtimeOptions {
         dataset: a.dataset.clone(),
         kind: crate::cmd::run::parse_kind(a.kind.as_deref())?,
-        detector: (!a.no_dynamic).then(|| a.detector.clone()),
-        model: a.model.clone(),
+        detector: a.detection.detector(),
+        model: a.detection.model.clone(),
         rate_hz: a.rate,
         cores: a.cores,
         runs: a.runs,

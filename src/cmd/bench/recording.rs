@@ -27,15 +27,8 @@ pub struct Args {
     /// Also run each backend with a thread of this process busy beside it.
     #[arg(long)]
     pub busy: bool,
-    /// Object detector: yolox, gt or none.
-    #[arg(long, default_value = "yolox")]
-    pub detector: String,
-    /// Turn the dynamic front-end off.
-    #[arg(long)]
-    pub no_dynamic: bool,
-    /// YOLOX ONNX model (else the default search).
-    #[arg(long)]
-    pub model: Option<PathBuf>,
+    #[command(flatten)]
+    pub detection: super::DetectorArgs,
     /// Folder for the runs' trajectories (default: one under the temporary folder, removed
     /// after).
     #[arg(long)]
@@ -74,8 +67,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         program: std::env::current_exe()?,
         dataset: a.dataset.clone(),
         kind: a.kind.clone(),
-        detector: (!a.no_dynamic).then(|| a.detector.clone()),
-        model: a.model.clone(),
+        detector: a.detection.detector(),
+        model: a.detection.model.clone(),
         backends: a.backends.clone(),
         rounds: a.rounds,
         busy: a.busy,
@@ -127,7 +120,7 @@ fn print_table(a: &Args, rows: &[RecordingRow]) {
         "{}: {} runs, detector {}",
         a.dataset.display(),
         rows.len(),
-        if a.no_dynamic { "off" } else { &a.detector }
+        a.detection.detector().unwrap_or_else(|| "off".into())
     );
     println!(
         "{:<8} {:<5} {:>8} {:>8} {:>8} {:>9} {:>8} {:>8} {:>5}",
@@ -147,9 +140,11 @@ fn print_table(a: &Args, rows: &[RecordingRow]) {
             if r.same_trajectory { "yes" } else { "NO" }
         );
     }
+    let backends: std::collections::BTreeSet<&str> =
+        rows.iter().map(|r| r.backend.as_str()).collect();
     if rows.len() > 1 && rows.iter().all(|r| r.same_as_first_backend) {
         println!("every run wrote the same trajectory, byte for byte");
-    } else if rows.iter().all(|r| r.same_trajectory) {
+    } else if backends.len() > 1 && rows.iter().all(|r| r.same_trajectory) {
         println!("each backend wrote the same trajectory every run (the backends' differ)");
     }
 }
