@@ -286,7 +286,8 @@ pub fn summary_json(scored: &ScoredRun) -> serde_json::Value {
         "timing": timing,
         "wall_s": s.wall_s,
         "frames_per_second": (s.wall_s > 0.0).then(|| s.frames as f64 / s.wall_s),
-        // The whole process's peak: for `run` (one run a process) the run's own.
+        // The process's peak so far: for `run` (one run a process) the run's own; `demo`'s two
+        // runs share one process, so both report the larger.
         "peak_memory_mib": stillpoint_core::memory_mib().1,
         "moving_keypoints_kept_per_frame": scored.moving_kept_stats().map(|(m, med, p90)| {
             serde_json::json!({"mean": m, "median": med, "p90": p90})
