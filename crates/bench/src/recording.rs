@@ -132,6 +132,13 @@ fn with_busy_thread<T>(busy: bool, f: impl FnOnce() -> T) -> T {
     if !busy {
         return f();
     }
+    /// Stops the spinning thread however `f` ends (a panic too, or the scope would wait forever).
+    struct StopOnDrop<'a>(&'a AtomicBool);
+    impl Drop for StopOnDrop<'_> {
+        fn drop(&mut self) {
+            self.0.store(true, Ordering::Relaxed);
+        }
+    }
     let stop = AtomicBool::new(false);
     std::thread::scope(|s| {
         s.spawn(|| {
@@ -139,9 +146,8 @@ fn with_busy_thread<T>(busy: bool, f: impl FnOnce() -> T) -> T {
                 std::hint::spin_loop();
             }
         });
-        let out = f();
-        stop.store(true, Ordering::Relaxed);
-        out
+        let _stop = StopOnDrop(&stop);
+        f()
     })
 }
 
