@@ -111,9 +111,14 @@ pub fn run_recording(
                         true
                     }
                 };
-                let first_of_all = first_of_all.get_or_insert_with(|| bytes.clone());
-                let mut row = row_of(&summary, backend.unwrap_or("default"), busy, &bytes, same);
-                row.same_as_first_backend = *first_of_all == bytes;
+                let same_as_first = *first_of_all.get_or_insert_with(|| bytes.clone()) == bytes;
+                let row = row_of(
+                    &summary,
+                    backend.unwrap_or("default"),
+                    busy,
+                    &bytes,
+                    (same, same_as_first),
+                );
                 progress(&row);
                 rows.push(row);
             }
@@ -209,7 +214,7 @@ fn row_of(
     backend: &str,
     busy: bool,
     trajectory: &[u8],
-    same: bool,
+    (same, same_as_first_backend): (bool, bool),
 ) -> RecordingRow {
     let f = |k: &str| s.get(k).and_then(|v| v.as_f64());
     let n = |k: &str| s.get(k).and_then(|v| v.as_u64()).unwrap_or(0) as usize;
@@ -228,7 +233,7 @@ fn row_of(
             .and_then(|v| v.as_f64())
             .map(|m| m * 100.0),
         same_trajectory: same,
-        same_as_first_backend: same,
+        same_as_first_backend,
     }
 }
 
@@ -274,12 +279,12 @@ mod tests {
         let s = serde_json::json!({"frames": 300, "tracked": 299, "wall_s": 5.0,
             "frames_per_second": 60.0, "peak_memory_mib": 95.5, "ate": {"rmse": 0.0045}});
         let traj = b"0.0 0 0 0 0 0 0 1\n0.0333333 0 0 0 0 0 0 1\n0.0666667 0 0 0 0 0 0 1\n";
-        let r = row_of(&s, "tract", true, traj, true);
+        let r = row_of(&s, "tract", true, traj, (true, false));
         assert_eq!((r.frames, r.tracked), (300, 299));
         assert_eq!(r.peak_memory_mib, Some(95.5));
         assert!((r.ate_cm.unwrap() - 0.45).abs() < 1e-9);
         assert!((r.times_real_time().unwrap() - 2.0).abs() < 1e-3);
-        assert!(r.busy && r.same_trajectory);
+        assert!(r.busy && r.same_trajectory && !r.same_as_first_backend);
     }
 
     #[test]

@@ -76,7 +76,7 @@ impl SoakReport {
     }
 }
 
-pub use stillpoint_core::memory_mib;
+use stillpoint_core::memory_mib;
 
 /// Run the soak; `progress(sample)` after each sample.
 pub fn run_soak(
