@@ -184,7 +184,14 @@ impl LocalMapper {
                 .filter(|&i| free_keypoint(k1, i))
                 .collect();
             let prior = (self.s.monocular && self.s.new_point_parallax_from_neighbours)
-                .then(|| DepthPrior::of(k1, &m.points, &self.s.camera))
+                .then(|| {
+                    DepthPrior::of(
+                        k1,
+                        &m.points,
+                        &self.s.camera,
+                        self.s.new_point_prior_depth_quantile,
+                    )
+                })
                 .flatten();
             (free1, k1.best_covisibles(self.s.mapping_neighbours), prior)
         };
@@ -967,9 +974,10 @@ impl Drop for MapperThread {
     }
 }
 
-/// The depth a monocular keyframe's map points have round each part of its image: the median
-/// per cell of an 8x6 grid, the keyframe's median where a cell holds fewer than 5 points (a
-/// cell left to the rays alone was measured worse: docs/monocular.md).
+/// The depth a monocular keyframe's map points have round each part of its image: a quantile
+/// (`SlamSettings::new_point_prior_depth_quantile`, the median) per cell of an 8x6 grid, the
+/// keyframe's where a cell holds fewer than 5 points (a cell left to the rays alone was
+/// measured worse: docs/monocular.md).
 pub(crate) struct DepthPrior {
     cells: Vec<f64>,
     cell_w: f64,
@@ -980,11 +988,13 @@ impl DepthPrior {
     const COLS: usize = 8;
     const ROWS: usize = 6;
 
-    /// `None` while the keyframe sees no point in front of it.
+    /// `None` while the keyframe sees no point in front of it. Each cell's depth is the
+    /// `quantile` (0 nearest, 0.5 the median) of its points' depths.
     fn of(
         k: &crate::data::KeyFrame,
         points: &std::collections::BTreeMap<crate::data::MpId, crate::data::MapPoint>,
         cam: &stillpoint_geometry::PinholeCamera,
+        quantile: f64,
     ) -> Option<Self> {
         let cell_w = (cam.width.max(1) as f64) / Self::COLS as f64;
         let cell_h = (cam.height.max(1) as f64) / Self::ROWS as f64;
@@ -1002,17 +1012,24 @@ impl DepthPrior {
             per_cell[Self::cell(kp.x, kp.y, cell_w, cell_h)].push(z);
             all.push(z);
         }
-        let median = |v: &mut Vec<f64>| {
+        let quantile = quantile.clamp(0.0, 1.0);
+        let pick = |v: &mut Vec<f64>| {
             v.sort_by(f64::total_cmp);
-            v[(v.len() - 1) / 2]
+            // The median as before at 0.5, to the bit (the lower middle of an even count).
+            let at = if quantile == 0.5 {
+                (v.len() - 1) / 2
+            } else {
+                ((v.len() - 1) as f64 * quantile).round() as usize
+            };
+            v[at]
         };
         if all.is_empty() {
             return None;
         }
-        let whole = median(&mut all);
+        let whole = pick(&mut all);
         let cells = per_cell
             .iter_mut()
-            .map(|v| if v.len() >= 5 { median(v) } else { whole })
+            .map(|v| if v.len() >= 5 { pick(v) } else { whole })
             .collect();
         Some(Self {
             cells,
@@ -1132,7 +1149,7 @@ mod tests {
             let x = Vec3::new((u - 320.0) / 500.0 * z, (v - 240.0) / 500.0 * z, z);
             map.add_point(x, kf, i).unwrap();
         }
-        let prior = DepthPrior::of(&map.keyframes[&kf], &map.points, &cam).unwrap();
+        let prior = DepthPrior::of(&map.keyframes[&kf], &map.points, &cam, 0.5).unwrap();
         for (u, v, z) in [
             (100.0, 100.0, 2.0),
             (500.0, 100.0, 10.0),
@@ -1144,6 +1161,37 @@ mod tests {
                 prior.at(u, v)
             );
         }
+    }
+
+    /// A cell whose points lie at two depths, three near and five far: the median is the far
+    /// depth, the lower quartile the near one, so a map whose points in a part of the view are
+    /// partly too far still lets new, nearer points be made there.
+    #[test]
+    fn the_depth_prior_takes_its_quantile_of_a_cell() {
+        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
+        let s = SlamSettings::monocular(cam, 30.0);
+        // Eight keypoints in the top-left cell (80x80 pixels).
+        let pixels: Vec<(f64, f64)> = (0..8).map(|i| (10.0 + 8.0 * i as f64, 20.0)).collect();
+        let feats: Vec<Feature> = pixels
+            .iter()
+            .map(|&(u, v)| Feature::at(stillpoint_geometry::Vec2::new(u, v)))
+            .collect();
+        let descriptors = random_descriptors(pixels.len(), 11);
+        let mut f = Frame::new_with_mask(0, 0.0, &feats, &descriptors, None, &s, &[]).unwrap();
+        f.pose_cw = Some(Se3::identity());
+        let mut map = Map::new();
+        let kf = map.add_keyframe(&f).unwrap();
+        for (i, &(u, v)) in pixels.iter().enumerate() {
+            let z = if i < 3 { 2.0 } else { 10.0 };
+            let x = Vec3::new((u - 320.0) / 500.0 * z, (v - 240.0) / 500.0 * z, z);
+            map.add_point(x, kf, i).unwrap();
+        }
+        let k = &map.keyframes[&kf];
+        let median = DepthPrior::of(k, &map.points, &cam, 0.5).unwrap();
+        let quartile = DepthPrior::of(k, &map.points, &cam, 0.25).unwrap();
+        assert_eq!(median.at(40.0, 20.0), 10.0);
+        assert_eq!(quartile.at(40.0, 20.0), 2.0);
+        assert_eq!(s.new_point_prior_depth_quantile, 0.5);
     }
 
     /// A monocular keyframe with four neighbours that all see the same free points: the first
