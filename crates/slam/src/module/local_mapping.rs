@@ -1124,17 +1124,14 @@ mod tests {
         assert_eq!(mapper.recent_points.len(), 30);
     }
 
-    /// The depth prior of a keyframe that sees a near wall on its left and a far one on its
-    /// right: each cell has its own side's depth, and a cell without points (the bottom row)
-    /// the keyframe's median.
-    #[test]
-    fn the_depth_prior_is_the_depth_of_the_points_round_a_pixel() {
+    /// A map of one monocular keyframe at the origin that sees a point at each of `pixels`, at
+    /// the depth `depth(index, pixel)` gives (camera 500 px, 640x480).
+    fn keyframe_seeing(
+        pixels: &[(f64, f64)],
+        depth: impl Fn(usize, (f64, f64)) -> f64,
+    ) -> (Map, KfId, PinholeCamera, SlamSettings) {
         let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
         let s = SlamSettings::monocular(cam, 30.0);
-        let pixels: Vec<(f64, f64)> = (0..20)
-            .flat_map(|r| (0..32).map(move |c| (10.0 + 20.0 * c as f64, 10.0 + 20.0 * r as f64)))
-            .collect();
-        let depth = |u: f64| if u < 240.0 { 2.0 } else { 10.0 };
         let feats: Vec<Feature> = pixels
             .iter()
             .map(|&(u, v)| Feature::at(stillpoint_geometry::Vec2::new(u, v)))
@@ -1145,10 +1142,23 @@ mod tests {
         let mut map = Map::new();
         let kf = map.add_keyframe(&f).unwrap();
         for (i, &(u, v)) in pixels.iter().enumerate() {
-            let z = depth(u);
+            let z = depth(i, (u, v));
             let x = Vec3::new((u - 320.0) / 500.0 * z, (v - 240.0) / 500.0 * z, z);
             map.add_point(x, kf, i).unwrap();
         }
+        (map, kf, cam, s)
+    }
+
+    /// The depth prior of a keyframe that sees a near wall on its left and a far one on its
+    /// right: each cell has its own side's depth, and a cell without points (the bottom row)
+    /// the keyframe's median.
+    #[test]
+    fn the_depth_prior_is_the_depth_of_the_points_round_a_pixel() {
+        let pixels: Vec<(f64, f64)> = (0..20)
+            .flat_map(|r| (0..32).map(move |c| (10.0 + 20.0 * c as f64, 10.0 + 20.0 * r as f64)))
+            .collect();
+        let (map, kf, cam, _) =
+            keyframe_seeing(&pixels, |_, (u, _)| if u < 240.0 { 2.0 } else { 10.0 });
         let prior = DepthPrior::of(&map.keyframes[&kf], &map.points, &cam, 0.5).unwrap();
         for (u, v, z) in [
             (100.0, 100.0, 2.0),
@@ -1168,24 +1178,9 @@ mod tests {
     /// partly too far still lets new, nearer points be made there.
     #[test]
     fn the_depth_prior_takes_its_quantile_of_a_cell() {
-        let cam = PinholeCamera::new(500.0, 500.0, 320.0, 240.0, 640, 480);
-        let s = SlamSettings::monocular(cam, 30.0);
         // Eight keypoints in the top-left cell (80x80 pixels).
         let pixels: Vec<(f64, f64)> = (0..8).map(|i| (10.0 + 8.0 * i as f64, 20.0)).collect();
-        let feats: Vec<Feature> = pixels
-            .iter()
-            .map(|&(u, v)| Feature::at(stillpoint_geometry::Vec2::new(u, v)))
-            .collect();
-        let descriptors = random_descriptors(pixels.len(), 11);
-        let mut f = Frame::new_with_mask(0, 0.0, &feats, &descriptors, None, &s, &[]).unwrap();
-        f.pose_cw = Some(Se3::identity());
-        let mut map = Map::new();
-        let kf = map.add_keyframe(&f).unwrap();
-        for (i, &(u, v)) in pixels.iter().enumerate() {
-            let z = if i < 3 { 2.0 } else { 10.0 };
-            let x = Vec3::new((u - 320.0) / 500.0 * z, (v - 240.0) / 500.0 * z, z);
-            map.add_point(x, kf, i).unwrap();
-        }
+        let (map, kf, cam, s) = keyframe_seeing(&pixels, |i, _| if i < 3 { 2.0 } else { 10.0 });
         let k = &map.keyframes[&kf];
         let median = DepthPrior::of(k, &map.points, &cam, 0.5).unwrap();
         let quartile = DepthPrior::of(k, &map.points, &cam, 0.25).unwrap();
