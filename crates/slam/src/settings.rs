@@ -176,10 +176,10 @@ pub struct SlamSettings {
     /// below this (ORB-SLAM3 `CreateNewMapPoints`: 0.9998, 1.15 degrees).
     pub new_point_max_cos_parallax: f64,
     /// Monocular: the parallax cut `new_point_max_cos_parallax` is also asked at the depth the
-    /// keyframe's map points round the keypoint have (the median of its cell of the image:
-    /// `new_point_prior_depth_quantile`), and
-    /// of the point's own two rays `new_point_max_cos_parallax_measured`. A pair's noise widens
-    /// some far points' rays past the cut and narrows others', so a cut on the rays alone keeps
+    /// keyframe's map points round the keypoint have (a quantile of its cell of the image,
+    /// `new_point_prior_depth_quantile`), and of the point's own two rays
+    /// `new_point_max_cos_parallax_measured`. A pair's noise widens some far points' rays past
+    /// the cut and narrows others', so a cut on the rays alone keeps
     /// far points made too near (the map's scale shrinks along a drive); at the neighbours'
     /// depth their noise cannot pass them (docs/monocular.md).
     #[serde(default = "default_true")]
@@ -191,11 +191,9 @@ pub struct SlamSettings {
     pub new_point_max_cos_parallax_measured: f64,
     /// With `new_point_parallax_from_neighbours`: which depth of a cell's map points is asked,
     /// as a quantile, nearest 0 (ours: 0.5, the median). The map's own points set that depth,
-    /// so a young map whose points lie too far refuses the new, nearer points that would
-    /// correct them and can stay thin for good; the lower quartile (0.25) took 8 of 55
-    /// perturbed monocular room runs from 3-7 cm to under 3, but lost living_turn seed 0's first
-    /// map and let more parked and moving cars into the street's (measured in
-    /// docs/monocular.md; not the default yet).
+    /// so where they lie too far the nearer points that would correct them are refused; a
+    /// lower quantile lets them in, and lets in more of a turning camera's and a drive's
+    /// poorly seen points (measured in docs/monocular.md).
     #[serde(default = "default_new_point_prior_depth_quantile")]
     pub new_point_prior_depth_quantile: f64,
     /// Covisibility edge weight: shared points needed for an edge (ORB-SLAM3: 15).

@@ -1015,7 +1015,7 @@ impl DepthPrior {
         let quantile = quantile.clamp(0.0, 1.0);
         let pick = |v: &mut Vec<f64>| {
             v.sort_by(f64::total_cmp);
-            // The median as before at 0.5, to the bit (the lower middle of an even count).
+            // At 0.5 the lower middle of an even count, as the median always was.
             let at = if quantile == 0.5 {
                 (v.len() - 1) / 2
             } else {
